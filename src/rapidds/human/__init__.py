@@ -1,0 +1,1 @@
+"""Individual human models: temporal (durations) and spatial (where the person is)."""

@@ -1,0 +1,1 @@
+"""Robot motion: the scheduler-facing interface, the trajectory diffusion policy, steering."""

@@ -1,0 +1,1 @@
+"""Schedule search: genetic scheduler with trajectory adaptation, and the exact CP-SAT baseline."""

@@ -1,0 +1,1 @@
+"""Simulated worlds: geometry, demonstrations, teammates."""
