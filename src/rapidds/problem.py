@@ -29,8 +29,10 @@ def _finite(value: float, what: str) -> float:
 
 class _HumanPriorSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    mean: float = Field(description="prior mean of the human's duration, seconds")
-    std: float = Field(0.0, description="prior standard deviation, seconds; 0 = deterministic")
+    mean: float = Field(strict=True, description="prior mean of the human's duration, seconds")
+    std: float = Field(
+        0.0, strict=True, description="prior standard deviation, seconds; 0 = deterministic"
+    )
 
     @field_validator("mean")
     @classmethod
@@ -49,7 +51,7 @@ class _HumanPriorSpec(BaseModel):
 
 class _RobotSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    duration: float = Field(description="nominal robot duration, seconds")
+    duration: float = Field(strict=True, description="nominal robot duration, seconds")
 
     @field_validator("duration")
     @classmethod
@@ -70,8 +72,10 @@ class _TaskSpec(BaseModel):
 
 class _ObjectiveSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
-    gamma: float = Field(1.75, ge=0, description="weight of expected proximity")
-    lam: float = Field(0.0, ge=0, alias="lambda", description="weight of allocation diversity")
+    gamma: float = Field(1.75, ge=0, strict=True, description="weight of expected proximity")
+    lam: float = Field(
+        0.0, ge=0, strict=True, alias="lambda", description="weight of allocation diversity"
+    )
 
     @field_validator("gamma", "lam")
     @classmethod
