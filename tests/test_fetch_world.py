@@ -313,3 +313,10 @@ def test_bundled_fetch_example_matches_the_world():
         assert (a.id, a.allowed, a.human_mean, a.human_std, a.robot_duration) == (
             b.id, b.allowed, b.human_mean, b.human_std, b.robot_duration
         )
+
+
+def test_route_mode_recognises_every_demonstrated_route():
+    world = FetchWorld()
+    demos = world.robot_demonstrations(3, np.random.default_rng(0))
+    for traj, k, mode in zip(demos.trajectories, demos.task_index, demos.modes, strict=True):
+        assert world.route_mode(demos.task_names[k], traj) == mode

@@ -359,6 +359,18 @@ class FetchWorld:
         """(H, 2) the robot's noise-free trajectory; mode defaults to the shortest one."""
         return self.trajectory("robot", task, mode or self.modes(task)[0])
 
+    def route_mode(self, task: str, traj: np.ndarray) -> str:
+        """The route a path (T, 2) took: "middle" if it passes the central corridor between the
+        two blocks, else "outside"; the single mode of t0/t1. For reports, not for planning."""
+        self._check_task(task)
+        if len(MODES[task]) == 1:
+            return MODES[task][0]
+        left, right = WALLS[0], WALLS[1]
+        p = np.asarray(traj, dtype=float).reshape(-1, 2)
+        inside = ((p[:, 0] > left.xmax) & (p[:, 0] < right.xmin)
+                  & (p[:, 1] > left.ymin) & (p[:, 1] < left.ymax))
+        return "middle" if bool(inside.any()) else "outside"
+
     def collides(self, traj: np.ndarray) -> np.ndarray:
         """(N,) bool for (N, T, 2) trajectories (or 0-d for (T, 2)): a segment touches a wall
         or a point leaves the map."""
