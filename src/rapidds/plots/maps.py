@@ -1,0 +1,204 @@
+"""Workspace maps: spatial-cost heat maps with walls, points of interest and paths on top (paper
+Figure 3: the learned cost s_i(x) of a human task with trajectories drawn over it).
+
+World geometry is passed in, not imported, so the same helpers draw the fetch map and the arm's
+table: walls and obstacles as axis-aligned rectangles (tuples (xmin, ymin, xmax, ymax) or objects
+with those attributes, such as ``world.obstacles()``) and points of interest as a dict
+name -> (x, y) (``world.points_of_interest()``). Paths and points with d > 2 are drawn by their
+first two coordinates (top-down view).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.image import AxesImage
+from matplotlib.patches import Rectangle
+from numpy.typing import ArrayLike
+
+from rapidds.human.spatial import SpatialCostModel, SpatialModel
+from rapidds.plots._mpl import plt, save
+
+__all__ = ["plot_obstacles", "plot_paths", "plot_points", "plot_spatial_cost", "save_cost_maps"]
+
+RectLike = Any  # (xmin, ymin, xmax, ymax) or an object with those four attributes
+
+
+def _cost_image(
+    model: SpatialCostModel, resolution: int, projection: Literal["max", "slice"],
+    slice_at: float | None,
+) -> np.ndarray:
+    """(resolution, resolution) costs over the first two axes, row = y, column = x."""
+    cfg = model.config
+    (x0, x1), (y0, y1) = cfg.bounds[0], cfg.bounds[1]
+    xs, ys = np.linspace(x0, x1, resolution), np.linspace(y0, y1, resolution)
+    gx, gy = np.meshgrid(xs, ys)  # (res_y, res_x)
+    plane = np.stack([gx, gy], axis=-1)
+    if cfg.dim == 2:
+        return model.point_cost(plane)
+    z0, z1 = cfg.bounds[2]
+    if projection == "slice":
+        z = (z0 + z1) / 2 if slice_at is None else float(slice_at)
+        levels = np.array([z])
+    else:
+        # multilinear interpolation is linear in z between grid levels, so its maximum over z
+        # lies on a level; twice the levels also covers the MLP's smoother profile.
+        levels = np.linspace(z0, z1, 2 * cfg.shape[2] - 1)
+    zs = np.broadcast_to(levels[:, None, None, None], (len(levels), *gx.shape, 1))
+    pts = np.concatenate([plane[None].repeat(len(levels), 0), zs], axis=-1)
+    return model.point_cost(pts).max(axis=0)
+
+
+def plot_spatial_cost(
+    model: SpatialCostModel,
+    ax: Axes | None = None,
+    *,
+    resolution: int = 200,
+    projection: Literal["max", "slice"] = "max",
+    slice_at: float | None = None,
+    cmap: str = "magma",
+    vmin: float = 0.0,
+    vmax: float = 1.0,
+    colorbar: bool = True,
+    title: str | None = None,
+) -> AxesImage:
+    """Heat map of s_i(x) over the workspace's first two axes, evaluated the way the planner
+    evaluates it (MLP or grid interpolation per ``model.config.use_surrogate``).
+
+    For a 3-D workspace, ``projection="max"`` shows the top-down maximum over the third axis
+    (the worst height a robot could meet the person at each (x, y)); ``"slice"`` shows the
+    plane z = ``slice_at`` (default: the middle of the bounds). Returns the image, for a shared
+    colour bar; a new figure is made when ``ax`` is None (close it with ``plt.close``).
+    """
+    if model.config.dim not in (2, 3):
+        raise ValueError(f"plot_spatial_cost draws 2-D or 3-D workspaces, got d={model.config.dim}")
+    if projection not in ("max", "slice"):
+        raise ValueError(f"projection must be 'max' or 'slice', got {projection!r}")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(4.5, 4))
+    img = _cost_image(model, resolution, projection, slice_at)
+    (x0, x1), (y0, y1) = model.config.bounds[:2]
+    im = ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap=cmap, vmin=vmin, vmax=vmax,
+                   interpolation="nearest", aspect="equal")
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label="spatial cost $s_i(x)$")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    if title is not None:
+        ax.set_title(title)
+    return im
+
+
+def _as_paths(trajectories: ArrayLike | Sequence[ArrayLike]) -> list[np.ndarray]:
+    if isinstance(trajectories, np.ndarray) and trajectories.ndim == 3:
+        items: Iterable[ArrayLike] = list(trajectories)
+    elif isinstance(trajectories, np.ndarray) and trajectories.ndim == 2:
+        items = [trajectories]
+    else:
+        items = trajectories  # type: ignore[assignment]  # a sequence of (H, d) paths
+    paths = []
+    for k, p in enumerate(items):
+        a = np.asarray(p, dtype=float)
+        if a.ndim != 2 or a.shape[1] < 2 or a.shape[0] == 0:
+            raise ValueError(f"path {k} must be an (H, d >= 2) array, got shape {a.shape}")
+        paths.append(a[:, :2])
+    return paths
+
+
+def plot_paths(
+    ax: Axes,
+    trajectories: ArrayLike | Sequence[ArrayLike],
+    *,
+    color: str = "C0",
+    alpha: float = 0.7,
+    lw: float = 1.2,
+    label: str | None = None,
+    markers: bool = True,
+) -> Axes:
+    """Draw paths: an (N, H, d) array, one (H, d) array, or a list of (H_k, d) arrays of
+    different lengths (observed human paths). A circle marks each start, a square each end;
+    the label goes to the first path only, so a legend has one entry per call."""
+    for k, p in enumerate(_as_paths(trajectories)):
+        ax.plot(p[:, 0], p[:, 1], color=color, alpha=alpha, lw=lw, label=label if k == 0 else None)
+        if markers:
+            ax.plot(*p[0], "o", color=color, ms=4, mec="white", mew=0.5)
+            ax.plot(*p[-1], "s", color=color, ms=4, mec="white", mew=0.5)
+    return ax
+
+
+def _rect(r: RectLike) -> tuple[float, float, float, float]:
+    if all(hasattr(r, a) for a in ("xmin", "ymin", "xmax", "ymax")):
+        return float(r.xmin), float(r.ymin), float(r.xmax), float(r.ymax)  # type: ignore[union-attr]
+    vals = tuple(float(v) for v in r)  # type: ignore[union-attr]
+    if len(vals) != 4:
+        raise ValueError(f"a rectangle is (xmin, ymin, xmax, ymax), got {r}")
+    return vals  # type: ignore[return-value]
+
+
+def plot_obstacles(ax: Axes, rectangles: Iterable[RectLike], *, color: str = "0.15") -> Axes:
+    """Filled axis-aligned rectangles: walls, tables, obstacles. Each is a tuple
+    (xmin, ymin, xmax, ymax) or any object with those attributes (e.g. a world's ``Rect``)."""
+    for k, r in enumerate(rectangles):
+        x0, y0, x1, y1 = _rect(r)
+        if not (x0 < x1 and y0 < y1):
+            raise ValueError(f"rectangle {k} needs xmin < xmax and ymin < ymax, got {r}")
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, color=color, zorder=3))
+    return ax
+
+
+def plot_points(ax: Axes, points: Mapping[str, ArrayLike], *, color: str = "tab:red") -> Axes:
+    """Labelled markers for points of interest (homes, objects): name -> (x, y, ...)."""
+    for name, p in points.items():
+        x, y = np.asarray(p, dtype=float)[:2]
+        ax.plot(x, y, "D", color=color, ms=6, mec="white", mew=0.8, zorder=4)
+        ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=8,
+                    color="white", zorder=5,
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "0.2", "ec": "none", "alpha": 0.6})
+    return ax
+
+
+def save_cost_maps(
+    models: SpatialModel | Mapping[str, SpatialCostModel],
+    path: str | Path,
+    *,
+    paths: Mapping[str, ArrayLike | Sequence[ArrayLike]] | None = None,
+    walls: Iterable[RectLike] = (),
+    points: Mapping[str, ArrayLike] | None = None,
+    titles: Mapping[str, str] | None = None,
+    ncols: int | None = None,
+    path_color: str = "cyan",
+    resolution: int = 150,
+    dpi: int = 120,
+) -> Path:
+    """One panel per human task: its learned cost s_i(x), the walls and points of interest, and
+    ``paths[task]`` (robot samples or observed human paths) over it; one shared colour bar.
+    Writes ``path`` (format from the suffix, e.g. PNG) and returns it."""
+    items = [(tid, models[tid]) for tid in models]
+    if not items:
+        raise ValueError("save_cost_maps needs at least one task model")
+    walls = list(walls)
+    ncols = min(len(items), 4) if ncols is None else ncols
+    nrows = math.ceil(len(items) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols + 0.8, 3.4 * nrows),
+                             squeeze=False, layout="constrained")
+    im: AxesImage | None = None
+    for ax, (tid, model) in zip(axes.flat, items, strict=False):
+        title = (titles or {}).get(tid, f"{tid} (n={model.n_obs})")
+        im = plot_spatial_cost(model, ax, resolution=resolution, colorbar=False, title=title)
+        plot_obstacles(ax, walls)
+        if points:
+            plot_points(ax, points)
+        if paths and tid in paths:
+            plot_paths(ax, paths[tid], color=path_color, alpha=0.8)
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+    for ax in list(axes.flat)[len(items):]:
+        ax.set_visible(False)
+    assert im is not None  # items is not empty
+    fig.colorbar(im, ax=axes, shrink=0.85, label="spatial cost $s_i(x)$")
+    return save(fig, path, dpi=dpi)

@@ -1,0 +1,55 @@
+"""Map pictures: the per-task cost figure really draws something."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from rapidds.human.spatial import SpatialConfig, SpatialCostModel, SpatialModel
+from rapidds.plots._mpl import plt
+from rapidds.plots.maps import plot_paths, plot_spatial_cost, save_cost_maps
+
+
+def _line(a, b, n=60) -> np.ndarray:
+    return np.linspace(a, b, n)
+
+
+def test_cost_map_figure_writes_a_png_with_content(tmp_path):
+    cfg = SpatialConfig(bounds=((0, 10), (0, 10)), grid_points=16)
+    left = [_line((5, 1), (2, 5)), _line((2, 5), (5, 9))]
+    model = SpatialModel.from_population(cfg, {
+        "t2": [np.concatenate(left)],
+        "t3": [_line((5, 1), (8, 9))],
+        "t0": [_line((1, 9), (9, 9))],
+    })
+    samples = np.stack([_line((9, 1), (9, 9), 32), _line((9, 1), (6, 9), 32)])
+    out = save_cost_maps(
+        model, tmp_path / "maps.png",
+        paths={"t2": samples, "t3": [left[0], left[1][:10]]},
+        walls=[(4.5, 4.0, 5.5, 6.0), SimpleNamespace(xmin=0.0, ymin=6.0, xmax=1.0, ymax=7.0)],
+        points={"home": (5, 1), "obj": (5, 9)},
+    )
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    img = mpimg.imread(out)[..., :3]
+    assert img.shape[0] > 100 and img.shape[1] > 300  # three panels side by side
+    assert img.std() > 0.1
+    assert len(np.unique(img.reshape(-1, 3).round(2), axis=0)) > 50  # a heat map, not flat
+
+
+def test_3d_projection_and_bad_input():
+    cfg = SpatialConfig(bounds=((0, 1), (0, 1), (0, 1)), beta=8.0, grid_points=8)
+    m = SpatialCostModel.from_population(cfg, [np.linspace((0, 0, 0.2), (1, 1, 0.8), 40)])
+    fig, (a, b) = plt.subplots(1, 2)
+    top = plot_spatial_cost(m, a, resolution=40, colorbar=False).get_array()
+    mid = plot_spatial_cost(m, b, resolution=40, projection="slice", colorbar=False).get_array()
+    assert np.all(top >= mid - 1e-12) and top.max() > mid.max() + 0.15  # max over z dominates
+    with pytest.raises(ValueError, match="must be an"):
+        plot_paths(a, [np.zeros((3, 1))])
+    plt.close(fig)
+    one_d = SpatialCostModel.from_population(
+        SpatialConfig(bounds=((0, 1),), grid_points=4), [np.zeros((2, 1))])
+    with pytest.raises(ValueError, match="2-D or 3-D"):
+        plot_spatial_cost(one_d)
