@@ -1,0 +1,157 @@
+"""Training a :class:`DiffusionPolicy` on demonstrations: AdamW, warm-up + cosine learning rate,
+optional EMA of the weights. Kept apart from the policy so inference code never imports it.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import nn
+
+from rapidds.motion.config import ConfigError, DiffusionConfig, cpu_threads, resolve_device
+from rapidds.motion.demos import Demonstrations
+from rapidds.motion.normalizer import MinMaxNormalizer
+from rapidds.motion.policy import DiffusionPolicy
+
+ProgressFn = Callable[[int, float], None]
+
+
+@dataclass
+class TrainHistory:
+    """What a training run did. ``loss[k]`` is the batch loss of optimiser step k + 1."""
+
+    loss: list[float] = field(default_factory=list)
+    steps: int = 0
+    seconds: float = 0.0
+    device: str = "cpu"
+
+    def mean_loss(self, first: int | None = None, last: int | None = None) -> float:
+        """Mean loss over the first or last ``n`` steps (all steps when neither is given)."""
+        if not self.loss:
+            return float("nan")
+        part = self.loss[:first] if first else self.loss[-last:] if last else self.loss
+        return float(np.mean(part))
+
+
+class _Ema:
+    """Exponential moving average of a model's parameters, with the usual warm-up
+    decay_k = min(decay, (1 + k) / (10 + k)) so early steps are not frozen at the init."""
+
+    def __init__(self, model: nn.Module, decay: float):
+        self.decay = decay
+        self.shadow = copy.deepcopy(model).eval().requires_grad_(False)
+        self.updates = 0
+
+    @torch.no_grad()
+    def update(self, model: nn.Module) -> None:
+        d = min(self.decay, (1 + self.updates) / (10 + self.updates))
+        for s, p in zip(self.shadow.parameters(), model.parameters(), strict=True):
+            s.lerp_(p.detach(), 1.0 - d)
+        for s, b in zip(self.shadow.buffers(), model.buffers(), strict=True):
+            s.copy_(b)
+        self.updates += 1
+
+
+def check_compatible(demos: Demonstrations, config: DiffusionConfig) -> None:
+    """Raise ConfigError when the demonstrations do not have the config's shape or tasks."""
+    if demos.horizon != config.horizon:
+        raise ConfigError(f"demonstrations have horizon {demos.horizon}, config {config.horizon}")
+    if demos.state_dim != config.state_dim:
+        raise ConfigError(f"demonstrations have state_dim {demos.state_dim}, config "
+                          f"{config.state_dim}")
+    if tuple(demos.task_names) != tuple(config.task_names):
+        raise ConfigError(f"demonstrations name tasks {list(demos.task_names)}, config "
+                          f"{list(config.task_names)} (same names in the same order needed)")
+
+
+def fit_normalizer(demos: Demonstrations, config: DiffusionConfig) -> MinMaxNormalizer:
+    """Min-max bounds over every demonstrated point (and start pose when conditioned on)."""
+    pts = demos.trajectories.reshape(-1, demos.state_dim)
+    if config.start_conditioned:
+        pts = np.concatenate([pts, demos.start_poses()], axis=0)
+    return MinMaxNormalizer.fit(pts)
+
+
+def total_steps(n_demos: int, config: DiffusionConfig) -> int:
+    """Optimiser steps of a run: ``config.steps``, or epochs x batches per epoch."""
+    if config.epochs is None:
+        return config.steps
+    return config.epochs * math.ceil(n_demos / min(config.batch_size, n_demos))
+
+
+def train_policy(demos: Demonstrations, config: DiffusionConfig,
+                 progress: ProgressFn | None = None,
+                 device: str | torch.device | None = None,
+                 ) -> tuple[DiffusionPolicy, TrainHistory]:
+    """Train a policy from scratch on ``demos``.
+
+    config: must match the demonstrations' horizon, state_dim and task names.
+    progress: called as progress(step, loss) after every optimiser step (step from 1).
+    device: overrides ``config.device`` ("auto", "cpu", "cuda").
+    Returns the policy (EMA weights when ``config.use_ema``, in eval mode) and the history.
+    On CPU the same seed gives bit-identical weights.
+    """
+    check_compatible(demos, config)
+    dev = resolve_device(device, default=config.device)
+    with cpu_threads(config.cpu_threads if dev.type == "cpu" else 0):
+        return _train(demos, config, progress, dev)
+
+
+def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn | None,
+           dev: torch.device) -> tuple[DiffusionPolicy, TrainHistory]:
+    policy = DiffusionPolicy.from_config(config, fit_normalizer(demos, config), device=dev)
+    model = policy.model.train()
+    ema = _Ema(model, config.ema_decay) if config.use_ema else None
+
+    traj = torch.as_tensor(demos.trajectories, dtype=torch.float32, device=dev)
+    task_idx = torch.as_tensor(demos.task_index, dtype=torch.long, device=dev)
+    start = torch.as_tensor(demos.start_poses(), dtype=torch.float32, device=dev)
+    n = len(demos)
+    bs = min(config.batch_size, n)
+    steps = total_steps(n, config)
+    warmup = min(config.lr_warmup_steps, steps - 1)
+
+    def lr_factor(k: int) -> float:
+        if k < warmup:
+            return (k + 1) / warmup
+        return 0.5 * (1.0 + math.cos(math.pi * (k - warmup) / max(steps - warmup, 1)))
+
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, betas=(0.95, 0.999),
+                            weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_factor)
+    rng = np.random.default_rng(config.seed)
+    gen = torch.Generator("cpu").manual_seed(config.seed)
+    history = TrainHistory(device=str(dev))
+
+    t0 = time.perf_counter()
+    order = np.empty(0, dtype=np.int64)
+    for step in range(1, steps + 1):
+        if order.size == 0:  # new epoch: a fresh permutation; its last batch may be smaller
+            order = rng.permutation(n)
+        pick = torch.as_tensor(order[:bs], device=dev)
+        order = order[bs:]
+        batch = {"trajectory": traj[pick], "task_index": task_idx[pick], "start": start[pick]}
+        loss = policy.compute_loss(batch, generator=gen)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if ema is not None:
+            ema.update(model)
+        value = float(loss.detach())
+        history.loss.append(value)
+        if progress is not None:
+            progress(step, value)
+    history.steps = steps
+    history.seconds = time.perf_counter() - t0
+
+    if ema is not None:
+        model.load_state_dict(ema.shadow.state_dict())
+    model.eval()
+    return policy, history
