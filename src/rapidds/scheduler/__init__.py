@@ -1,1 +1,29 @@
-"""Schedule search: genetic scheduler with trajectory adaptation, and the exact CP-SAT baseline."""
+"""Schedule search: genetic scheduler with trajectory adaptation, and the exact CP-SAT baseline.
+
+- :class:`GeneticScheduler` plans one cycle (paper Algorithm 1, lines 3-9) with settings from
+  :class:`GAConfig`; it returns a :class:`PlanResult` whose ``best`` :class:`Evaluation` holds the
+  schedule and the robot motions to deploy.
+- :func:`evaluate_population` is Algorithm 2 for a batch of candidates.
+- :func:`diversity` and :class:`AllocationHistory` are the corrected diversity term z_d.
+- :func:`solve_exact` is the CP-SAT baseline on mean durations.
+"""
+
+from rapidds.scheduler.config import MUTATIONS, GAConfig
+from rapidds.scheduler.diversity import AllocationHistory, diversity, diversity_term
+from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+from rapidds.scheduler.exact import ExactResult, solve_exact
+from rapidds.scheduler.ga import GeneticScheduler, PlanResult
+
+__all__ = [
+    "MUTATIONS",
+    "AllocationHistory",
+    "Evaluation",
+    "ExactResult",
+    "GAConfig",
+    "GeneticScheduler",
+    "PlanResult",
+    "diversity",
+    "diversity_term",
+    "evaluate_population",
+    "solve_exact",
+]

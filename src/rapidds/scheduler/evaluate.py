@@ -1,0 +1,280 @@
+"""Schedule evaluation with trajectory adaptation (paper Algorithm 2), for a whole population.
+
+For each candidate: infeasible (deadlock) -> objective inf. Otherwise the overlap sets C_j come
+from the expected timeline (mean human durations, current robot durations); the robot motion
+for every (j, C_j) is looked up in the memory M (a :class:`TrajectoryCache`) or planned; the
+new robot durations change the timeline, so C_j are recomputed, until they stop changing.
+
+The loop runs synchronously over all candidates: each round gathers the (j, C_j) of every
+candidate still iterating and asks the cache once, so a diffusion policy samples a generation's
+new motions in one batch. The loop can oscillate (DESIGN.md 3.2): it is capped at
+``max_overlap_iters`` rounds, stops when an overlap state repeats, and then keeps the best
+evaluated variant with ``converged=False``.
+
+Every candidate's makespan is averaged over the same K human samples (common random numbers).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rapidds.motion.interface import MotionKey, MotionPlan, TrajectoryCache
+from rapidds.problem import AGENTS, Problem
+from rapidds.schedule import CompiledSchedule, Schedule, Wait, validate
+from rapidds.scheduler.diversity import AllocationHistory, diversity_term
+
+OverlapState = tuple[frozenset[str], ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Evaluation:
+    """Cost of one candidate schedule and the robot motions chosen for it.
+
+    Attributes:
+        schedule: the candidate.
+        feasible: False when the schedule deadlocks; then ``objective`` and ``makespan_mean``
+            are inf, ``makespan_std`` and ``spatial`` are nan, ``makespan`` is empty and
+            ``motions``/``overlaps`` are empty.
+        objective: z = z_t + gamma z_s + lam z_d.
+        makespan_mean: z_t, mean makespan over the K human samples.
+        makespan_std: standard deviation of the makespan over the K samples.
+        makespan: (K,) makespan per human sample.
+        spatial: z_s, sum over robot tasks of ``MotionPlan.spatial_cost``.
+        diversity: z_d, allocation diversity (0 without history).
+        motions: robot task -> the plan used for it.
+        overlaps: robot task -> C_j on the expected timeline under the chosen motions. Equal to
+            each motion's ``concurrent`` set when ``converged``.
+        converged: False when the overlap loop hit its cap or oscillated; the evaluation is then
+            the best variant the loop evaluated.
+        overlap_iterations: rounds of the overlap loop (each round plans or looks up motions).
+        expected_start, expected_finish: (n,) start and finish of every task, problem order, on
+            the expected timeline (mean human durations, chosen robot motions); empty when
+            infeasible.
+    """
+
+    schedule: Schedule
+    feasible: bool
+    objective: float
+    makespan_mean: float
+    makespan_std: float
+    makespan: np.ndarray
+    spatial: float
+    diversity: float
+    motions: dict[str, MotionPlan] = field(default_factory=dict)
+    overlaps: dict[str, frozenset[str]] = field(default_factory=dict)
+    converged: bool = True
+    overlap_iterations: int = 0
+    expected_start: np.ndarray = field(default_factory=lambda: np.empty(0))
+    expected_finish: np.ndarray = field(default_factory=lambda: np.empty(0))
+
+
+@dataclass(frozen=True)
+class _Pass:
+    """One timeline pass: (K,) makespans, the expected timeline's (n,) start and finish,
+    and its C_j."""
+
+    makespan: np.ndarray
+    start: np.ndarray
+    finish: np.ndarray
+    state: OverlapState
+
+
+@dataclass
+class _Variant:
+    objective: float
+    spatial: float
+    plans: list[MotionPlan]
+    timing: _Pass  # its ``state`` is the overlap set under these motions
+
+
+@dataclass
+class _Candidate:
+    schedule: Schedule
+    compiled: CompiledSchedule
+    robot_tasks: tuple[str, ...]
+    human_ids: np.ndarray  # (h,) object array of the human's task ids
+    z_d: float
+    state: OverlapState
+    state_durations: np.ndarray  # robot durations (at robot columns) that produced ``state``
+    state_pass: _Pass  # the timeline pass under ``state_durations``
+    seen: list[OverlapState] = field(default_factory=list)
+    variants: list[_Variant] = field(default_factory=list)
+
+
+def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozenset[str]]) -> None:
+    seen: set[str] = set()
+    ok = True
+    for agent in AGENTS:
+        for x in schedule.sequence(agent):
+            if isinstance(x, Wait):
+                ok = ok and x.task in allowed
+            else:
+                ok = ok and x not in seen and agent in allowed.get(x, ())
+                seen.add(x)
+    if not (ok and len(seen) == len(allowed)):
+        validate(problem, schedule)  # raises with a message naming what is wrong
+        raise ValueError(f"invalid schedule {schedule}")  # pragma: no cover - validate raised
+
+
+def _simulate(
+    c_compiled: CompiledSchedule,
+    robot_tasks: tuple[str, ...],
+    human_ids: np.ndarray,
+    samples_and_mean: np.ndarray,
+    robot: np.ndarray,
+) -> _Pass:
+    """One timeline pass over the K samples plus the expected row (last row of
+    ``samples_and_mean``, shape (K+1, n)). C_j follow the rule of :meth:`Timeline.overlaps`,
+    vectorised."""
+    timeline = c_compiled.simulate(c_compiled.durations(samples_and_mean, robot))
+    makespan = timeline.makespan[:-1]
+    s, f = timeline.start[-1].copy(), timeline.finish[-1].copy()
+    rc, hc = c_compiled.robot_cols, c_compiled.human_cols
+    if not rc.size:
+        return _Pass(makespan, s, f, ())
+    if not hc.size:
+        return _Pass(makespan, s, f, tuple(frozenset() for _ in robot_tasks))
+    hit = np.maximum(s[rc, None], s[None, hc]) < np.minimum(f[rc, None], f[None, hc]) - 1e-9
+    return _Pass(makespan, s, f, tuple(frozenset(human_ids[row]) for row in hit))
+
+
+def _infeasible(schedule: Schedule, z_d: float) -> Evaluation:
+    return Evaluation(
+        schedule=schedule,
+        feasible=False,
+        objective=math.inf,
+        makespan_mean=math.inf,
+        makespan_std=math.nan,
+        makespan=np.empty(0),
+        spatial=math.nan,
+        diversity=z_d,
+        converged=True,
+        overlap_iterations=0,
+    )
+
+
+def evaluate_population(
+    problem: Problem,
+    schedules: Sequence[Schedule],
+    human_samples: np.ndarray,
+    human_mean: np.ndarray,
+    cache: TrajectoryCache,
+    d_init: np.ndarray,
+    gamma: float,
+    lam: float,
+    history: AllocationHistory | None = None,
+    max_overlap_iters: int = 8,
+) -> list[Evaluation]:
+    """Evaluate every schedule (Algorithm 2), one :class:`Evaluation` per schedule, in order.
+
+    Args:
+        problem: the job.
+        schedules: candidates; each must hold every task once on an allowed agent
+            (ValueError otherwise). Deadlocking candidates are fine: they get inf.
+        human_samples: (K, n) human durations in problem task order, shared by all candidates.
+        human_mean: (n,) expected human durations, for the expected timeline that defines C_j.
+        cache: memory M; new (j, C_j) are planned in one batch per round.
+        d_init: (n,) initial robot durations (d_init of Algorithm 2); may be NaN where the robot
+            cannot do the task.
+        gamma, lam: weights of z_s and z_d.
+        history: past allocations for z_d (None = no history).
+        max_overlap_iters: cap on the overlap loop's rounds (>= 1).
+    """
+    n = len(problem.tasks)
+    samples = np.atleast_2d(np.asarray(human_samples, dtype=float))
+    mean = np.asarray(human_mean, dtype=float)
+    d0 = np.asarray(d_init, dtype=float)
+    if samples.ndim != 2 or samples.shape[1] != n:
+        raise ValueError(f"human_samples must have shape (K, {n}), got {samples.shape}")
+    if mean.shape != (n,) or d0.shape != (n,):
+        raise ValueError(
+            f"human_mean and d_init must have shape ({n},), got {mean.shape} and {d0.shape}"
+        )
+    if max_overlap_iters < 1:
+        raise ValueError(f"max_overlap_iters must be >= 1, got {max_overlap_iters}")
+    rows = np.vstack([samples, mean])  # (K+1, n): the expected timeline rides along
+    allowed = {t.id: frozenset(t.allowed) for t in problem.tasks}
+    ids = np.array(problem.ids, dtype=object)
+    z_d_of = diversity_term(problem, history)
+
+    results: list[Evaluation | None] = [None] * len(schedules)
+    active: list[tuple[int, _Candidate]] = []
+    for pos, schedule in enumerate(schedules):
+        _check_valid(problem, schedule, allowed)
+        z_d = z_d_of(schedule)
+        compiled = CompiledSchedule.build(problem, schedule)
+        if compiled is None:
+            results[pos] = _infeasible(schedule, z_d)
+            continue
+        robot_tasks = schedule.tasks("robot")
+        cols = compiled.robot_cols
+        if not np.all(np.isfinite(d0[cols])):
+            bad = [str(t) for t in ids[cols][~np.isfinite(d0[cols])]]
+            raise ValueError(f"d_init has no finite robot duration for robot tasks {bad}")
+        human_ids = ids[compiled.human_cols]
+        first = _simulate(compiled, robot_tasks, human_ids, rows, d0)
+        cand = _Candidate(
+            schedule, compiled, robot_tasks, human_ids, z_d, first.state, d0[cols], first
+        )
+        active.append((pos, cand))
+
+    rounds = 0
+    while active:
+        rounds += 1
+        keys: list[MotionKey] = [
+            (j, cj) for _, c in active for j, cj in zip(c.robot_tasks, c.state, strict=True)
+        ]
+        plans = cache.get_many(keys)
+        still: list[tuple[int, _Candidate]] = []
+        offset = 0
+        for pos, c in active:
+            m = len(c.robot_tasks)
+            own = plans[offset : offset + m]
+            offset += m
+            rdur = np.array([p.duration for p in own], dtype=float)
+            if np.array_equal(rdur, c.state_durations):
+                # C_j depend only on the schedule and the durations: nothing changed
+                timing = c.state_pass
+            else:
+                robot = d0.copy()
+                robot[c.compiled.robot_cols] = rdur
+                timing = _simulate(c.compiled, c.robot_tasks, c.human_ids, rows, robot)
+            next_state = timing.state
+            z_s = float(sum(p.spatial_cost for p in own))
+            objective = float(timing.makespan.mean()) + gamma * z_s + lam * c.z_d
+            c.variants.append(_Variant(objective, z_s, own, timing))
+            if next_state == c.state:
+                results[pos] = _finish(c, c.variants[-1], converged=True, rounds=rounds)
+            elif next_state in c.seen or rounds >= max_overlap_iters:
+                best = min(c.variants, key=lambda v: v.objective)
+                results[pos] = _finish(c, best, converged=False, rounds=rounds)
+            else:
+                c.seen.append(c.state)
+                c.state, c.state_durations, c.state_pass = next_state, rdur, timing
+                still.append((pos, c))
+        active = still
+    return [r for r in results if r is not None]
+
+
+def _finish(c: _Candidate, v: _Variant, *, converged: bool, rounds: int) -> Evaluation:
+    makespan = v.timing.makespan
+    return Evaluation(
+        schedule=c.schedule,
+        feasible=True,
+        objective=v.objective,
+        makespan_mean=float(makespan.mean()),
+        makespan_std=float(makespan.std()),
+        makespan=makespan,
+        spatial=v.spatial,
+        diversity=c.z_d,
+        motions={p.task: p for p in v.plans},
+        overlaps=dict(zip(c.robot_tasks, v.timing.state, strict=True)),
+        converged=converged,
+        overlap_iterations=rounds,
+        expected_start=v.timing.start,
+        expected_finish=v.timing.finish,
+    )

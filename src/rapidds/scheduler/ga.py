@@ -1,0 +1,492 @@
+"""Genetic scheduler with trajectory adaptation: one cycle of paper Algorithm 1 (lines 3-9).
+
+A candidate is a :class:`~rapidds.schedule.Schedule` (per-agent sequences with wait tokens). The
+initial population comes from randomised earliest-deadline-first list scheduling (the paper's
+"EDF"), which is always feasible. Each generation keeps an elite and fills the rest with mutants
+of elite parents: five operators (move, reorder, crossover, add wait, remove wait), each followed
+by :func:`~rapidds.schedule.repair`; no operator puts a task on an agent that may not do it.
+Evaluation (Algorithm 2) is batched over the generation and cached by schedule; the memory M (a
+:class:`TrajectoryCache`) lives for one solve, i.e. one cycle.
+
+Three additions to the paper's loop, each measured on random instances against CP-SAT
+(``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`: the elite holds
+at most ``elites_per_allocation`` schedules per allocation (who does which task), so the
+population does not collapse onto one allocation; a stalled population is replaced by a fresh
+list-scheduled one (``restart_after``); and the best schedule of each stalled population and the
+final best get a local search over their whole single-step neighbourhood (``polish``).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rapidds.motion.interface import MotionModel, TrajectoryCache
+from rapidds.problem import AGENTS, Agent, Problem
+from rapidds.schedule import Item, Schedule, Wait, repair
+from rapidds.scheduler.config import MUTATIONS, GAConfig
+from rapidds.scheduler.diversity import AllocationHistory
+from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+
+Progress = Callable[[int, float], None]
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """Outcome of one :meth:`GeneticScheduler.solve`.
+
+    Attributes:
+        best: evaluation of the best schedule found (its motions are the ones to deploy).
+        best_by_generation: best objective after each generation; entry 0 is the initial
+            population, so the length is ``generations_run + 1``. A final polish can still
+            improve on the last entry; ``best.objective`` is the final value.
+        generations_run: generations evolved (fewer than configured when patience stopped it).
+        evaluations: distinct schedules evaluated.
+        seconds: wall time of the solve.
+        seconds_to_best: wall time until the final best was first evaluated.
+        cache_hits, cache_misses, cache_size: statistics of the memory M.
+    """
+
+    best: Evaluation
+    best_by_generation: list[float]
+    generations_run: int
+    evaluations: int
+    seconds: float
+    seconds_to_best: float
+    cache_hits: int
+    cache_misses: int
+    cache_size: int
+
+
+def _other(agent: Agent) -> Agent:
+    return "robot" if agent == "human" else "human"
+
+
+def _closure(ids: Sequence[str], edges: Sequence[tuple[str, str]]) -> dict[str, frozenset[str]]:
+    """Transitive successors of every task."""
+    succ: dict[str, list[str]] = {i: [] for i in ids}
+    for a, b in edges:
+        succ[a].append(b)
+    out: dict[str, frozenset[str]] = {}
+
+    def visit(u: str) -> frozenset[str]:
+        if u not in out:
+            acc: set[str] = set()
+            for v in succ[u]:
+                acc.add(v)
+                acc |= visit(v)
+            out[u] = frozenset(acc)
+        return out[u]
+
+    for i in ids:
+        visit(i)
+    return out
+
+
+class GeneticScheduler:
+    """Plans one cycle: the schedule, waits and robot motions minimising z_t + gamma z_s + lam z_d.
+
+    Args:
+        problem: the job.
+        motion: answers (j, C_j) motion requests; it is wrapped in a fresh memory M per solve.
+        config: search settings (defaults: :class:`GAConfig`).
+    """
+
+    def __init__(self, problem: Problem, motion: MotionModel, config: GAConfig | None = None):
+        self.problem = problem
+        self.motion = motion
+        self.config = config or GAConfig()
+        self._allowed = {t.id: t.allowed for t in problem.tasks}
+        self._shared = problem.shared_tasks
+        self._desc = _closure(problem.ids, problem.precedence)
+        self._anc = _closure(problem.ids, [(b, a) for a, b in problem.precedence])
+        self._preds = {t: problem.predecessors(t) for t in problem.ids}
+        self._succ: dict[str, list[str]] = {t: [] for t in problem.ids}
+        for a, b in problem.precedence:
+            self._succ[a].append(b)
+        self._ops: dict[str, Callable[[Schedule, random.Random], Schedule | None]] = {
+            "move": self._move,
+            "reorder": self._reorder,
+            "crossover": self._crossover,
+            "add_wait": self._add_wait,
+            "remove_wait": self._remove_wait,
+        }
+
+    # ----------------------------------------------------------------------------- search
+
+    def solve(
+        self,
+        human_samples: np.ndarray,
+        human_mean: np.ndarray,
+        *,
+        gamma: float | None = None,
+        lam: float | None = None,
+        history: AllocationHistory | None = None,
+        progress: Progress | None = None,
+    ) -> PlanResult:
+        """Search schedules for one cycle.
+
+        Args:
+            human_samples: (K, n) sampled human durations in problem task order; every candidate
+                is evaluated on these same samples.
+            human_mean: (n,) expected human durations: the expected timeline that defines C_j,
+                and the durations the initial list scheduling plans with.
+            gamma, lam: objective weights; default ``problem.objective``.
+            history: past allocations for the diversity term.
+            progress: called as ``progress(generation, best_objective)`` after the initial
+                population (generation 0) and after every generation.
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        problem = self.problem
+        gamma = problem.objective.gamma if gamma is None else float(gamma)
+        lam = problem.objective.lam if lam is None else float(lam)
+        samples = np.atleast_2d(np.asarray(human_samples, dtype=float))
+        mean = np.asarray(human_mean, dtype=float)
+        rng = random.Random(cfg.seed)
+        cache = TrajectoryCache(self.motion)
+        d_init = np.asarray(self.motion.nominal_durations(problem), dtype=float)
+        evaluated: dict[Schedule, Evaluation] = {}
+        best: Evaluation | None = None
+        best_time = 0.0
+
+        def evaluate(schedules: Sequence[Schedule]) -> list[Evaluation]:
+            nonlocal best, best_time
+            new = [s for s in dict.fromkeys(schedules) if s not in evaluated]
+            if new:
+                fresh = evaluate_population(
+                    problem, new, samples, mean, cache, d_init, gamma, lam, history,
+                    cfg.max_overlap_iters,
+                )
+                for e in fresh:
+                    evaluated[e.schedule] = e
+                    if best is None or e.objective < best.objective:
+                        best, best_time = e, time.perf_counter() - t0
+            return [evaluated[s] for s in schedules]
+
+        population = self._initial_population(rng, mean, d_init)
+        ranked = _rank(evaluate(population))
+        assert best is not None
+        history_best = [best.objective]
+        if progress:
+            progress(0, best.objective)
+        n_elite = min(cfg.n_elite, len(ranked))
+        stall = 0  # generations since the overall best improved (patience)
+        local_stall = 0  # generations since this population's best improved (restart)
+        polished: set[Schedule] = set()
+        generations = 0
+        for generation in range(1, cfg.generations + 1):
+            generations = generation
+            before, local_before = best.objective, ranked[0].objective
+            elites = _select_elites(ranked, n_elite, cfg.elites_per_allocation)
+            children = self._children(elites, cfg.population - len(elites), rng, evaluated)
+            ranked = _rank(evaluate(children) + elites)  # ties: newcomers first (plateau drift)
+            local_stall = local_stall + 1 if ranked[0].objective >= local_before else 0
+            if cfg.restart_after and local_stall >= cfg.restart_after:
+                if cfg.polish and ranked[0].schedule not in polished:
+                    polished.add(ranked[0].schedule)
+                    polished.add(self._polish(ranked[0], evaluate).schedule)
+                ranked = _rank(evaluate(self._initial_population(rng, mean, d_init)))
+                local_stall = 0
+            stall = stall + 1 if best.objective >= before else 0
+            history_best.append(best.objective)
+            if progress:
+                progress(generation, best.objective)
+            if cfg.patience and stall >= cfg.patience:
+                break
+        if cfg.polish and best.schedule not in polished:
+            self._polish(best, evaluate)
+        cache_stats = (cache.hits, cache.misses, len(cache))
+        return PlanResult(
+            best=best,
+            best_by_generation=history_best,
+            generations_run=generations,
+            evaluations=len(evaluated),
+            seconds=time.perf_counter() - t0,
+            seconds_to_best=best_time,
+            cache_hits=cache_stats[0],
+            cache_misses=cache_stats[1],
+            cache_size=cache_stats[2],
+        )
+
+    def _children(
+        self,
+        parents: list[Evaluation],
+        count: int,
+        rng: random.Random,
+        evaluated: dict[Schedule, Evaluation],
+    ) -> list[Schedule]:
+        """Up to ``count`` distinct mutants never evaluated before (fewer on tiny problems)."""
+        weights = self.config.weights()
+        out: dict[Schedule, None] = {}
+        attempts = 0
+        while len(out) < count and attempts < 20 * count:
+            attempts += 1
+            child = self.mutate(rng.choice(parents).schedule, rng, weights)
+            if child is not None and child not in evaluated and child not in out:
+                out[child] = None
+        return list(out)
+
+    def mutate(
+        self, parent: Schedule, rng: random.Random, weights: list[float] | None = None
+    ) -> Schedule | None:
+        """One repaired mutant that differs from ``parent``; None if no operator applies."""
+        weights = list(weights or self.config.weights())
+        while sum(weights) > 0:
+            k = rng.choices(range(len(MUTATIONS)), weights)[0]
+            child = self._ops[MUTATIONS[k]](parent, rng)
+            if child is not None:
+                child = repair(child)
+                if child != parent:
+                    return child
+            weights[k] = 0.0  # operator does not apply here; try the others
+        return None
+
+    def _polish(
+        self, start: Evaluation, evaluate: Callable[[Sequence[Schedule]], list[Evaluation]]
+    ) -> Evaluation:
+        """Best-improvement local search over :meth:`neighbours`, one batch per pass."""
+        current = start
+        for _ in range(self.config.polish_passes):
+            candidates = self.neighbours(current.schedule)
+            if not candidates:
+                break
+            best = min(evaluate(candidates), key=lambda e: e.objective)
+            if not best.objective < current.objective - 1e-12 * max(1.0, abs(current.objective)):
+                break
+            current = best
+        return current
+
+    # ------------------------------------------------------------------------- population
+
+    def _initial_population(
+        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray
+    ) -> list[Schedule]:
+        """C distinct list schedules (fewer only if the problem has fewer distinct ones)."""
+        size = self.config.population
+        out: dict[Schedule, None] = {}
+        for _ in range(20 * size):
+            out[self.list_schedule(rng, mean, d_init)] = None
+            if len(out) >= size:
+                break
+        pool = list(out)
+        attempts = 0
+        while len(out) < size and attempts < 20 * size:  # tiny problems: top up with mutants
+            attempts += 1
+            child = self.mutate(rng.choice(pool), rng)
+            if child is not None:
+                out[child] = None
+        return list(out)
+
+    def list_schedule(self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray) -> Schedule:
+        """Randomised earliest-deadline-first list scheduling: always feasible.
+
+        Repeatedly takes a ready task (all predecessors placed) and appends it to an agent. The
+        task is the one with the earliest deadline, i.e. the longest remaining critical path
+        (shortest-agent expected durations), after perturbing each key by uniform noise; the
+        agent is the one that would finish the task first, or with some probability a random
+        allowed one. The noise level and the greediness are drawn per schedule, so a population
+        spans pure EDF/earliest-finish schedules and nearly random ones.
+        """
+        index = self.problem.index
+        durations = {
+            t: {
+                "human": float(mean[index[t]]) if "human" in self._allowed[t] else math.inf,
+                "robot": float(d_init[index[t]]) if "robot" in self._allowed[t] else math.inf,
+            }
+            for t in self.problem.ids
+        }
+        tail = self._tails(durations)
+        spread = max(tail.values())
+        noise = rng.random() * spread
+        greedy = rng.random()
+        pending = {t: len(self._preds[t]) for t in self.problem.ids}
+        ready = [t for t in self.problem.ids if pending[t] == 0]
+        free = {"human": 0.0, "robot": 0.0}
+        finish: dict[str, float] = {}
+        seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
+        while ready:
+            keys = [tail[t] + noise * rng.random() for t in ready]
+            task = ready.pop(keys.index(max(keys)))
+            agents = [a for a in AGENTS if a in self._allowed[task]]
+            gate = max((finish[p] for p in self._preds[task]), default=0.0)
+            ends = {a: max(free[a], gate) + durations[task][a] for a in agents}
+            if len(agents) == 2 and rng.random() < greedy:
+                low = min(ends.values())
+                agent = rng.choice([a for a in agents if ends[a] == low])
+            else:
+                agent = rng.choice(agents)
+            finish[task] = free[agent] = ends[agent]
+            seqs[agent].append(task)
+            for nxt in self._succ[task]:
+                pending[nxt] -= 1
+                if pending[nxt] == 0:
+                    ready.append(nxt)
+        return Schedule(tuple(seqs["human"]), tuple(seqs["robot"]))
+
+    def _tails(self, durations: dict[str, dict[str, float]]) -> dict[str, float]:
+        """Longest path from the start of each task to the end of the job (its deadline slack
+        counted backwards), with each task at its faster agent's duration."""
+        tail: dict[str, float] = {}
+
+        def visit(t: str) -> float:
+            if t not in tail:
+                tail[t] = min(durations[t].values()) + max(
+                    (visit(s) for s in self._succ[t]), default=0.0
+                )
+            return tail[t]
+
+        for t in self.problem.ids:
+            visit(t)
+        return tail
+
+    # -------------------------------------------------------------------------- operators
+
+    def _window(self, seq: Sequence[Item], task: str) -> tuple[int, int]:
+        """Insertion positions [lo, hi] of ``task`` in ``seq`` that keep precedence: after its
+        ancestors, before its descendants and before waits on them."""
+        anc, desc = self._anc[task], self._desc[task]
+        lo, hi = 0, len(seq)
+        for k, x in enumerate(seq):
+            if isinstance(x, Wait):
+                if x.task in desc and k < hi:
+                    hi = k
+            elif x in anc:
+                lo = k + 1
+            elif x in desc and k < hi:
+                hi = k
+        return (lo, hi) if lo <= hi else (0, len(seq))
+
+    def _move(self, s: Schedule, rng: random.Random) -> Schedule | None:
+        if not self._shared:
+            return None
+        task = rng.choice(self._shared)
+        src = s.agent_of(task)
+        dst = _other(src)
+        seq = list(s.sequence(dst))
+        lo, hi = self._window(seq, task)
+        seq.insert(rng.randint(lo, hi), task)
+        return s.replace(src, (x for x in s.sequence(src) if x != task)).replace(dst, seq)
+
+    def _reorder(self, s: Schedule, rng: random.Random) -> Schedule | None:
+        slots = [(a, k) for a in AGENTS if len(s.sequence(a)) >= 2
+                 for k in range(len(s.sequence(a)))]
+        if not slots:
+            return None
+        agent, k = rng.choice(slots)
+        seq = list(s.sequence(agent))
+        if rng.random() < 0.5:  # swap with another item of the same sequence
+            other = rng.choice([p for p in range(len(seq)) if p != k])
+            seq[k], seq[other] = seq[other], seq[k]
+            return s.replace(agent, seq)
+        item = seq.pop(k)
+        lo, hi = (0, len(seq)) if isinstance(item, Wait) else self._window(seq, item)
+        choices = [p for p in range(lo, hi + 1) if p != k]
+        if not choices:
+            return None
+        seq.insert(rng.choice(choices), item)
+        return s.replace(agent, seq)
+
+    def _crossover(self, s: Schedule, rng: random.Random) -> Schedule | None:
+        """Swap the tails after a cut point in each sequence. A task in a tail that the other
+        agent may not do stays with its agent, after the incoming tail."""
+        h, r = s.human, s.robot
+        ch, cr = rng.randint(0, len(h)), rng.randint(0, len(r))
+        if ch == len(h) and cr == len(r):
+            return None
+        tail_h, tail_r = h[ch:], r[cr:]
+
+        def fits(x: Item, agent: Agent) -> bool:
+            return isinstance(x, Wait) or agent in self._allowed[x]
+
+        human = (*h[:ch], *(x for x in tail_r if fits(x, "human")),
+                 *(x for x in tail_h if not fits(x, "robot")))
+        robot = (*r[:cr], *(x for x in tail_h if fits(x, "robot")),
+                 *(x for x in tail_r if not fits(x, "human")))
+        return Schedule(human, robot)
+
+    def _add_wait(self, s: Schedule, rng: random.Random) -> Schedule | None:
+        agents = [a for a in AGENTS if s.sequence(a) and s.tasks(_other(a))]
+        if not agents:
+            return None
+        agent = rng.choice(agents)
+        seq = list(s.sequence(agent))
+        seq.insert(rng.randrange(len(seq)), Wait(rng.choice(s.tasks(_other(agent)))))
+        return s.replace(agent, seq)
+
+    def _remove_wait(self, s: Schedule, rng: random.Random) -> Schedule | None:
+        slots = [(a, k) for a in AGENTS for k, x in enumerate(s.sequence(a))
+                 if isinstance(x, Wait)]
+        if not slots:
+            return None
+        agent, k = rng.choice(slots)
+        seq = s.sequence(agent)
+        return s.replace(agent, seq[:k] + seq[k + 1 :])
+
+    def neighbours(self, s: Schedule) -> list[Schedule]:
+        """Every single move, reorder, swap within an agent, exchange of two tasks between
+        agents, and wait removal of ``s`` (repaired, distinct, without ``s``): the polish
+        neighbourhood, O(n^2) schedules."""
+        out: dict[Schedule, None] = {}
+        for task in self._shared:
+            src = s.agent_of(task)
+            dst = _other(src)
+            rest = tuple(x for x in s.sequence(src) if x != task)
+            seq = s.sequence(dst)
+            lo, hi = self._window(seq, task)
+            for p in range(lo, hi + 1):
+                out[repair(s.replace(src, rest).replace(dst, (*seq[:p], task, *seq[p:])))] = None
+        for agent in AGENTS:
+            seq = s.sequence(agent)
+            for k, item in enumerate(seq):
+                rest = seq[:k] + seq[k + 1 :]
+                if isinstance(item, Wait):
+                    out[repair(s.replace(agent, rest))] = None
+                lo, hi = (0, len(rest)) if isinstance(item, Wait) else self._window(rest, item)
+                for p in range(lo, hi + 1):
+                    if p != k:
+                        out[repair(s.replace(agent, (*rest[:p], item, *rest[p:])))] = None
+                for j in range(k + 1, len(seq)):
+                    swapped = (*seq[:k], seq[j], *seq[k + 1 : j], item, *seq[j + 1 :])
+                    out[repair(s.replace(agent, swapped))] = None
+        h, r = s.human, s.robot
+        for i, a in enumerate(h):
+            if isinstance(a, Wait) or "robot" not in self._allowed[a]:
+                continue
+            for j, b in enumerate(r):
+                if isinstance(b, Wait) or "human" not in self._allowed[b]:
+                    continue
+                out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
+        out.pop(s, None)
+        return list(out)
+
+
+def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) -> list[Evaluation]:
+    """The ``count`` best, at most ``per_allocation`` of them with the same allocation (who does
+    which task; 0 = no limit); slots left when allocations run out go to the best of the rest.
+    """
+    if not per_allocation:
+        return ranked[:count]
+    taken: dict[frozenset[str], int] = {}
+    chosen: list[Evaluation] = []
+    skipped: list[Evaluation] = []
+    for e in ranked:
+        if len(chosen) == count:
+            break
+        key = frozenset(e.schedule.tasks("human"))
+        if taken.get(key, 0) < per_allocation:
+            taken[key] = taken.get(key, 0) + 1
+            chosen.append(e)
+        else:
+            skipped.append(e)
+    return _rank(chosen + skipped[: count - len(chosen)])
+
+
+def _rank(evaluations: list[Evaluation]) -> list[Evaluation]:
+    """Best first; ties keep their order (deterministic). nan (never produced) sorts last."""
+    return sorted(evaluations, key=lambda e: math.inf if math.isnan(e.objective) else e.objective)
