@@ -25,7 +25,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 @pytest.fixture
 def fetch():
-    return load_problem(EXAMPLES / "fetch.yaml")
+    return load_problem(EXAMPLES.parent / "tests" / "data" / "four-fetch.yaml")
 
 
 @pytest.fixture

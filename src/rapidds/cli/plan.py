@@ -1,0 +1,261 @@
+"""``rapidds plan PROBLEM``: one plan for a problem file, by genetic search or exact CP-SAT.
+
+Human durations come from the problem file's priors (a new teammate, no cycles observed yet);
+robot durations from the file (:class:`FixedDurationMotion`, no geometry, so the spatial term is
+0). Both solvers are reported on the same Monte-Carlo duration samples, so ``--exact`` and the
+genetic plan can be compared number for number.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import secrets
+import shutil
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, cast
+
+import numpy as np
+import typer
+
+from rapidds.bundled import resolve_problem
+from rapidds.cli import app, fail
+from rapidds.errors import RapiddsError
+from rapidds.human.temporal import SAMPLING_METHODS, Sampling, TemporalModel
+from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
+from rapidds.problem import Problem, load_problem
+from rapidds.render import key_value_table, makespan_line, render_gantt, render_sequences
+from rapidds.schedule import Timeline, compile_schedule
+from rapidds.scheduler import (
+    Evaluation,
+    GAConfig,
+    GeneticScheduler,
+    evaluate_population,
+    solve_exact,
+)
+
+_GA = GAConfig()  # the defaults shown in --help are the scheduler's own
+
+
+def sample_durations(
+    problem: Problem, seed: int, samples: int, sampling: Sampling = "predictive"
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (K, n) human duration samples and (n,) means ``plan`` scores schedules on.
+
+    The samples use their own stream spawned from ``seed`` (the search uses ``seed`` itself), so
+    the two never share random numbers; public so a test or a script can reproduce the numbers.
+    """
+    temporal = TemporalModel.from_problem(problem, sampling=sampling)
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+    return temporal.sample(samples, rng), temporal.mean()
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _check_options(
+    population: int, generations: int, samples: int, seed: int | None,
+    gamma: float | None, lam: float | None, sampling: str, time_limit: float,
+) -> None:
+    """Reject bad option values with one line before any work starts."""
+    if population < 2:
+        fail(f"--population must be >= 2, got {population}")
+    for name, value in (("--generations", generations), ("--samples", samples)):
+        if value < 1:
+            fail(f"{name} must be >= 1, got {value}")
+    if seed is not None and seed < 0:
+        fail(f"--seed must be >= 0, got {seed}")
+    for name, w in (("--gamma", gamma), ("--lam", lam)):
+        if w is not None and not (math.isfinite(w) and w >= 0):
+            fail(f"{name} must be a finite number >= 0, got {w}")
+    if sampling not in SAMPLING_METHODS:
+        fail(f"--sampling must be one of {', '.join(SAMPLING_METHODS)}, got {sampling!r}")
+    if not (math.isfinite(time_limit) and time_limit > 0):
+        fail(f"--time-limit must be a number of seconds > 0, got {time_limit}")
+
+
+@contextmanager
+def _progress(enabled: bool, total: int) -> Iterator[Callable[[int, float], None] | None]:
+    """A rich progress bar on stderr for the GA generations, or None when disabled. It may end
+    short of ``total``: the search stops early when it stalls."""
+    if not enabled:
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    with Progress(
+        TextColumn("generations"), BarColumn(), MofNCompleteColumn(),
+        TextColumn("{task.fields[best]}"),
+        console=Console(stderr=True), transient=True,
+    ) as bar:
+        task = bar.add_task("ga", total=total, best="")
+
+        def update(generation: int, best_objective: float) -> None:
+            best = f"best {best_objective:.2f}" if math.isfinite(best_objective) else ""
+            bar.update(task, completed=generation, best=best)
+
+        yield update
+
+
+def _expected_timeline(
+    problem: Problem, evaluation: Evaluation, human_mean: np.ndarray
+) -> Timeline:
+    """The plan at mean human durations and the chosen robot motions' durations (K = 1)."""
+    compiled = compile_schedule(problem, evaluation.schedule)
+    assert compiled is not None  # only called for feasible plans
+    robot = FixedDurationMotion(problem).nominal_durations(problem)
+    for task, motion in evaluation.motions.items():
+        robot[problem.index[task]] = motion.duration
+    return compiled.simulate(compiled.durations(human_mean.reshape(1, -1), robot))
+
+
+def _report(problem: Problem, evaluation: Evaluation, extra: dict[str, Any]) -> dict[str, Any]:
+    mk = np.asarray(evaluation.makespan, dtype=float)
+    sched = evaluation.schedule.to_json()
+    out: dict[str, Any] = {
+        "problem": problem.name,
+        "human": sched["human"],
+        "robot": sched["robot"],
+        "feasible": bool(evaluation.feasible),
+        "objective": _finite_or_none(evaluation.objective),
+        "expected_makespan": _finite_or_none(evaluation.makespan_mean),
+        "makespan_std": _finite_or_none(evaluation.makespan_std),
+        "makespan_p5": float(np.percentile(mk, 5)) if mk.size else None,
+        "makespan_p95": float(np.percentile(mk, 95)) if mk.size else None,
+        "spatial": _finite_or_none(evaluation.spatial),
+        "diversity": _finite_or_none(evaluation.diversity),
+        "gamma": problem.objective.gamma,
+        "lambda": problem.objective.lam,
+        "converged": bool(evaluation.converged),
+    }
+    out.update(extra)
+    return out
+
+
+def _print_text(
+    problem: Problem, evaluation: Evaluation, report: dict[str, Any], human_mean: np.ndarray
+) -> None:
+    width = max(40, min(100, shutil.get_terminal_size((88, 24)).columns - 8))
+    if report["solver"] == "cp-sat":
+        head = (f"{problem.name}: exact CP-SAT on mean durations "
+                f"({'optimal' if report['optimal'] else report['status'].lower()}, "
+                f"{report['seconds']:.2f} s)")
+    else:
+        head = (f"{problem.name}: genetic search, seed {report['seed']} "
+                f"({report['generations_run']} generations, {report['evaluations']} evaluations, "
+                f"{report['seconds']:.2f} s)")
+    typer.echo(head)
+    if not evaluation.feasible:
+        typer.echo("no feasible schedule found (every candidate deadlocks)")
+        return
+    timeline = _expected_timeline(problem, evaluation, human_mean)
+    typer.echo("")
+    typer.echo(render_sequences(timeline, width=width + 8))
+    typer.echo("")
+    typer.echo(render_gantt(
+        timeline, width=width,
+        title=f"at mean durations (makespan {float(timeline.makespan[0]):.1f} s):",
+    ))
+    typer.echo("")
+    typer.echo(f"{makespan_line(evaluation.makespan)} over {report['samples']} "
+               f"{report['sampling']} samples")
+    g, lam = problem.objective.gamma, problem.objective.lam
+    typer.echo(key_value_table([
+        ("objective", f"{evaluation.objective:.2f}"),
+        ("  makespan", f"{evaluation.makespan_mean:.2f}"),
+        ("  + gamma x spatial", f"{g:g} x {evaluation.spatial:.3f}"),
+        ("  + lambda x diversity", f"{lam:g} x {evaluation.diversity:.3f}"),
+    ], width=width + 8))
+    if not evaluation.converged:
+        typer.echo("note: the overlap loop did not converge; best evaluated variant shown")
+
+
+@app.command("plan")
+def plan(
+    problem: str = typer.Argument(
+        ..., help="Problem YAML file, or the name of a bundled example (fetch, painting, ...)."
+    ),
+    seed: int | None = typer.Option(
+        None, help="Random seed for duration samples and the search.",
+        show_default="random, reported",
+    ),
+    population: int = typer.Option(_GA.population, help="GA population size C."),
+    generations: int = typer.Option(_GA.generations, help="Maximum GA generations G."),
+    samples: int = typer.Option(_GA.samples, help="Monte-Carlo samples K of human durations."),
+    gamma: float | None = typer.Option(
+        None, help="Proximity weight.", show_default="the problem file's"
+    ),
+    lam: float | None = typer.Option(
+        None, help="Diversity weight lambda.", show_default="the problem file's"
+    ),
+    sampling: str = typer.Option(
+        "predictive", help="Human duration samples: predictive (Student-t) or plugin (Normal)."
+    ),
+    exact: bool = typer.Option(
+        False, "--exact", help="Solve with OR-Tools CP-SAT on mean durations instead of the GA."
+    ),
+    time_limit: float = typer.Option(10.0, help="CP-SAT time limit in seconds (with --exact)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
+) -> None:
+    """Plan one cycle for a new teammate: who does what, in which order, where to wait."""
+    _check_options(population, generations, samples, seed, gamma, lam, sampling, time_limit)
+    try:
+        prob = load_problem(resolve_problem(problem)).with_objective(gamma, lam)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    if seed is None:
+        seed = secrets.randbelow(2**31)
+    human_samples, human_mean = sample_durations(prob, seed, samples, cast(Sampling, sampling))
+    motion = FixedDurationMotion(prob)
+    common = {"seed": seed, "samples": samples, "sampling": sampling}
+
+    if exact:
+        t0 = time.perf_counter()
+        try:
+            exact_result = solve_exact(prob, time_limit_s=time_limit)
+        except RapiddsError as exc:
+            fail(str(exc))
+            return
+        seconds = time.perf_counter() - t0
+        evaluation = evaluate_population(
+            prob, [exact_result.schedule], human_samples, human_mean, TrajectoryCache(motion),
+            motion.nominal_durations(prob), prob.objective.gamma, prob.objective.lam,
+        )[0]
+        extra = {
+            "solver": "cp-sat", "optimal": bool(exact_result.optimal),
+            "status": str(exact_result.status), "makespan_at_mean": float(exact_result.makespan),
+            "bound": float(exact_result.bound),
+            "seconds": seconds, **common,
+        }
+    else:
+        try:
+            config = GAConfig(
+                population=population, generations=generations, samples=samples, seed=seed
+            )
+        except ValueError as exc:
+            fail(str(exc))
+            return
+        with _progress(not as_json and sys.stderr.isatty(), generations) as progress:
+            ga_result = GeneticScheduler(prob, motion, config).solve(
+                human_samples, human_mean, progress=progress
+            )
+        evaluation = ga_result.best
+        extra = {
+            "solver": "ga", "generations_run": int(ga_result.generations_run),
+            "evaluations": int(ga_result.evaluations), "seconds": float(ga_result.seconds),
+            "population": population, **common,
+        }
+
+    report = _report(prob, evaluation, extra)
+    if as_json:
+        typer.echo(json.dumps(report, allow_nan=False))
+    else:
+        _print_text(prob, evaluation, report, human_mean)
+    if not evaluation.feasible:
+        raise typer.Exit(1)
