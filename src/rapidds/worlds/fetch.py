@@ -408,6 +408,17 @@ class FetchWorld:
         return self.walk(route, self.robot_speed, self.horizon)  # nominal: tested to be valid
 
 
+# Network and sampler for the fetch policy: small enough that steering a whole GA generation of
+# motion requests stays well under a second on one CPU core (docs/benchmarks.md, "Motion").
+POLICY_DEFAULTS: dict[str, object] = {
+    "down_dims": [16, 32, 64],
+    "num_inference_steps": 10,
+    "steps": 4000,
+    "batch_size": 64,
+    "lr": 2e-3,
+}
+
+
 def fetch_problem() -> Problem:
     """The default fetch world's problem (equal to ``FetchWorld().problem()``)."""
     return default_world().problem()

@@ -1,0 +1,310 @@
+"""``rapidds train-policy`` and ``rapidds sample``: the robot's trajectory diffusion policy.
+
+``train-policy`` fits a policy on a demonstrations ``.npz`` and writes a checkpoint directory;
+``sample`` draws trajectories for one task, optionally steered by SVDD-PM away from people
+standing on given paths (V = completion time + gamma * max_i S_i, the paper's value).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from rapidds.cli import app, fail
+from rapidds.errors import RapiddsError
+
+
+@contextmanager
+def _loss_bar(enabled: bool, total: int) -> Iterator[Callable[[int, float], None] | None]:
+    """A rich progress bar with the running loss on stderr, or None when disabled."""
+    if not enabled:
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    with Progress(
+        TextColumn("training"), BarColumn(), MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+        console=Console(stderr=True), transient=True,
+    ) as bar:
+        task = bar.add_task("train", total=total, loss="-")
+        smooth: list[float] = []
+
+        def update(step: int, loss: float) -> None:
+            smooth.append(loss)
+            del smooth[:-50]
+            bar.update(task, completed=step, loss=f"{np.mean(smooth):.4f}")
+
+        yield update
+
+
+def _read_config_file(path: Path) -> dict[str, Any]:
+    from rapidds.motion.config import ConfigError
+
+    try:
+        data = json.loads(path.read_text("utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: not a readable JSON file ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a JSON object of DiffusionConfig fields")
+    return data
+
+
+def _world_demos(name: str, per_mode: int, seed: int) -> tuple[Any, dict[str, Any]]:
+    """A bundled world's demonstrations (every route of every task) and its network defaults."""
+    from rapidds.motion.config import ConfigError
+    from rapidds.motion.demos import Demonstrations
+    from rapidds.worlds.fetch import POLICY_DEFAULTS, FetchWorld
+
+    if name != "fetch":
+        raise ConfigError(f"unknown world '{name}'; available: fetch")
+    if per_mode < 1:
+        raise ConfigError(f"--demos-per-mode must be >= 1, got {per_mode}")
+    d = FetchWorld().robot_demonstrations(per_mode, np.random.default_rng(seed))
+    demos = Demonstrations(d.trajectories.astype(np.float32), d.task_index, d.task_names)
+    return demos, dict(POLICY_DEFAULTS)
+
+
+@app.command("train-policy")
+def train_policy_cmd(
+    out: Annotated[Path, typer.Option("--out", help="Checkpoint directory to write.")],
+    demos: Annotated[Path | None, typer.Option(
+        "--demos", help="Demonstrations .npz (trajectories, task_index, task_names[, start]).")
+    ] = None,
+    world: Annotated[str | None, typer.Option(
+        help="Train on a bundled world's generated demonstrations instead (fetch), with the "
+        "world's network defaults.")] = None,
+    demos_per_mode: Annotated[int, typer.Option(
+        help="With --world: demonstrations per task and route.")] = 64,
+    steps: Annotated[int | None, typer.Option(
+        help="Optimiser steps.", show_default="the config's")] = None,
+    epochs: Annotated[int | None, typer.Option(
+        help="Passes over the data (overrides --steps).")] = None,
+    seed: Annotated[int | None, typer.Option(
+        help="Seed for init, batches and noise.", show_default="the config's")] = None,
+    device: Annotated[str | None, typer.Option(
+        help="auto, cpu or cuda.", show_default="auto")] = None,
+    horizon: Annotated[int | None, typer.Option(
+        help="Resample demonstrations to H points (a multiple of 8) first.")] = None,
+    batch_size: Annotated[int | None, typer.Option(help="Trajectories per step.")] = None,
+    lr: Annotated[float | None, typer.Option(help="AdamW learning rate.")] = None,
+    start_conditioned: Annotated[bool | None, typer.Option(
+        "--start-conditioned/--no-start-conditioned",
+        help="Condition on the start pose.", show_default="when the file has 'start'")] = None,
+    config: Annotated[Path | None, typer.Option(
+        "--config", help="JSON file of DiffusionConfig fields (network size, sampler, ...); "
+        "flags win.")] = None,
+) -> None:
+    """Train a trajectory diffusion policy on demonstrations and save a checkpoint."""
+    from rapidds.motion.config import ConfigError, DiffusionConfig
+    from rapidds.motion.demos import Demonstrations
+    from rapidds.motion.train import total_steps, train_policy
+
+    try:
+        if (demos is None) == (world is None):
+            raise ConfigError("give exactly one of --demos FILE or --world NAME")
+        fields: dict[str, Any] = {}
+        if world is not None:
+            data, fields = _world_demos(world, demos_per_mode, 0 if seed is None else seed)
+            if horizon is not None:
+                data = data.resample(horizon)
+        else:
+            assert demos is not None
+            data = Demonstrations.load(demos, horizon=horizon)
+        if config is not None:
+            fields.update(_read_config_file(config))
+        fields.update(horizon=data.horizon, state_dim=data.state_dim,
+                      task_names=list(data.task_names))
+        fields.setdefault("start_conditioned", data.start is not None)
+        flags = {"steps": steps, "epochs": epochs, "seed": seed, "device": device,
+                 "batch_size": batch_size, "lr": lr, "start_conditioned": start_conditioned}
+        fields.update({k: v for k, v in flags.items() if v is not None})
+        if epochs is None and steps is not None:
+            fields["epochs"] = None
+        cfg = DiffusionConfig.from_dict(fields)
+        n_steps = total_steps(len(data), cfg)
+        with _loss_bar(sys.stderr.isatty(), n_steps) as progress:
+            policy, history = train_policy(data, cfg, progress=progress)
+        where = policy.save(out)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    typer.echo(f"wrote policy to {where} ({history.steps} steps on {history.device}, "
+               f"{history.seconds:.1f} s, final loss {history.mean_loss(last=50):.4f})")
+
+
+def _parse_path(spec: str, d: int, option: str = "--steer-cost") -> np.ndarray:
+    """'x,y;x,y;...' -> (P, d) points (one person's path, or one pose)."""
+    from rapidds.motion.config import ConfigError
+
+    try:
+        pts = np.array([[float(v) for v in p.split(",")] for p in spec.split(";") if p.strip()])
+    except ValueError:
+        raise ConfigError(f"{option} {spec!r}: expected points 'x,y;x,y;...'") from None
+    if pts.ndim != 2 or pts.shape[0] == 0 or pts.shape[1] != d or not np.isfinite(pts).all():
+        raise ConfigError(f"{option} {spec!r}: every point needs {d} finite coordinates")
+    return pts
+
+
+def _picture(path: Path, samples: np.ndarray, bounds: np.ndarray, people: list[np.ndarray],
+             beta: float, title: str) -> Path:
+    """Samples drawn over the workspace, on a heat map of the steering cost when there is one."""
+    from rapidds.motion.steering import proximity_cost
+    from rapidds.plots._mpl import plt, save
+    from rapidds.plots.maps import plot_paths
+
+    (x0, y0), (x1, y1) = bounds[0, :2], bounds[1, :2]
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    if people and samples.shape[-1] == 2:
+        gx, gy = np.meshgrid(np.linspace(x0, x1, 160), np.linspace(y0, y1, 160))
+        grid = np.stack([gx.ravel(), gy.ravel()], -1)[:, None, :]   # (G, 1, 2) one-point paths
+        heat = np.max([proximity_cost(p, beta)(grid) for p in people], axis=0)
+        im = ax.imshow(heat.reshape(gx.shape), origin="lower", extent=(x0, x1, y0, y1),
+                       cmap="magma", vmin=0, vmax=1, aspect="equal")
+        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label="spatial cost")
+        for p in people:
+            ax.plot(p[:, 0], p[:, 1], "-o", color="tab:red", ms=3, lw=1, label="person")
+    plot_paths(ax, samples, color="cyan" if people else "C0", alpha=0.8)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_title(title)
+    return save(fig, path)
+
+
+@app.command("sample")
+def sample_cmd(
+    policy_dir: Annotated[Path, typer.Option("--policy", help="Checkpoint directory.")],
+    task: Annotated[str, typer.Option("--task", help="Task name the policy was trained on.")],
+    n: Annotated[int, typer.Option("-n", "--n", help="Number of trajectories.")] = 8,
+    seed: Annotated[int, typer.Option(help="Sampling seed (same seed, same samples).")] = 0,
+    start: Annotated[str | None, typer.Option(
+        help="Start pose 'x,y,...' for start-conditioned policies.")] = None,
+    steer_cost: Annotated[list[str] | None, typer.Option(
+        "--steer-cost", help="Steer away from a person on this path 'x,y;x,y;...' "
+        "(repeatable: the maximum over people counts).")] = None,
+    gamma: Annotated[float, typer.Option(help="Weight of the spatial cost in V.")] = 1.75,
+    beta: Annotated[float, typer.Option(
+        help="Distance decay of the spatial cost exp(-beta * distance).")] = 1.0,
+    candidates: Annotated[int, typer.Option(
+        help="SVDD-PM candidates M per particle and step.")] = 8,
+    alpha: Annotated[float, typer.Option(
+        help="SVDD-PM temperature; 0 keeps the best candidate.")] = 0.0,
+    tol: Annotated[float | None, typer.Option(
+        help="Arrival tolerance of the completion time.",
+        show_default="10% of the workspace extent")] = None,
+    dt: Annotated[float, typer.Option(
+        help="Seconds per trajectory point (completion time).")] = 1.0,
+    device: Annotated[str | None, typer.Option(
+        help="auto, cpu or cuda.", show_default="auto")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    out: Annotated[Path | None, typer.Option(
+        "--out", help="Write a picture (PNG) of the samples.")] = None,
+) -> None:
+    """Sample trajectories for one task, optionally steered away from people (SVDD-PM)."""
+    from rapidds.motion.config import ConfigError, cpu_threads
+    from rapidds.motion.policy import DiffusionPolicy
+    from rapidds.motion.steering import (
+        completion_index,
+        proximity_cost,
+        steer,
+        value_function,
+    )
+
+    if n < 1:
+        fail(f"-n must be >= 1, got {n}")
+    if seed < 0:
+        fail(f"--seed must be >= 0, got {seed}")
+    for name, v in (("--gamma", gamma), ("--alpha", alpha)):
+        if not (math.isfinite(v) and v >= 0):
+            fail(f"{name} must be a finite number >= 0, got {v}")
+    for name, v in (("--beta", beta), ("--dt", dt), ("--tol", tol)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            fail(f"{name} must be a finite number > 0, got {v}")
+    if candidates < 1:
+        fail(f"--candidates must be >= 1, got {candidates}")
+    try:
+        policy = DiffusionPolicy.load(policy_dir, device=device)
+        cfg = policy.config
+        if start is not None and ";" in start:
+            raise ConfigError(f"--start {start!r}: give one pose 'x,y,...'")
+        start_arr = None if start is None else _parse_path(start, cfg.state_dim, "--start")[0]
+        if out is not None and cfg.state_dim < 2:
+            raise ConfigError("--out draws paths of d >= 2 (first two coordinates)")
+        norm = policy.normalizer
+        extent = float(np.max(norm.high - norm.low)) or 1.0
+        tol_v = 0.1 * extent if tol is None else tol
+        people = [_parse_path(s, cfg.state_dim) for s in steer_cost or []]
+        value_fn = value_function([proximity_cost(p, beta) for p in people], gamma, tol=tol_v,
+                                  dt=dt)
+        threads = cpu_threads(cfg.cpu_threads if policy.device.type == "cpu" else 0)
+        if people:
+            if cfg.sampler == "ddim" and cfg.ddim_eta == 0 and candidates > 1:
+                raise ConfigError("this policy samples with deterministic DDIM (ddim_eta = 0); "
+                                  "SVDD steering needs a stochastic sampler")
+            with threads:
+                result = steer(policy, task, n, value_fn, num_candidates=candidates,
+                               alpha=alpha, start=start_arr, generator=seed)
+            trajs, values = result.trajectories, result.values
+            passes = result.stats.network_passes
+        else:
+            with threads:
+                trajs = policy.sample(task, n, start=start_arr, generator=seed)
+            values = value_fn(trajs)
+            passes = cfg.num_inference_steps
+        if out is not None:
+            pad = 0.1 * extent
+            pts = np.concatenate([trajs.reshape(-1, cfg.state_dim), *people], axis=0)
+            bounds = np.stack([np.minimum(norm.low, pts.min(0)) - pad,
+                               np.maximum(norm.high, pts.max(0)) + pad])
+            title = f"{task}: {n} {'steered ' if people else ''}samples"
+            _picture(out, trajs, bounds, people, beta, title)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+
+    completion = completion_index(trajs, tol_v)
+    if as_json:
+        typer.echo(json.dumps({
+            "policy": str(policy_dir), "task": task, "n": n, "seed": seed,
+            "steered": bool(people), "gamma": gamma, "beta": beta, "tol": tol_v, "dt": dt,
+            "candidates": candidates if people else 1, "network_passes": passes,
+            "completion_index": completion.tolist(), "values": values.tolist(),
+            "trajectories": trajs.tolist(), "picture": None if out is None else str(out),
+        }))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{n} {'steered ' if people else ''}samples of task {task!r}")
+    for col in ("#", "completion (s)", "path length", "end", "V"):
+        table.add_column(col, justify="right")
+    lengths = np.linalg.norm(np.diff(trajs, axis=1), axis=-1).sum(axis=1)
+    for k in range(n):
+        end = ", ".join(f"{v:.2f}" for v in trajs[k, -1])
+        table.add_row(str(k), f"{completion[k] * dt:.1f}", f"{lengths[k]:.3f}", f"({end})",
+                      f"{values[k]:.3f}")
+    Console(width=100).print(table)
+    typer.echo(f"mean V {np.mean(values):.3f} ({passes} network passes per sample)")
+    if out is not None:
+        typer.echo(f"wrote picture to {out}")
