@@ -1,0 +1,119 @@
+"""The scheduler's motion interface backed by the diffusion policy and SVDD-PM steering.
+
+Each request (robot task j, concurrent human tasks C_j) is answered by steering
+``particles`` samples toward low V(xi) = d_j(xi) + gamma * max_{i in C_j} S_i(xi) and keeping the
+best. All requests of one call share one steering batch (the GA asks once per generation), so the
+network sees requests x particles x candidates rows per pass.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rapidds.motion.interface import MotionKey, MotionPlan
+from rapidds.motion.policy import DiffusionPolicy
+from rapidds.motion.steering import steer
+from rapidds.problem import Problem
+
+SpatialCost = Callable[[Iterable[str], np.ndarray], np.ndarray]
+"""(task_ids, xi (N, H, d)) -> (N,): max over the tasks of S_i; 0 for no tasks."""
+CompletionTime = Callable[[str, np.ndarray], np.ndarray]
+"""(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
+
+
+@dataclass(frozen=True)
+class SteeringConfig:
+    """How robot motions are sampled for the scheduler.
+
+    particles: B, steered samples per request; the best one is kept.
+    candidates: M, draws from the reverse kernel per particle and step (1 = unsteered).
+    alpha: 0 keeps the best candidate per step (the SVDD authors' choice); > 0 samples from
+        softmax(-V / alpha).
+    seed: base seed; call k of a DiffusionMotion uses seed + k, so a deterministic scheduler
+        gives deterministic motions.
+    """
+
+    particles: int = 4
+    candidates: int = 8
+    alpha: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("particles", "candidates"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if not (math.isfinite(self.alpha) and self.alpha >= 0):
+            raise ValueError(f"alpha must be a finite number >= 0, got {self.alpha}")
+
+
+class DiffusionMotion:
+    """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories."""
+
+    def __init__(
+        self,
+        policy: DiffusionPolicy,
+        completion_time: CompletionTime,
+        spatial_cost: SpatialCost,
+        gamma: float,
+        config: SteeringConfig | None = None,
+        nominal: Callable[[Problem], np.ndarray] | None = None,
+    ):
+        self.policy = policy
+        self.completion_time = completion_time
+        self.spatial_cost = spatial_cost
+        self.gamma = float(gamma)
+        self.config = config or SteeringConfig()
+        self._nominal = nominal
+        self.calls = 0
+        self.rows = 0
+
+    def nominal_durations(self, problem: Problem) -> np.ndarray:
+        if self._nominal is not None:
+            return self._nominal(problem)
+        return np.array(
+            [np.nan if t.robot_duration is None else t.robot_duration for t in problem.tasks]
+        )
+
+    def _values(self, keys: Sequence[MotionKey], xi: np.ndarray, b: int) -> np.ndarray:
+        """V for rows of ``xi`` (N, H, d), particle-major: N is len(keys) * b (final scores) or
+        that times M (candidates). Rows of one request are contiguous."""
+        per_key = xi.shape[0] // len(keys)
+        v = np.empty(xi.shape[0])
+        for k, (task, concurrent) in enumerate(keys):
+            sl = slice(k * per_key, (k + 1) * per_key)
+            v[sl] = self.completion_time(task, xi[sl])
+            if concurrent and self.gamma > 0:
+                v[sl] += self.gamma * self.spatial_cost(concurrent, xi[sl])
+        return v
+
+    def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
+        if not requests:
+            return []
+        cfg = self.config
+        b = cfg.particles
+        tasks = [task for task, _ in requests for _ in range(b)]
+        result = steer(
+            self.policy,
+            tasks,
+            len(tasks),
+            lambda xi: self._values(requests, xi, b),
+            num_candidates=cfg.candidates,
+            alpha=cfg.alpha,
+            generator=cfg.seed + self.calls,
+        )
+        self.calls += 1
+        self.rows += len(tasks) * cfg.candidates
+        plans = []
+        for k, (task, concurrent) in enumerate(requests):
+            vals = result.values[k * b : (k + 1) * b]
+            best = k * b + int(np.argmin(vals))
+            traj = result.trajectories[best]
+            duration = float(self.completion_time(task, traj[None])[0])
+            spatial = float(self.spatial_cost(concurrent, traj[None])[0]) if concurrent else 0.0
+            plans.append(MotionPlan(task, concurrent, duration, spatial, traj))
+        return plans

@@ -1,0 +1,47 @@
+"""Pictures of one run: cost per cycle, a Gantt chart per cycle, and the map of a cycle with
+both agents' paths over the learned spatial cost of each human task (paper Figure 3 style)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from rapidds.human.spatial import SpatialModel
+from rapidds.plots._mpl import plt, save
+from rapidds.plots.maps import plot_obstacles, plot_paths, plot_points, plot_spatial_cost
+
+
+def save_cycle_map(
+    spatial: SpatialModel,
+    path: str | Path,
+    *,
+    human_paths: Mapping[str, np.ndarray],
+    robot_paths: Mapping[str, np.ndarray],
+    overlaps: Mapping[str, Sequence[str]],
+    walls: Iterable[object] = (),
+    points: Mapping[str, np.ndarray] | None = None,
+    title: str = "",
+) -> Path:
+    """One panel per human task: its learned cost s_i(x), the person's path for it (if they did
+    it this cycle) and the robot paths that ran while it ran."""
+    tasks = list(spatial.tasks)
+    walls = list(walls)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.4 * len(tasks), 3.6), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        plot_spatial_cost(spatial[task], ax, colorbar=False, title=f"s_{task}(x)")
+        plot_obstacles(ax, walls)
+        if points:
+            plot_points(ax, points)
+        if task in human_paths:
+            plot_paths(ax, human_paths[task], color="gold", lw=2.0, label=f"human {task}")
+        for j, concurrent in overlaps.items():
+            if task in concurrent and j in robot_paths:
+                plot_paths(ax, robot_paths[j], color="deepskyblue", lw=2.0, label=f"robot {j}")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower center")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return save(fig, path)

@@ -1,0 +1,124 @@
+"""The multi-cycle loop with the bundled fetch policy and small search settings."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from rapidds.cli.run import load_policy
+from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
+from rapidds.store import RunStore
+
+SMALL = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)
+
+
+@pytest.fixture(scope="module")
+def policy():
+    torch.set_num_threads(1)
+    return load_policy(None)
+
+
+def _strip(rec: dict) -> dict:
+    return {k: v for k, v in rec.items() if k != "seconds"}
+
+
+def test_full_adaptation_learns_a_slow_teammate(policy):
+    run = AdaptiveRun(RunConfig(human="slow-middle", adapt="full", cycles=16, **SMALL), policy)
+    records = run.run()
+    assert [r["cycle"] for r in records] == list(range(16))
+    truth = run.teammate.true_mean_durations()
+    temporal = run.model.temporal
+    counts = {t: sum(t in r["observed"] for r in records) for t in truth}
+    learned = [t for t, n in counts.items() if n >= 3]
+    assert len(learned) >= 2, counts  # exploration made the person do several tasks
+    mean = dict(zip(run.problem.ids, temporal.mean(), strict=True))
+    for t in learned:
+        assert abs(mean[t] - truth[t]) / truth[t] < 0.10, (t, mean[t], truth[t], counts)
+    # the spatial model puts high cost on the route this person takes for a bottom object
+    bottom = [t for t in ("t2", "t3") if counts[t] >= 2]
+    assert bottom, counts
+    prior = AdaptiveRun(RunConfig(human="slow-middle", **SMALL), policy).model.spatial
+    lane = {"t2": (0.7, 3.8), "t3": (9.3, 3.8)}  # where an outside walker passes the blocks
+    for t in bottom:
+        pts = np.array([[5.0, 3.8], lane[t]])  # the central corridor, the edge lane
+        learned = run.model.spatial[t].point_cost(pts)
+        before = prior[t].point_cost(pts)
+        assert learned[0] - learned[1] > before[0] - before[1] + 0.2, (t, learned, before)
+        assert learned[0] > 0.6, (t, learned)
+
+
+@pytest.mark.parametrize("human", ["fast-middle", "slow-middle"])
+def test_oracle_is_the_floor(policy, human):
+    # Teammates whose truth differs from the population prior in time (slow) or space (middle);
+    # for the others the prior already leads to the oracle's plan and the two tie.
+    costs = {}
+    for adapt in ("oracle", "none"):
+        vals = []
+        for seed in (0, 1):
+            cfg = RunConfig(human=human, adapt=adapt, cycles=4, lam=0.0, seed=seed, **SMALL)
+            vals += [r["realised"]["cost"] for r in AdaptiveRun(cfg, policy).run()]
+        costs[adapt] = float(np.mean(vals))
+    assert costs["oracle"] < costs["none"], costs
+
+
+def test_same_seed_same_records(policy, tmp_path):
+    cfg = RunConfig(human="fast-outside", cycles=2, **SMALL)
+    a = [_strip(r) for r in AdaptiveRun(cfg, policy).run()]
+    b = [_strip(r) for r in AdaptiveRun(cfg, policy).run()]
+    assert a == b
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+
+
+def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
+    args = ["run", "--human", "slow-middle", "--cycles", "5", "--seed", "3",
+            "--population", "12", "--generations", "10", "--samples", "16",
+            "--particles", "2", "--candidates", "4", "--json"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    full = subprocess.run(_cli(*args, "--out", str(tmp_path / "a")), capture_output=True,
+                          text=True, env=env, timeout=300)
+    assert full.returncode == 0, full.stderr
+    lines = [json.loads(x) for x in full.stdout.splitlines()]
+    assert [r["cycle"] for r in lines] == list(range(5))
+
+    kill_at = int(np.random.default_rng().integers(1, 4))  # after 1, 2 or 3 stored cycles
+    db = tmp_path / "b" / "run.sqlite"
+    proc = subprocess.Popen(_cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if db.exists():
+            with RunStore(db) as st:
+                if (st.last_cycle("fetch-slow-middle-full-s3") or -1) + 1 >= kill_at:
+                    break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with RunStore(db) as st:
+        stored = st.last_cycle("fetch-slow-middle-full-s3")
+    assert stored is not None and stored < 4, "the run finished before it could be killed"
+
+    again = subprocess.run(_cli(*args, "--out", str(tmp_path / "b")), capture_output=True,
+                           text=True, env=env, timeout=60)
+    assert again.returncode == 2 and "--resume" in again.stderr  # nothing overwritten silently
+    resumed = subprocess.run(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+                             capture_output=True, text=True, env=env, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    with RunStore(tmp_path / "a" / "run.sqlite") as a, RunStore(db) as b:
+        ra, rb = a.records(), b.records()
+        assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
+        last = ra[-1]["cycle"]
+        ma = HumanModel.from_bytes(a.state(ra[-1]["run_id"], last))
+        mb = HumanModel.from_bytes(b.state(rb[-1]["run_id"], last))
+        assert ma.temporal.to_dict() == mb.temporal.to_dict()
+        assert ma.spatial.to_dict() == mb.spatial.to_dict()
