@@ -122,3 +122,13 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
         mb = HumanModel.from_bytes(b.state(rb[-1]["run_id"], last))
         assert ma.temporal.to_dict() == mb.temporal.to_dict()
         assert ma.spatial.to_dict() == mb.spatial.to_dict()
+
+
+def test_exact_baseline_plans_with_cp_sat_and_learns_nothing(policy):
+    run = AdaptiveRun(RunConfig(human="slow-middle", adapt="exact", cycles=2, **SMALL), policy)
+    prior = run.model.temporal.to_dict()
+    records = run.run()
+    assert all(r["search"]["solver"] == "cp-sat" and r["search"]["optimal"] for r in records)
+    assert all(r["lambda"] == 0.0 for r in records)
+    assert not any(str(x).startswith("wait:") for r in records for x in r["human"] + r["robot"])
+    assert run.model.temporal.to_dict() == prior  # nothing learned

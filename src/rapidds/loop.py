@@ -24,16 +24,24 @@ from rapidds.errors import RapiddsError, StateError
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.interface import TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
-from rapidds.scheduler import AllocationHistory, GAConfig, GeneticScheduler
+from rapidds.scheduler import (
+    AllocationHistory,
+    Evaluation,
+    GAConfig,
+    GeneticScheduler,
+    evaluate_population,
+    solve_exact,
+)
 from rapidds.store import RunStore
 from rapidds.worlds.fetch import FetchWorld
 from rapidds.worlds.teammates import ARCHETYPES, Teammate, archetype, population
 from rapidds.worlds.teammates import population_statistics as _population_statistics
 
-Adapt = Literal["full", "spatial", "temporal", "none", "oracle"]
-ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle")
+Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
+ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 PRIOR_SEED = 20_240_917  # the population of "other people" is the same for every run
 
 
@@ -45,7 +53,9 @@ class RunConfig:
     human: teammate archetype (``fast-middle``, ``fast-outside``, ``slow-middle``,
         ``slow-outside``).
     adapt: which models learn: ``full`` (both), ``spatial``, ``temporal``, ``none``; ``oracle``
-        plans with the teammate's true model (the floor).
+        plans with the teammate's true model (the floor); ``exact`` is what a user of a
+        constraint scheduler would run: a CP-SAT schedule on the prior mean durations, the
+        robot's fastest motions (no proximity term, no waits), nothing learned.
     cycles: I, cycles in the run. gamma: proximity weight. lam: diversity weight for the first
         half of the cycles (then 0, as in the paper's ablation).
     seed: cycle c draws every random number from (seed, c).
@@ -219,6 +229,18 @@ class AdaptiveRun:
                                                 self.teammate)
         return self._oracle_spatial
 
+    def _plan_exact(
+        self, motion: DiffusionMotion, samples: np.ndarray, mean: np.ndarray
+    ) -> tuple[Evaluation, dict[str, Any]]:
+        """CP-SAT on the prior mean durations, scored like every other plan."""
+        exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
+        cache = TrajectoryCache(motion)
+        ev = evaluate_population(self.problem, [exact.schedule], samples, mean, cache,
+                                 motion.nominal_durations(self.problem), self.config.gamma, 0.0,
+                                 self.model.history)[0]
+        return ev, {"solver": "cp-sat", "optimal": exact.optimal,
+                    "motion_requests": cache.misses}
+
     def step(self) -> CycleResult:
         """Plan, deploy and learn one cycle; record it if a store is attached."""
         cfg, c = self.config, self.next_cycle
@@ -226,23 +248,32 @@ class AdaptiveRun:
         rng = np.random.default_rng([cfg.seed, c])
         samples, mean = self._durations(rng)
         spatial = self._spatial()
+        exact = cfg.adapt == "exact"
         motion = DiffusionMotion(
-            self.policy, self.world.completion_time, spatial.cost, cfg.gamma,
+            self.policy, self.world.completion_time, spatial.cost,
+            0.0 if exact else cfg.gamma,  # the constraint-scheduling user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31))),
         )
-        ga = GeneticScheduler(self.problem, motion, GAConfig(
-            population=cfg.population, generations=cfg.generations, samples=cfg.samples,
-            patience=cfg.patience, seed=int(rng.integers(2**31))))
-        lam = cfg.lam_at(c)
-        result = ga.solve(samples, mean, gamma=cfg.gamma, lam=lam, history=self.model.history)
-        best = result.best
+        ga_seed = int(rng.integers(2**31))
+        lam = 0.0 if exact else cfg.lam_at(c)
+        if exact:
+            best, search = self._plan_exact(motion, samples, mean)
+        else:
+            ga = GeneticScheduler(self.problem, motion, GAConfig(
+                population=cfg.population, generations=cfg.generations, samples=cfg.samples,
+                patience=cfg.patience, seed=ga_seed))
+            result = ga.solve(samples, mean, gamma=cfg.gamma, lam=lam,
+                              history=self.model.history)
+            best = result.best
+            search = {"generations": result.generations_run, "evaluations": result.evaluations,
+                      "motion_requests": result.cache_misses}
         t1 = time.perf_counter()
         dep = deploy(self.problem, best.schedule, best.motions, self.teammate.perform,
                      human_home=self.world.home("human"), robot_home=self.world.home("robot"),
                      dt=self.world.dt, beta=cfg.beta, gamma=cfg.gamma, rng=rng)
         t2 = time.perf_counter()
-        learn_time = cfg.adapt in ("full", "temporal")
+        learn_time = cfg.adapt in ("full", "temporal")  # oracle and exact learn nothing
         learn_space = cfg.adapt in ("full", "spatial")
         for task, ex in dep.human.items():
             if learn_time:
@@ -280,8 +311,7 @@ class AdaptiveRun:
             "belief": {"mean_durations": dict(zip(self.problem.ids,
                                                   self.model.temporal.mean().tolist(),
                                                   strict=True))},
-            "search": {"generations": result.generations_run, "evaluations": result.evaluations,
-                       "motion_requests": result.cache_misses},
+            "search": search,
             "seconds": {"plan": t1 - t0, "deploy": t2 - t1, "update": t3 - t2,
                         "total": t3 - t0},
         }
