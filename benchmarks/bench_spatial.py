@@ -18,14 +18,12 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
-import platform
-import re
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
+from _common import cpu_model, load_average, update_docs_section
 
 from rapidds.human.spatial import SpatialConfig, SpatialCostModel, SpatialModel, point_cost
 
@@ -58,15 +56,6 @@ def timed(fn, min_time: float = 1.0) -> float:
     return min(times)
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
 
 def exact_posterior(cfg: SpatialConfig, pop, obs, x: np.ndarray) -> np.ndarray:
     """Eqs. 9-11 evaluated directly at arbitrary points (what the grid approximates)."""
@@ -78,12 +67,6 @@ def exact_posterior(cfg: SpatialConfig, pop, obs, x: np.ndarray) -> np.ndarray:
         mean, var = new * (mean / var + s / cfg.rho), new
     return mean
 
-
-def load_average() -> str:
-    try:
-        return Path("/proc/loadavg").read_text().split()[0]
-    except OSError:
-        return "n/a"
 
 
 def run(cycles: int) -> tuple[str, dict[str, float]]:
@@ -171,17 +154,6 @@ Default `SpatialConfig` on a 10 x 10 map: 32 x 32 grid (V = 1024), MLP 3 x 64 Si
     return table, nums
 
 
-def update_docs(table: str, path: Path) -> None:
-    section = "## Spatial model\n\n`benchmarks/bench_spatial.py`\n\n" + table
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pat = re.compile(r"^## Spatial model\n.*?(?=^## |\Z)", re.S | re.M)
-    if pat.search(text):
-        text = pat.sub(lambda _: section + "\n", text).rstrip("\n") + "\n"
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -191,7 +163,7 @@ def main() -> None:
     table, _ = run(args.cycles)
     print(table)
     if args.update_docs:
-        update_docs(table, Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
+        update_docs_section("## Spatial model", "`benchmarks/bench_spatial.py`\n\n" + table)
 
 
 if __name__ == "__main__":
