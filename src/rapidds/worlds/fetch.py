@@ -283,12 +283,16 @@ class FetchWorld:
         return np.array(HOMES["robot"], dtype=float)
 
     def completion_time(self, task: str, traj: np.ndarray) -> np.ndarray:
-        """(N,) seconds for (N, H, 2) robot trajectories (any leading shape works)."""
+        """(N,) seconds for (N, H, 2) robot trajectories (any leading shape works); the penalty
+        for a path that never gets the object home or that touches a wall."""
         self._check_task(task)
-        return reach_then_return_time(
+        t = reach_then_return_time(
             traj, np.array(OBJECTS[task]), np.array(HOMES["robot"]), self.reach_radius,
             self.dt, self.penalty,
         )
+        # A path through a wall cannot be executed: it never completes. Without this, steering
+        # would pick the model's rare wall-cutting shortcuts for being fast.
+        return np.where(self.collides(traj), self.penalty, t)
 
     def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
         """Every robot task in every mode, ``n_per_mode`` each, in (task, mode) order.
