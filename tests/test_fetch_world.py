@@ -145,10 +145,12 @@ def test_segments_hit_rects_checks_whole_segments() -> None:
 def test_completion_time_convention_on_hand_made_paths(world: FetchWorld) -> None:
     h = world.horizon
     home, obj = world.home("robot"), world.object_position("t1")
-    out_and_back = np.vstack([np.linspace(home, obj, 6), np.linspace(obj, home, 6)[1:]])
+    via = np.array([home[0], obj[1]])  # straight up from home, then across: clear of the fence
+    out = np.vstack([np.linspace(home, via, 4), np.linspace(via, obj, 3)[1:]])
+    out_and_back = np.vstack([out, out[::-1][1:]])
     k = len(out_and_back) - 1  # the row at which it is back home
     returns = np.vstack([out_and_back, np.repeat(home[None], h - len(out_and_back), axis=0)])
-    never_back = np.vstack([np.linspace(home, obj, 6), np.repeat(obj[None], h - 6, axis=0)])
+    never_back = np.vstack([out, np.repeat(obj[None], h - len(out), axis=0)])
     stays_home = np.repeat(home[None], h, axis=0)
     late = np.vstack([np.repeat(home[None], 7, axis=0), returns[: h - 7]])  # starts 7 rows late
     times = world.completion_time("t1", np.stack([returns, never_back, stays_home, late]))
@@ -159,6 +161,11 @@ def test_completion_time_convention_on_hand_made_paths(world: FetchWorld) -> Non
     assert times[3] == pytest.approx((k + 7) * world.dt)
     # Reaching the wrong object does not complete the task.
     assert world.completion_time("t0", returns[None])[0] == world.penalty
+    # Neither does a path through a wall: the straight line home -> t1 cuts the right fence.
+    direct = np.vstack([np.linspace(home, obj, 6), np.linspace(obj, home, 6)[1:]])
+    direct = np.vstack([direct, np.repeat(home[None], h - len(direct), axis=0)])
+    assert world.collides(direct[None])[0]
+    assert world.completion_time("t1", direct[None])[0] == world.penalty
     # Any leading shape.
     batch = np.broadcast_to(returns, (2, 3, h, 2))
     assert world.completion_time("t1", batch).shape == (2, 3)
