@@ -292,7 +292,9 @@ class FetchWorld:
         )
         # A path through a wall cannot be executed: it never completes. Without this, steering
         # would pick the model's rare wall-cutting shortcuts for being fast.
-        return np.where(self.collides(traj), self.penalty, t)
+        p = np.asarray(traj, dtype=float)
+        hit = self.collides(p.reshape(-1, *p.shape[-2:])).reshape(np.shape(t))
+        return np.where(hit, self.penalty, t)
 
     def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
         """Every robot task in every mode, ``n_per_mode`` each, in (task, mode) order.
