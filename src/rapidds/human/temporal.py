@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +33,7 @@ from typing import Any, Literal
 import numpy as np
 
 from rapidds.errors import StateError
+from rapidds.fileio import atomic_write_text
 from rapidds.problem import Problem
 
 Sampling = Literal["predictive", "plugin"]
@@ -381,18 +380,7 @@ class TemporalModel:
     def save(self, path: str | Path) -> None:
         """Write JSON atomically (temp file in the same folder, then os.replace), so a crash
         mid-write leaves the previous file intact."""
-        path = Path(path)
-        text = json.dumps(self.to_dict(), indent=1, allow_nan=False)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1, allow_nan=False))
 
     @classmethod
     def load(cls, path: str | Path) -> TemporalModel:

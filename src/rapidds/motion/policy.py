@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -24,10 +23,11 @@ from typing import Any
 import numpy as np
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 from torch import Tensor, nn
 
 from rapidds.errors import CheckpointError
+from rapidds.fileio import atomic_write_bytes, atomic_write_text
 from rapidds.motion.config import ConfigError, DiffusionConfig, resolve_device
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.unet import TemporalUnet1d
@@ -79,17 +79,6 @@ def _sha256(path: Path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
-
-
-def _write_atomic(path: Path, write: Any) -> None:
-    """Write via a temporary file and rename, so a crash never leaves a half-written file
-    under the real name; permissions follow the umask like any other file."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
 
 
 class DiffusionPolicy:
@@ -277,7 +266,7 @@ class DiffusionPolicy:
         tensors = {k: v.detach().to("cpu").contiguous() for k, v in
                    self.model.state_dict().items()}
         weights = directory / WEIGHTS_FILE
-        _write_atomic(weights, lambda p: save_file(tensors, str(p), metadata={"format": "pt"}))
+        atomic_write_bytes(weights, save(tensors, metadata={"format": "pt"}))
         meta = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -285,8 +274,7 @@ class DiffusionPolicy:
             "normalizer": self.normalizer.state_dict(),
             "weights": {"file": WEIGHTS_FILE, "sha256": _sha256(weights)},
         }
-        _write_atomic(directory / CONFIG_FILE,
-                      lambda p: p.write_text(json.dumps(meta, indent=2) + "\n", "utf-8"))
+        atomic_write_text(directory / CONFIG_FILE, json.dumps(meta, indent=2) + "\n")
         return directory
 
     @classmethod
