@@ -78,3 +78,26 @@ def test_bad_steering_config_rejected():
         SteeringConfig(particles=0)
     with pytest.raises(ValueError, match="alpha"):
         SteeringConfig(alpha=float("nan"))
+
+
+def test_sample_in_world_cli_steers_and_draws(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    import matplotlib.image as mpimg
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()",
+                               "sample", "--world", "fetch", "--task", "t3", *args],
+                              capture_output=True, text=True, timeout=120)
+
+    r = cli("--concurrent", "t2", "--gamma", "5", "-n", "6", "--json",
+            "--out", str(tmp_path / "s.png"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["routes"].count("outside") >= 5 and max(doc["spatial"]) < 0.3
+    assert mpimg.imread(tmp_path / "s.png")[..., :3].std() > 0.05
+    bad = cli("--concurrent", "t9")
+    assert bad.returncode == 2 and "no spatial model" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1

@@ -192,10 +192,84 @@ def _picture(path: Path, samples: np.ndarray, bounds: np.ndarray, people: list[n
     return save(fig, path)
 
 
+def _sample_in_world(
+    world_name: str, policy_dir: Path | None, task: str, n: int, seed: int,
+    concurrent: list[str], spatial_file: Path | None, gamma: float, candidates: int,
+    alpha: float, as_json: bool, out: Path | None,
+) -> None:
+    """Samples in a bundled world: V = the world's completion time + gamma * max over the
+    concurrent human tasks of their spatial cost (population prior, or a saved person's model),
+    drawn over that cost as a heat map with the walls (paper Figure 3 style)."""
+    import torch
+
+    from rapidds.cli.run import load_policy
+    from rapidds.human.spatial import SpatialModel
+    from rapidds.loop import RunConfig, prior_model
+    from rapidds.motion.steering import steer
+    from rapidds.plots.maps import save_cost_maps
+    from rapidds.worlds.fetch import FetchWorld
+
+    if world_name != "fetch":
+        fail(f"unknown world '{world_name}'; available: fetch")
+    torch.set_num_threads(1)
+    world = FetchWorld()
+    policy = load_policy(policy_dir)
+    if task not in policy.task_names:
+        fail(f"task '{task}' is not one of the policy's tasks {list(policy.task_names)}")
+    spatial = (SpatialModel.load(spatial_file) if spatial_file is not None
+               else prior_model(world, world.problem(), RunConfig()).spatial)
+    unknown = [t for t in concurrent if t not in spatial]
+    if unknown:
+        fail(f"no spatial model for human task(s) {unknown}; known: {list(spatial.tasks)}")
+
+    def value(xi: np.ndarray) -> np.ndarray:
+        v = world.completion_time(task, xi)
+        return v + gamma * spatial.cost(concurrent, xi) if concurrent else v
+
+    result = steer(policy, task, n, value, num_candidates=candidates if concurrent else 1,
+                   alpha=alpha, generator=seed)
+    trajs = result.trajectories
+    durations = world.completion_time(task, trajs)
+    costs = spatial.cost(concurrent, trajs)
+    routes = [world.route_mode(task, x) for x in trajs]
+    if out is not None:
+        shown = concurrent or list(spatial.tasks)
+        save_cost_maps({t: spatial[t] for t in shown}, out, paths={t: trajs for t in shown},
+                       walls=world.obstacles(), points=world.points_of_interest(),
+                       titles={t: f"robot {task} {'steered away from' if concurrent else 'over'}"
+                               f" human {t}" for t in shown})
+    if as_json:
+        typer.echo(json.dumps({
+            "world": world_name, "task": task, "n": n, "seed": seed, "concurrent": concurrent,
+            "gamma": gamma, "candidates": candidates if concurrent else 1,
+            "durations": durations.tolist(), "spatial": costs.tolist(), "routes": routes,
+            "values": result.values.tolist(), "trajectories": trajs.tolist(),
+            "picture": None if out is None else str(out),
+        }))
+        return
+    counts = {r: routes.count(r) for r in sorted(set(routes))}
+    typer.echo(f"{n} samples of robot task {task}" + (f" beside human {', '.join(concurrent)}"
+               if concurrent else "") + f": routes {counts}, completion "
+               f"{np.median(durations):.2f} s (median), spatial cost {np.median(costs):.2f}")
+    if out is not None:
+        typer.echo(f"wrote picture to {out}")
+
+
 @app.command("sample")
 def sample_cmd(
-    policy_dir: Annotated[Path, typer.Option("--policy", help="Checkpoint directory.")],
     task: Annotated[str, typer.Option("--task", help="Task name the policy was trained on.")],
+    policy_dir: Annotated[Path | None, typer.Option(
+        "--policy", help="Checkpoint directory (with --world: default the bundled policy).")
+    ] = None,
+    world: Annotated[str | None, typer.Option(
+        help="Sample in a bundled world (fetch): its completion time and human spatial costs.")
+    ] = None,
+    concurrent: Annotated[str | None, typer.Option(
+        help="With --world: human tasks running meanwhile, e.g. 't2' or 't2,t0'; steering keeps "
+        "away from where this person is expected.")] = None,
+    spatial: Annotated[Path | None, typer.Option(
+        help="With --world: a saved person's spatial model (default: the population prior).")
+    ] = None,
     n: Annotated[int, typer.Option("-n", "--n", help="Number of trajectories.")] = 8,
     seed: Annotated[int, typer.Option(help="Sampling seed (same seed, same samples).")] = 0,
     start: Annotated[str | None, typer.Option(
@@ -222,6 +296,14 @@ def sample_cmd(
         "--out", help="Write a picture (PNG) of the samples.")] = None,
 ) -> None:
     """Sample trajectories for one task, optionally steered away from people (SVDD-PM)."""
+    if world is not None:
+        tasks = [t for t in (concurrent or "").split(",") if t]
+        _sample_in_world(world, policy_dir, task, n, seed, tasks, spatial, gamma, candidates,
+                         alpha, as_json, out)
+        return
+    if policy_dir is None:
+        fail("--policy is required without --world")
+        return
     from rapidds.motion.config import ConfigError, cpu_threads
     from rapidds.motion.policy import DiffusionPolicy
     from rapidds.motion.steering import (
