@@ -16,9 +16,8 @@ def _default_weights() -> dict[str, float]:
 class GAConfig:
     """Configuration of :class:`~rapidds.scheduler.ga.GeneticScheduler`.
 
-    The defaults were tuned on random instances of 4-10 tasks (``benchmarks/bench_scheduler.py``):
-    they reach the CP-SAT optimum on deterministic instances to well within 0.5 % on average, in
-    a fraction of a second per instance on a 2-core machine.
+    The defaults were tuned with ``benchmarks/bench_scheduler.py`` on random deterministic
+    instances of 4-10 tasks against the CP-SAT optimum (see docs/benchmarks.md, "Scheduler").
 
     Attributes:
         population: C, candidate schedules per generation.
@@ -26,25 +25,36 @@ class GAConfig:
         samples: K, Monte-Carlo samples of the human durations the caller should draw for one
             solve. The scheduler evaluates every candidate on the same K samples (common random
             numbers), so differences between candidates are not sampling noise.
-        elite_fraction: share of the population, best first, carried unchanged into the next
-            generation (elitist selection); parents of the children are drawn from the elite.
+        elite_fraction: share of the population carried unchanged into the next generation
+            (elitist selection); the parents of the children are drawn from this elite.
         mutation_weights: relative probability of each mutation operator, keys from
             ``MUTATIONS``: "move" (a task to the other agent), "reorder" (a task to another
-            position of its agent's sequence), "crossover" (swap the tails of the human and robot
-            sequences after a cut point), "add_wait", "remove_wait". Missing keys weigh 0.
+            position of its agent's sequence, or a swap of two items there), "crossover" (swap
+            the tails of the human and robot sequences after a cut point), "add_wait",
+            "remove_wait". Missing keys weigh 0.
         max_overlap_iters: cap on the rounds of Algorithm 2's overlap loop ("while some C_j
             changed") per candidate; the loop can oscillate between overlap sets (DESIGN.md 3.2).
         patience: stop when the best objective has not improved for this many generations;
             0 = always run all ``generations``.
-        polish: run a first-improvement local search (every single move, reorder and wait
-            removal of the best schedule, evaluated as one batch per pass) when the search
-            stalls and at the end. Genetic search alone finds the right neighbourhood quickly but
-            the last exact swap slowly; the polish closes that gap at a small cost.
+        restart_after: when the current population's best has not improved for this many
+            generations, polish it and replace the population with fresh list schedules (the
+            overall best is kept aside); 0 = never restart. Independent restarts escape the
+            allocation local optima that a converged population cannot leave.
+        elites_per_allocation: at most this many elite schedules may share one allocation (the
+            set of tasks the human does); the freed elite slots go to the next-best other
+            allocations. 0 = no limit. Without it the elite collapses onto one allocation within
+            a few generations, and single moves rarely cross to a better one.
+        activate_children: also evaluate the active (left-justified) version of every mutant,
+            see :meth:`~rapidds.scheduler.ga.GeneticScheduler.activate`. A reorder of one agent
+            often helps only together with a matching reorder of the other; this supplies it.
+        polish: best-improvement local search over the whole single-step neighbourhood (every
+            move, reorder, swap, exchange between agents and wait removal), one batch per pass,
+            applied to the best of each stalled population and to the final best.
         polish_passes: cap on the local-search passes of one polish.
         seed: seed of the random generator; the same seed and inputs give the same result.
     """
 
-    population: int = 32
+    population: int = 48
     generations: int = 150
     samples: int = 64
     elite_fraction: float = 0.25
@@ -53,6 +63,7 @@ class GAConfig:
     patience: int = 40
     restart_after: int = 10
     elites_per_allocation: int = 1
+    activate_children: bool = True
     polish: bool = True
     polish_passes: int = 20
     seed: int = 0
@@ -85,8 +96,10 @@ class GAConfig:
                 )
         if sum(self.mutation_weights.values()) <= 0:
             raise ValueError("GAConfig.mutation_weights: at least one weight must be > 0")
-        if not isinstance(self.polish, bool):
-            raise ValueError(f"GAConfig.polish must be True or False, got {self.polish!r}")
+        for name in ("polish", "activate_children"):
+            value = getattr(self, name)
+            if not isinstance(value, bool):
+                raise ValueError(f"GAConfig.{name} must be True or False, got {value!r}")
 
     @property
     def n_elite(self) -> int:

@@ -68,10 +68,16 @@ class AllocationHistory:
 def diversity_term(
     problem: Problem, history: AllocationHistory | None
 ) -> Callable[[Schedule], float]:
-    """z_d as a function of the schedule, with the history's counts looked up once (hot path)."""
+    """z_d as a function of the schedule, with the history's counts looked up once (hot path).
+
+    Without history every allocation scores the same, |shared| / (2 |tau|): each shared task
+    has r = (1, 0) or (0, 1).
+    """
+    if history is None:
+        constant = len(problem.shared_tasks) / (2 * len(problem.tasks))
+        return lambda schedule: constant
     past = [
-        (task, history.count(task, "human") if history else 0,
-         history.count(task, "robot") if history else 0)
+        (task, history.count(task, "human"), history.count(task, "robot"))
         for task in problem.shared_tasks
     ]
     scale = 1.0 / (2 * len(problem.tasks))

@@ -44,7 +44,7 @@ class Evaluation:
         makespan_std: standard deviation of the makespan over the K samples.
         makespan: (K,) makespan per human sample.
         spatial: z_s, sum over robot tasks of ``MotionPlan.spatial_cost``.
-        diversity: z_d, allocation diversity (0 without history).
+        diversity: z_d, allocation diversity (the same for every schedule without history).
         motions: robot task -> the plan used for it.
         overlaps: robot task -> C_j on the expected timeline under the chosen motions. Equal to
             each motion's ``concurrent`` set when ``converged``.
@@ -196,6 +196,9 @@ def evaluate_population(
         )
     if max_overlap_iters < 1:
         raise ValueError(f"max_overlap_iters must be >= 1, got {max_overlap_iters}")
+    human_cols = [k for k, t in enumerate(problem.tasks) if t.can("human")]
+    if not (np.isfinite(samples[:, human_cols]).all() and np.isfinite(mean[human_cols]).all()):
+        raise ValueError("human_samples and human_mean must be finite where the human may work")
     rows = np.vstack([samples, mean])  # (K+1, n): the expected timeline rides along
     allowed = {t.id: frozenset(t.allowed) for t in problem.tasks}
     ids = np.array(problem.ids, dtype=object)
@@ -262,12 +265,14 @@ def evaluate_population(
 
 def _finish(c: _Candidate, v: _Variant, *, converged: bool, rounds: int) -> Evaluation:
     makespan = v.timing.makespan
+    mean = float(makespan.mean())
+    spread = makespan - mean
     return Evaluation(
         schedule=c.schedule,
         feasible=True,
         objective=v.objective,
-        makespan_mean=float(makespan.mean()),
-        makespan_std=float(makespan.std()),
+        makespan_mean=mean,
+        makespan_std=math.sqrt(float(spread @ spread) / len(makespan)),
         makespan=makespan,
         spatial=v.spatial,
         diversity=c.z_d,

@@ -8,12 +8,17 @@ by :func:`~rapidds.schedule.repair`; no operator puts a task on an agent that ma
 Evaluation (Algorithm 2) is batched over the generation and cached by schedule; the memory M (a
 :class:`TrajectoryCache`) lives for one solve, i.e. one cycle.
 
-Three additions to the paper's loop, each measured on random instances against CP-SAT
-(``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`: the elite holds
-at most ``elites_per_allocation`` schedules per allocation (who does which task), so the
-population does not collapse onto one allocation; a stalled population is replaced by a fresh
-list-scheduled one (``restart_after``); and the best schedule of each stalled population and the
-final best get a local search over their whole single-step neighbourhood (``polish``).
+Four additions to the paper's loop, each measured on random instances against CP-SAT
+(``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`:
+
+- every mutant is evaluated together with its *active* version (:meth:`GeneticScheduler.activate`,
+  Giffler-Thompson left-justification): a change in one agent's order often pays off only if
+  the other agent's order follows, which single mutations rarely do together;
+- the elite holds at most ``elites_per_allocation`` schedules per allocation (who does which
+  task), so the population does not collapse onto one allocation;
+- a stalled population is replaced by a fresh list-scheduled one (``restart_after``);
+- the best schedule of each stalled population and the final best get a local search over their
+  whole single-step neighbourhood (``polish``).
 """
 
 from __future__ import annotations
@@ -102,6 +107,7 @@ class GeneticScheduler:
         self.motion = motion
         self.config = config or GAConfig()
         self._allowed = {t.id: t.allowed for t in problem.tasks}
+        self._index = problem.index
         self._shared = problem.shared_tasks
         self._desc = _closure(problem.ids, problem.precedence)
         self._anc = _closure(problem.ids, [(b, a) for a, b in problem.precedence])
@@ -184,7 +190,14 @@ class GeneticScheduler:
             generations = generation
             before, local_before = best.objective, ranked[0].objective
             elites = _select_elites(ranked, n_elite, cfg.elites_per_allocation)
-            children = self._children(elites, cfg.population - len(elites), rng, evaluated)
+            children = self._children(
+                elites, cfg.population - len(elites), rng, evaluated, mean, d_init
+            )
+            if not children:  # every mutant of the elite has been evaluated: nothing to gain
+                history_best.append(best.objective)
+                if progress:
+                    progress(generation, best.objective)
+                break
             ranked = _rank(evaluate(children) + elites)  # ties: newcomers first (plateau drift)
             local_stall = local_stall + 1 if ranked[0].objective >= local_before else 0
             if cfg.restart_after and local_stall >= cfg.restart_after:
@@ -220,17 +233,82 @@ class GeneticScheduler:
         count: int,
         rng: random.Random,
         evaluated: dict[Schedule, Evaluation],
+        mean: np.ndarray,
+        d_init: np.ndarray,
     ) -> list[Schedule]:
-        """Up to ``count`` distinct mutants never evaluated before (fewer on tiny problems)."""
+        """Up to ``count`` distinct schedules never evaluated before (fewer on tiny problems):
+        mutants of the parents and, with ``activate_children``, their active versions."""
         weights = self.config.weights()
         out: dict[Schedule, None] = {}
-        attempts = 0
-        while len(out) < count and attempts < 20 * count:
-            attempts += 1
+        misses = 0  # consecutive mutants seen before: many means the parents' surroundings are
+        while len(out) < count and misses < 2 * count:  # exhausted (tiny problems)
             child = self.mutate(rng.choice(parents).schedule, rng, weights)
-            if child is not None and child not in evaluated and child not in out:
-                out[child] = None
+            if child is None or child in evaluated or child in out:
+                misses += 1
+                continue
+            misses = 0
+            out[child] = None
+            if self.config.activate_children and len(out) < count:
+                active = self.activate(child, mean, d_init)
+                if active is not None and active not in evaluated:
+                    out[active] = None
         return list(out)
+
+    def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray) -> Schedule | None:
+        """Giffler-Thompson left-justification of ``s`` on expected durations.
+
+        Keeps the allocation and rebuilds both sequences on the expected durations (human
+        ``mean``, robot ``d_init``) so that no task could start earlier without delaying another
+        (an active schedule); among tasks that compete for an agent the one earlier in ``s``
+        goes first. A wait token stays attached in front of the task that followed it. The
+        result is usually shorter than ``s`` and never deadlocks through order alone, so this
+        also repairs many deadlocked mutants. None if the waits make every order cyclic.
+        """
+        agent_of: dict[str, Agent] = {}
+        rank: dict[str, int] = {}
+        attached: dict[str, list[Wait]] = {}
+        for agent in AGENTS:
+            waits: list[Wait] = []
+            for k, x in enumerate(s.sequence(agent)):
+                if isinstance(x, Wait):
+                    waits.append(x)
+                else:
+                    agent_of[x], rank[x], attached[x] = agent, k, waits
+                    waits = []
+        index = self._index
+        gated: dict[str, list[str]] = {t: [] for t in agent_of}  # gate -> tasks it gates
+        pending: dict[str, int] = {}
+        for t in agent_of:
+            gates = dict.fromkeys((*self._preds[t], *(w.task for w in attached[t])))
+            pending[t] = len(gates)
+            for g in gates:
+                gated[g].append(t)
+        dur = {t: float(mean[index[t]] if a == "human" else d_init[index[t]])
+               for t, a in agent_of.items()}
+        free = {"human": 0.0, "robot": 0.0}
+        gate_time = dict.fromkeys(agent_of, 0.0)  # latest finish among a task's gates so far
+        seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
+        ready = [t for t in self.problem.ids if t in agent_of and pending[t] == 0]
+        placed = 0
+        while ready:
+            est = {t: max(free[agent_of[t]], gate_time[t]) for t in ready}
+            first = min(ready, key=lambda t: est[t] + dur[t])
+            agent = agent_of[first]
+            cutoff = est[first] + dur[first]
+            task = min((t for t in ready if agent_of[t] == agent and est[t] < cutoff),
+                       key=lambda t: rank[t])
+            ready.remove(task)
+            placed += 1
+            free[agent] = done = est[task] + dur[task]
+            seqs[agent].extend((*attached[task], task))
+            for t in gated[task]:
+                gate_time[t] = max(gate_time[t], done)
+                pending[t] -= 1
+                if pending[t] == 0:
+                    ready.append(t)
+        if placed < len(agent_of):
+            return None  # waits and precedence form a cycle
+        return repair(Schedule(tuple(seqs["human"]), tuple(seqs["robot"])))
 
     def mutate(
         self, parent: Schedule, rng: random.Random, weights: list[float] | None = None
@@ -270,15 +348,16 @@ class GeneticScheduler:
         """C distinct list schedules (fewer only if the problem has fewer distinct ones)."""
         size = self.config.population
         out: dict[Schedule, None] = {}
-        for _ in range(20 * size):
-            out[self.list_schedule(rng, mean, d_init)] = None
-            if len(out) >= size:
-                break
+        misses = 0
+        while len(out) < size and misses < size:
+            schedule = self.list_schedule(rng, mean, d_init)
+            misses = misses + 1 if schedule in out else 0
+            out[schedule] = None
         pool = list(out)
-        attempts = 0
-        while len(out) < size and attempts < 20 * size:  # tiny problems: top up with mutants
-            attempts += 1
+        misses = 0
+        while len(out) < size and misses < size:  # tiny problems: top up with mutants
             child = self.mutate(rng.choice(pool), rng)
+            misses = misses + 1 if child is None or child in out else 0
             if child is not None:
                 out[child] = None
         return list(out)
@@ -293,7 +372,7 @@ class GeneticScheduler:
         allowed one. The noise level and the greediness are drawn per schedule, so a population
         spans pure EDF/earliest-finish schedules and nearly random ones.
         """
-        index = self.problem.index
+        index = self._index
         durations = {
             t: {
                 "human": float(mean[index[t]]) if "human" in self._allowed[t] else math.inf,
@@ -455,6 +534,10 @@ class GeneticScheduler:
                     swapped = (*seq[:k], seq[j], *seq[k + 1 : j], item, *seq[j + 1 :])
                     out[repair(s.replace(agent, swapped))] = None
         h, r = s.human, s.robot
+        for i in range(len(h) - 1):  # adjacent swaps in both sequences at once: one agent's
+            for j in range(len(r) - 1):  # new order often pays only with the other's
+                out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
+                                    (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
         for i, a in enumerate(h):
             if isinstance(a, Wait) or "robot" not in self._allowed[a]:
                 continue

@@ -1,0 +1,423 @@
+"""Genetic scheduler, Algorithm 2 evaluation and the diversity term."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import random
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pytest
+
+from rapidds.errors import StateError
+from rapidds.motion.interface import (
+    FixedDurationMotion,
+    MotionKey,
+    MotionPlan,
+    TrajectoryCache,
+)
+from rapidds.problem import Problem, Task
+from rapidds.schedule import CompiledSchedule, Schedule, Wait, validate
+from rapidds.scheduler import (
+    AllocationHistory,
+    GAConfig,
+    GeneticScheduler,
+    diversity,
+    evaluate_population,
+)
+
+BOTH = frozenset({"human", "robot"})
+HUMAN = frozenset({"human"})
+ROBOT = frozenset({"robot"})
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def random_problem(rng: np.random.Generator, n: int, restrict: float = 0.2) -> Problem:
+    """Durations in 0.01 s steps, about two precedence edges per task pair in n."""
+    tasks = []
+    for i in range(n):
+        u = rng.random()
+        allowed = BOTH if u >= restrict else (HUMAN if u < restrict / 2 else ROBOT)
+        tasks.append(Task(f"t{i}", allowed, round(float(rng.uniform(1, 10)), 2), 0.0,
+                          round(float(rng.uniform(1, 10)), 2)))
+    p_edge = min(0.3, 2.0 / n)
+    edges = tuple((f"t{i}", f"t{j}") for i in range(n) for j in range(i + 1, n)
+                  if rng.random() < p_edge)
+    return Problem(f"random{n}", tuple(tasks), edges)
+
+
+def sequence_makespan(problem: Problem, human: Sequence[str], robot: Sequence[str]) -> float:
+    """Makespan of per-agent orders without waits, by recursion on finish times (independent
+    of CompiledSchedule); inf on a cycle."""
+    on_human = set(human)
+    dur = {t.id: (t.human_mean if t.id in on_human else t.robot_duration) for t in problem.tasks}
+    before = {b: a for seq in (human, robot) for a, b in itertools.pairwise(seq)}
+    preds = {t: problem.predecessors(t) for t in problem.ids}
+    finish: dict[str, float] = {}
+    active: set[str] = set()
+
+    def f(t: str) -> float:
+        if t not in finish:
+            if t in active:
+                raise RecursionError
+            active.add(t)
+            gates = [f(p) for p in preds[t]] + ([f(before[t])] if t in before else [])
+            finish[t] = max(gates, default=0.0) + dur[t]  # type: ignore[operator]
+        return finish[t]
+
+    try:
+        return max(f(t) for t in problem.ids)
+    except RecursionError:
+        return math.inf
+
+
+def brute_force(problem: Problem) -> float:
+    """Optimal makespan over every allocation and every pair of orders, no waits."""
+    best = math.inf
+    for agents in itertools.product(*(sorted(t.allowed) for t in problem.tasks)):
+        h = [t for t, a in zip(problem.ids, agents, strict=True) if a == "human"]
+        r = [t for t, a in zip(problem.ids, agents, strict=True) if a == "robot"]
+        for ph in itertools.permutations(h):
+            for pr in itertools.permutations(r):
+                best = min(best, sequence_makespan(problem, ph, pr))
+    return best
+
+
+def means(problem: Problem) -> np.ndarray:
+    return np.array([np.nan if t.human_mean is None else t.human_mean for t in problem.tasks])
+
+
+class ConcurrencyMotion:
+    """A motion model whose robot duration and spatial cost are a function of C_j; it records
+    every batch it is asked for."""
+
+    def __init__(self, cost: Callable[[frozenset[str]], tuple[float, float]], nominal: float):
+        self.cost = cost
+        self.nominal = nominal
+        self.batches: list[list[MotionKey]] = []
+
+    def nominal_durations(self, problem: Problem) -> np.ndarray:
+        return np.array([self.nominal if t.can("robot") else np.nan for t in problem.tasks])
+
+    def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
+        self.batches.append(list(requests))
+        return [MotionPlan(j, c, *self.cost(c)) for j, c in requests]
+
+
+def _chain_problem(n_human: int) -> Problem:
+    """Human-only tasks h1..hN of 1 s in a chain, one robot-only task r."""
+    tasks = [Task(f"h{i}", HUMAN, 1.0, 0.0) for i in range(1, n_human + 1)]
+    tasks.append(Task("r", ROBOT, robot_duration=1.0))
+    return Problem("chain", tuple(tasks))
+
+
+def _evaluate(problem: Problem, schedules: list[Schedule], motion, *, gamma: float = 1.0,
+              lam: float = 0.0, history: AllocationHistory | None = None,
+              max_overlap_iters: int = 8, samples: np.ndarray | None = None):
+    mean = means(problem)
+    samples = np.nan_to_num(mean)[None] if samples is None else samples
+    return evaluate_population(
+        problem, schedules, samples, np.nan_to_num(mean), TrajectoryCache(motion),
+        motion.nominal_durations(problem), gamma, lam, history, max_overlap_iters,
+    )
+
+
+# ---------------------------------------------------------------------------- diversity
+
+
+def _three_tasks() -> Problem:
+    return Problem(
+        "div",
+        (Task("t0", BOTH, 1.0, 0.0, 1.0), Task("t1", BOTH, 1.0, 0.0, 1.0),
+         Task("t2", HUMAN, 1.0, 0.0)),
+    )
+
+
+def test_diversity_closed_form_with_history() -> None:
+    p = _three_tasks()
+    hist = AllocationHistory({"t0": {"human": 2, "robot": 0}, "t1": {"human": 1, "robot": 1}})
+    # t0 by human: r = (3, 0) -> |1.5-3| + |1.5-0| = 3; t1 by robot: r = (1, 2) -> 1; /(2*3)
+    assert diversity(p, Schedule(("t0", "t2"), ("t1",)), hist) == pytest.approx(4 / 6)
+    # t0 to the robot, which has done it less: r = (2, 1) -> 1; t1 stays 1
+    assert diversity(p, Schedule(("t2",), ("t0", "t1")), hist) == pytest.approx(2 / 6)
+    # t1 to the human: r = (2, 1) -> 1; t0 to the robot -> 1
+    assert diversity(p, Schedule(("t1", "t2"), ("t0",)), hist) == pytest.approx(2 / 6)
+
+
+def test_diversity_without_history_is_the_same_for_every_allocation() -> None:
+    p = _three_tasks()
+    for s in (Schedule(("t0", "t1", "t2"), ()), Schedule(("t2",), ("t0", "t1"))):
+        assert diversity(p, s, None) == pytest.approx(2 / 6)
+        assert diversity(p, s, AllocationHistory()) == pytest.approx(2 / 6)
+
+
+def test_allocation_history_records_and_round_trips() -> None:
+    hist = AllocationHistory()
+    hist.record(Schedule(("t0", "t2"), ("t1",)))
+    hist.record(Schedule(("t2",), ("t0", "t1")))
+    assert hist.count("t0", "human") == 1 and hist.count("t0", "robot") == 1
+    assert hist.count("t1", "robot") == 2 and hist.count("t1", "human") == 0
+    assert AllocationHistory.from_dict(hist.to_dict()) == hist
+    p = _three_tasks()
+    # after these two cycles t1 was always the robot's: giving it to the human scores lower
+    assert diversity(p, Schedule(("t1", "t2"), ("t0",)), hist) < diversity(
+        p, Schedule(("t2",), ("t0", "t1")), hist
+    )
+
+
+@pytest.mark.parametrize(
+    "data",
+    [{"t0": {"human": -1}}, {"t0": {"alien": 1}}, {"t0": {"human": 1.5}}, {"t0": 3}, [1]],
+)
+def test_allocation_history_rejects_bad_data(data: object) -> None:
+    with pytest.raises(StateError):
+        AllocationHistory.from_dict(data)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def test_evaluation_matches_the_timeline_and_uses_common_samples() -> None:
+    rng = np.random.default_rng(3)
+    p = random_problem(rng, 7)
+    mean = np.nan_to_num(means(p))
+    samples = mean * rng.uniform(0.5, 1.5, size=(32, len(p.tasks)))
+    scheduler = GeneticScheduler(p, FixedDurationMotion(p))
+    py = random.Random(0)
+    schedules = list(dict.fromkeys(scheduler.list_schedule(py, mean, scheduler.motion
+                                                           .nominal_durations(p))
+                                   for _ in range(10)))
+    evals = _evaluate(p, schedules, FixedDurationMotion(p), samples=samples)
+    robot = FixedDurationMotion(p).nominal_durations(p)
+    for s, e in zip(schedules, evals, strict=True):
+        c = CompiledSchedule.build(p, s)
+        assert c is not None and e.feasible and e.converged
+        makespan = c.simulate(c.durations(samples, robot)).makespan
+        np.testing.assert_allclose(e.makespan, makespan)
+        assert e.makespan_mean == pytest.approx(makespan.mean())
+        assert e.makespan_std == pytest.approx(makespan.std())
+        assert e.objective == pytest.approx(makespan.mean() + 1.0 * e.spatial)
+        expected = c.simulate(c.durations(mean[None], robot))
+        assert e.overlaps == expected.overlaps(0)  # vectorised C_j == Timeline.overlaps
+        np.testing.assert_allclose(e.expected_finish, expected.finish[0])
+
+
+def test_objective_adds_weighted_diversity() -> None:
+    p = _three_tasks()
+    hist = AllocationHistory({"t0": {"human": 2, "robot": 0}})
+    s = Schedule(("t0", "t2"), ("t1",))
+    (e,) = _evaluate(p, [s], FixedDurationMotion(p), gamma=2.0, lam=3.0, history=hist)
+    assert e.diversity == pytest.approx(diversity(p, s, hist))
+    assert e.objective == pytest.approx(e.makespan_mean + 3.0 * e.diversity)
+
+
+def test_infeasible_schedules_get_inf_and_feasible_ones_do_not() -> None:
+    p = Problem("pair", (Task("a", BOTH, 1.0, 0.0, 1.0), Task("b", BOTH, 1.0, 0.0, 1.0)),
+                (("a", "b"),))
+    dead = Schedule(("b", "a"), ())
+    cycle = Schedule((Wait("b"), "a"), (Wait("a"), "b"))
+    fine = Schedule(("a",), ("b",))
+    evals = _evaluate(p, [dead, cycle, fine], FixedDurationMotion(p))
+    assert [e.feasible for e in evals] == [False, False, True]
+    assert math.isinf(evals[0].objective) and math.isinf(evals[1].objective)
+    assert evals[2].objective == pytest.approx(2.0)
+
+
+def test_invalid_schedule_is_an_error_not_inf() -> None:
+    p = _three_tasks()
+    with pytest.raises(ValueError, match="missing"):
+        _evaluate(p, [Schedule(("t0",), ("t1",))], FixedDurationMotion(p))
+    with pytest.raises(ValueError, match="not allowed"):
+        _evaluate(p, [Schedule(("t0",), ("t1", "t2"))], FixedDurationMotion(p))
+
+
+def test_overlap_loop_converges_when_overlaps_settle() -> None:
+    # r's duration = |C| + 1 and human tasks are 1 s each: C grows one task per round
+    # {h1} -> {h1,h2} -> ... -> all five, where duration 6 covers all five and it settles.
+    p = _chain_problem(5)
+    sets = [frozenset(f"h{i}" for i in range(1, k + 1)) for k in range(1, 6)]
+    motion = ConcurrencyMotion(lambda c: (len(c) + 1.0, 0.1 * len(c)), nominal=1.0)
+    s = Schedule(("h1", "h2", "h3", "h4", "h5"), ("r",))
+    (e,) = _evaluate(p, [s], motion, max_overlap_iters=10)
+    assert e.converged and e.overlap_iterations == 5
+    assert e.motions["r"].concurrent == sets[-1] == e.overlaps["r"]
+    assert e.makespan_mean == pytest.approx(6.0) and e.spatial == pytest.approx(0.5)
+
+
+def test_overlap_loop_is_capped_and_keeps_the_best_variant() -> None:
+    p = _chain_problem(5)
+    sets = [frozenset(f"h{i}" for i in range(1, k + 1)) for k in range(1, 6)]
+    motion = ConcurrencyMotion(lambda c: (len(c) + 1.0, 0.1 * len(c)), nominal=1.0)
+    s = Schedule(("h1", "h2", "h3", "h4", "h5"), ("r",))
+    (e,) = _evaluate(p, [s], motion, max_overlap_iters=3)
+    assert not e.converged and e.overlap_iterations == 3
+    # variants: C={h1} (d 2, cost .1), {h1,h2} (d 3, .2), {h1..h3} (d 4, .3); makespan 5 each
+    assert e.motions["r"].concurrent == sets[0]
+    assert e.objective == pytest.approx(5.0 + 0.1)
+    assert e.overlaps["r"] == sets[1]  # what the chosen motion actually overlaps
+
+
+def test_overlap_oscillation_is_detected() -> None:
+    # h1 [0,2], h2 [2,4]. d_init 1 -> C={h1}; plan(C={h1}) takes 3 s -> C={h1,h2};
+    # plan({h1,h2}) takes 1 s -> C={h1} again: a two-cycle.
+    p = Problem("osc", (Task("h1", HUMAN, 2.0, 0.0), Task("h2", HUMAN, 2.0, 0.0),
+                        Task("r", ROBOT, robot_duration=1.0)))
+    table = {frozenset({"h1"}): (3.0, 0.5), frozenset({"h1", "h2"}): (1.0, 0.2)}
+    motion = ConcurrencyMotion(table.__getitem__, nominal=1.0)
+    (e,) = _evaluate(p, [Schedule(("h1", "h2"), ("r",))], motion, max_overlap_iters=50)
+    assert not e.converged and e.overlap_iterations == 2
+    assert e.motions["r"].concurrent == frozenset({"h1", "h2"})  # cost 4 + 0.2 < 4 + 0.5
+    assert e.objective == pytest.approx(4.2)
+
+
+def test_overlap_rounds_ask_the_motion_model_once_per_round_for_all_candidates() -> None:
+    p = _chain_problem(5)
+    motion = ConcurrencyMotion(lambda c: (len(c) + 1.0, 0.0), nominal=1.0)
+    order = ("h1", "h2", "h3", "h4", "h5")
+    candidates = [Schedule(order, ("r",)), Schedule(order, (Wait("h1"), "r")),
+                  Schedule(order, (Wait("h3"), "r"))]
+    evals = _evaluate(p, candidates, motion, max_overlap_iters=10)
+    assert all(e.converged for e in evals)
+    assert len(motion.batches) == max(e.overlap_iterations for e in evals)
+    first = motion.batches[0]  # round 1: r waiting for nothing, for h1 and for h3
+    assert set(first) == {("r", frozenset({"h1"})), ("r", frozenset({"h2"})),
+                          ("r", frozenset({"h4"}))}
+    asked = [k for batch in motion.batches for k in batch]
+    assert len(asked) == len(set(asked))  # the memory M answers repeats
+
+
+# ----------------------------------------------------------------------------------- GA
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_ga_reaches_the_brute_force_optimum(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    p = random_problem(rng, 4 + seed % 3)
+    mean = np.nan_to_num(means(p))
+    result = GeneticScheduler(p, FixedDurationMotion(p)).solve(
+        np.tile(mean, (4, 1)), mean, gamma=0.0
+    )
+    assert result.best.makespan_mean == pytest.approx(brute_force(p), abs=1e-9)
+    validate(p, result.best.schedule)
+
+
+def test_ga_is_deterministic_for_a_seed() -> None:
+    rng = np.random.default_rng(7)
+    p = random_problem(rng, 8)
+    mean = np.nan_to_num(means(p))
+    samples = mean * rng.uniform(0.7, 1.3, size=(16, 8))
+    config = GAConfig(seed=11, generations=30, population=16)
+    runs = [GeneticScheduler(p, FixedDurationMotion(p), config).solve(samples, mean)
+            for _ in range(2)]
+    assert runs[0].best.schedule == runs[1].best.schedule
+    assert runs[0].best_by_generation == runs[1].best_by_generation
+    assert runs[0].evaluations == runs[1].evaluations
+
+
+def test_ga_result_bookkeeping_and_progress() -> None:
+    rng = np.random.default_rng(8)
+    p = random_problem(rng, 6)
+    mean = np.nan_to_num(means(p))
+    calls: list[tuple[int, float]] = []
+    config = GAConfig(generations=12, population=10, patience=0, restart_after=0)
+    result = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
+        mean[None], mean, progress=lambda g, b: calls.append((g, b))
+    )
+    assert result.generations_run == 12
+    assert [g for g, _ in calls] == list(range(13))
+    assert len(result.best_by_generation) == 13
+    assert all(a >= b for a, b in itertools.pairwise(result.best_by_generation))
+    assert result.best.objective <= result.best_by_generation[-1]
+    assert 0 <= result.seconds_to_best <= result.seconds
+    assert result.cache_misses == result.cache_size  # each (j, C_j) planned once
+    assert result.cache_hits > 0
+    assert result.evaluations > config.population
+
+
+def test_mutations_and_activation_respect_allowed_agents() -> None:
+    rng = np.random.default_rng(9)
+    p = random_problem(rng, 9, restrict=0.5)
+    scheduler = GeneticScheduler(p, FixedDurationMotion(p))
+    mean = np.nan_to_num(means(p))
+    d_init = scheduler.motion.nominal_durations(p)
+    py = random.Random(1)
+    s = scheduler.list_schedule(py, mean, d_init)
+    for _ in range(2000):
+        child = scheduler.mutate(s, py)
+        assert child is not None and child != s
+        validate(p, child)
+        active = scheduler.activate(child, mean, d_init)
+        if active is not None:
+            validate(p, active)
+            assert active.assignment == child.assignment
+            assert CompiledSchedule.build(p, active) is not None
+        s = child if CompiledSchedule.build(p, child) is not None else s
+
+
+def test_list_schedules_are_always_feasible() -> None:
+    rng = np.random.default_rng(10)
+    p = random_problem(rng, 12, restrict=0.3)
+    scheduler = GeneticScheduler(p, FixedDurationMotion(p))
+    mean = np.nan_to_num(means(p))
+    py = random.Random(2)
+    for _ in range(200):
+        s = scheduler.list_schedule(py, mean, scheduler.motion.nominal_durations(p))
+        validate(p, s)
+        assert CompiledSchedule.build(p, s) is not None
+
+
+def test_activation_left_justifies_the_other_agent() -> None:
+    # t0 -> t1 and t3 -> t4 across agents. Human [t0, t3] makes the robot's [t1, t4] wait for
+    # t0 before t1, while t4 could run as soon as t3 is done: activation must swap them.
+    p = Problem(
+        "gt",
+        (Task("t0", HUMAN, 4.0, 0.0), Task("t1", ROBOT, robot_duration=5.0),
+         Task("t3", HUMAN, 1.0, 0.0), Task("t4", ROBOT, robot_duration=1.0)),
+        (("t0", "t1"), ("t3", "t4")),
+    )
+    scheduler = GeneticScheduler(p, FixedDurationMotion(p))
+    mean = np.nan_to_num(means(p))
+    d_init = scheduler.motion.nominal_durations(p)
+    s = Schedule(("t3", "t0"), ("t1", "t4"))  # t1 waits for t0 until 5; t4 after it: 11
+    active = scheduler.activate(s, mean, d_init)
+    assert active == Schedule(("t3", "t0"), ("t4", "t1"))  # t4 1-2, t1 5-10
+    assert sequence_makespan(p, active.human, active.robot) == pytest.approx(10.0)
+    assert sequence_makespan(p, s.human, s.robot) == pytest.approx(11.0)
+
+
+def test_ga_plans_waits_when_proximity_costs_more_than_waiting() -> None:
+    # The human does h (1 s) then x (3 s). The robot's r (2 s) costs 10 (gamma 1) if it
+    # overlaps h: starting r at 0 costs 4 + 10, waiting for h costs nothing (r 1-3, z_t 4),
+    # waiting for x costs 2 s (r 4-6).
+    p = Problem("wait", (Task("h", HUMAN, 1.0, 0.0), Task("x", HUMAN, 3.0, 0.0),
+                         Task("r", ROBOT, robot_duration=2.0)), (("h", "x"),))
+    motion = ConcurrencyMotion(lambda c: (2.0, 10.0 if "h" in c else 0.0), nominal=2.0)
+    mean = np.nan_to_num(means(p))
+    result = GeneticScheduler(p, motion, GAConfig(generations=40)).solve(mean[None], mean,
+                                                                        gamma=1.0)
+    best = result.best
+    assert best.spatial == 0.0
+    assert best.objective == pytest.approx(4.0)
+    assert best.schedule == Schedule(("h", "x"), (Wait("h"), "r"))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("population", 1), ("generations", 0), ("samples", 0), ("elite_fraction", 1.0),
+     ("elite_fraction", 0.0), ("max_overlap_iters", 0), ("patience", -1), ("seed", -2),
+     ("mutation_weights", {"teleport": 1.0}), ("mutation_weights", {"move": -1.0}),
+     ("mutation_weights", {"move": 0.0}), ("polish", "yes"), ("population", 2.5),
+     ("restart_after", -1), ("elites_per_allocation", -1)],
+)
+def test_config_rejects_bad_values(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=field):
+        GAConfig(**{field: value})  # type: ignore[arg-type]
+
+
+def test_config_defaults_are_valid_and_weights_follow_the_operator_order() -> None:
+    c = GAConfig(mutation_weights={"reorder": 2.0})
+    assert c.weights() == [0.0, 2.0, 0.0, 0.0, 0.0]
+    assert 1 <= GAConfig().n_elite < GAConfig().population
