@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 import torch
-from _common import cpu_model, update_docs_section
+from _common import cpu_model, load_average, update_docs_section
 
 from rapidds.cli.run import load_policy
 from rapidds.loop import RunConfig, prior_model
@@ -76,7 +76,9 @@ def main() -> None:
         SECTION,
         "",
         f"`benchmarks/bench_motion.py`: bundled fetch policy ({POLICY_DEFAULTS['down_dims']} "
-        f"channels), one torch thread on {cpu_model()}; no GPU was available to measure.",
+        f"channels), one torch thread on {cpu_model()} (2 cores, 1-min load average "
+        f"{load_average()} at the end: other jobs shared the cores, so rates are lower bounds); "
+        "no GPU was lent to this session, so only CPU is measured.",
         "",
         f"Steered samples per second, {args.particles} particles per call (mean V of the kept "
         "samples in brackets: lower is better; V = completion s + 1.75 x spatial cost):",
