@@ -64,3 +64,29 @@ def test_atomic_write_replaces_whole_file(tmp_path):
     atomic_write_text(p, "two")
     assert p.read_text() == "two"
     assert [x.name for x in p.parent.iterdir()] == ["f.txt"]
+
+
+def test_record_trial_whole_or_nothing_and_idempotent(tmp_path):
+    recs = [{"cycle": c, "cost": float(c)} for c in range(3)]
+    with RunStore(tmp_path / "s.sqlite") as st:
+        assert st.record_trial("t", {"seed": 1}, recs) is True
+        assert [r["cost"] for r in st.records("t")] == [0.0, 1.0, 2.0]
+        assert st.last_cycle("t") == 2 and st.run_config("t") == {"seed": 1}
+        # a rescheduled task delivering the same trial again writes nothing
+        assert st.record_trial("t", {"seed": 1}, recs) is False
+        assert len(st.records("t")) == 3
+        with pytest.raises(StateError, match="other settings"):
+            st.record_trial("t", {"seed": 2}, recs)
+        # a bad record in the middle leaves neither the run nor any of its cycles
+        bad = [{"cycle": 0, "x": 1}, {"cycle": 1, "x": object()}]
+        with pytest.raises(TypeError):
+            st.record_trial("u", {"seed": 3}, bad)
+        assert st.run_config("u") is None and st.records("u") == []
+        # a run partly written cycle by cycle is not silently completed
+        st.create_run("p", {"seed": 4})
+        st.record_cycle("p", 0, {"cost": 1.0})
+        with pytest.raises(StateError, match="1 of 3 cycles"):
+            st.record_trial("p", {"seed": 4}, recs)
+        assert len(st.records("p")) == 1
+        with pytest.raises(ValueError, match="no cycle records"):
+            st.record_trial("v", {}, [])

@@ -149,6 +149,45 @@ class RunStore:
         except sqlite3.IntegrityError:
             raise StateError(f"run '{run_id}' already has cycle {cycle}") from None
 
+    def record_trial(
+        self, run_id: str, config: dict[str, Any], records: list[dict[str, Any]]
+    ) -> bool:
+        """Register a run and write all its cycle records in ONE transaction, so a study's trial
+        (computed elsewhere, e.g. on a Dask worker) is stored whole or not at all.
+
+        Storing the same trial again (a task Dask re-ran after a worker died, a second client)
+        changes nothing and returns False; True when this call wrote it. A run stored under
+        other settings, or partly stored by :meth:`record_cycle`, is refused.
+        """
+        if not records:
+            raise ValueError(f"trial '{run_id}' has no cycle records")
+        cfg_json = json.dumps(config)
+        with self._tx() as db:
+            row = db.execute("SELECT config FROM runs WHERE run_id=?", (run_id,)).fetchone()
+            if row is None:
+                db.execute("INSERT INTO runs VALUES (?, ?, ?)", (run_id, time.time(), cfg_json))
+            elif json.loads(row[0]) != json.loads(cfg_json):
+                raise StateError(
+                    f"run '{run_id}' already exists in {self.path} with other settings; "
+                    "use another --out or the same settings"
+                )
+            (have,) = db.execute(
+                "SELECT COUNT(*) FROM cycles WHERE run_id=?", (run_id,)
+            ).fetchone()
+            if have == len(records):
+                return False
+            if have:
+                raise StateError(
+                    f"run '{run_id}' has {have} of {len(records)} cycles stored; "
+                    "a whole trial cannot be written over a partial run"
+                )
+            now = time.time()
+            db.executemany(
+                "INSERT INTO cycles VALUES (?, ?, ?, NULL, ?)",
+                [(run_id, int(r["cycle"]), json.dumps(r), now) for r in records],
+            )
+        return True
+
     def last_cycle(self, run_id: str) -> int | None:
         row = self._db.execute("SELECT MAX(cycle) FROM cycles WHERE run_id=?", (run_id,)).fetchone()
         return None if row[0] is None else int(row[0])

@@ -1,0 +1,115 @@
+"""Ablation study on Dask: wall time of a fixed small study on 1 and on 2 local workers.
+
+    .venv/bin/python benchmarks/bench_ablation.py [--trials 4] [--cycles 8] [--update-docs]
+
+The study: fast-middle and slow-middle x full, spatial, temporal, exact, ``--trials`` trials of
+``--cycles`` cycles, the study's default search settings (what ``rapidds ablation`` runs). Each
+worker count gets a fresh LocalCluster (single-threaded worker processes) and a fresh store; the
+time counted is from submitting the first trial to storing the last (``run_study``), and, apart,
+the cluster's start (worker processes importing torch). The two runs must store identical records
+(the result does not depend on how many workers computed it). With --update-docs the
+"## Ablation study" section of docs/benchmarks.md is replaced (or added).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import re
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from rapidds.experiments.ablation import StudyConfig, dask_client, run_study, study_store
+from rapidds.store import RunStore
+
+
+def _load() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3]) if Path(
+        "/proc/loadavg").exists() else "n/a"
+
+
+def _records(path: Path) -> dict[str, list[dict]]:
+    with RunStore(path) as st:
+        return {rid: [{k: v for k, v in r.items() if k != "seconds"} for r in st.records(rid)]
+                for rid in st.run_ids()}
+
+
+def measure(
+    study: StudyConfig, workers: int, root: Path
+) -> tuple[dict[str, float], str, dict[str, list[dict]]]:
+    """(seconds: cluster start, study wall time, sum of trial times; load after; records)."""
+    out = root / f"w{workers}"
+    t0 = time.perf_counter()
+    with dask_client(workers) as client:
+        client.wait_for_workers(workers)
+        start = time.perf_counter() - t0
+        with study_store(out) as store:
+            res = run_study(study, store, client)
+    assert res.ran == res.total, (res.ran, res.total)
+    times = {"start": start, "wall": res.wall_s, "trial_sum": sum(res.trial_seconds)}
+    return times, _load(), _records(out / "study.sqlite")
+
+
+def run(trials: int, cycles: int) -> str:
+    study = StudyConfig(humans=("fast-middle", "slow-middle"),
+                        levels=("full", "spatial", "temporal", "exact"), trials=trials,
+                        cycles=cycles)
+    n = trials * len(study.humans) * len(study.levels)
+    load0 = _load()
+    with tempfile.TemporaryDirectory() as tmp:
+        one, _, rec1 = measure(study, 1, Path(tmp))
+        two, load1, rec2 = measure(study, 2, Path(tmp))
+    same = rec1 == rec2
+    speedup = one["wall"] / two["wall"]
+    cpu = os.cpu_count()
+    return (
+        f"Machine: {platform.processor() or platform.machine()}, {cpu} cores (shared with other "
+        f"jobs: 1-min load average {load0} at start, {load1} at end), torch "
+        f"{torch.__version__}, 1 torch thread per worker.\n"
+        f"Study: 2 archetypes x (full, spatial, temporal, exact) x {trials} trials = {n} trials "
+        f"of {cycles} cycles, study search settings (population {study.population}, generations "
+        f"{study.generations}, samples {study.samples}, particles {study.particles}, candidates "
+        f"{study.candidates}).\n\n"
+        "| workers | cluster start | study wall time | trials/min | sum of trial times | "
+        "speed-up |\n|---:|---:|---:|---:|---:|---:|\n"
+        f"| 1 | {one['start']:.1f} s | {one['wall']:.1f} s | {60 * n / one['wall']:.1f} | "
+        f"{one['trial_sum']:.1f} s | 1.00 |\n"
+        f"| 2 | {two['start']:.1f} s | {two['wall']:.1f} s | {60 * n / two['wall']:.1f} | "
+        f"{two['trial_sum']:.1f} s | {speedup:.2f} |\n\n"
+        f"Records identical on 1 and 2 workers: {'yes' if same else 'NO'}. "
+        "The sum of trial times is CPU-bound work as seen by the workers; when it grows from 1 to "
+        "2 workers, the 2 cores were not both free (other jobs, the client and the scheduler "
+        "share them).\n"
+    )
+
+
+def update_docs(table: str, path: Path) -> None:
+    section = "## Ablation study\n\n`benchmarks/bench_ablation.py`\n\n" + table
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    pat = re.compile(r"^## Ablation study\n.*?(?=^## |\Z)", re.S | re.M)
+    if pat.search(text):
+        text = pat.sub(lambda _: section + "\n", text).rstrip("\n") + "\n"
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=4)
+    ap.add_argument("--cycles", type=int, default=8)
+    ap.add_argument("--update-docs", action="store_true")
+    args = ap.parse_args()
+    table = run(args.trials, args.cycles)
+    print(table)
+    if args.update_docs:
+        update_docs(table, Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,159 @@
+"""``rapidds ablation`` (the fetch ablation study on Dask) and ``rapidds report`` (its figures,
+tables and claims check, redrawn from the stored records)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import typer
+from rich.console import Console
+
+from rapidds.cli import app
+from rapidds.experiments.ablation import ABLATION, BASELINES, StudyConfig
+from rapidds.loop import ADAPT_LEVELS
+from rapidds.worlds.teammates import ARCHETYPES
+
+_S = StudyConfig()
+
+
+def _split(value: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in value.split(",") if v.strip())
+
+
+def _print_report(out: Path, as_json: bool, console: Console) -> None:
+    from rapidds.experiments.report import (
+        claims_markdown,
+        load_study,
+        table_markdown,
+        table_rows,
+        write_report,
+    )
+
+    data = load_study(out)
+    paths = write_report(data)
+    summary = json.loads(paths["summary"].read_text())
+    if as_json:
+        print(json.dumps(summary), flush=True)
+        return
+    claims = summary["claims"]
+    console.print(table_markdown(table_rows(data), min(4, data.cycles)), highlight=False,
+                  markup=False)
+    console.print(claims_markdown(claims), highlight=False, markup=False)
+    console.print("wrote " + ", ".join(str(p) for p in paths.values()), highlight=False)
+
+
+@app.command("ablation")
+def ablation_cmd(
+    out: Path = typer.Option(..., help="Folder for study.sqlite, figures and tables; rerunning "
+                             "with the same folder skips finished trials."),
+    trials: int = typer.Option(_S.trials, help="Trials per archetype and level."),
+    cycles: int = typer.Option(_S.cycles, help="Cycles per trial."),
+    humans: str = typer.Option(",".join(_S.humans),
+                               help=f"Archetypes, comma-separated: {', '.join(ARCHETYPES)}."),
+    adapt: str = typer.Option(",".join(_S.levels),
+                              help=f"Levels, comma-separated: {', '.join(ADAPT_LEVELS)} "
+                                   f"(ablation: {', '.join(ABLATION)}; baselines: "
+                                   f"{', '.join(BASELINES)})."),
+    seed: int = typer.Option(_S.seed, help="Study seed; trial i runs with seed*10000+i at "
+                             "every archetype and level."),
+    workers: int | None = typer.Option(None, help="Local Dask worker processes (default: one "
+                                       f"per CPU, {os.cpu_count()} here)."),
+    scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
+                                         "e.g. tcp://host:8786, instead of a local cluster."),
+    gamma: float = typer.Option(_S.gamma, help="Proximity weight."),
+    lam: float = typer.Option(_S.lam, help="Diversity weight for the first half of the cycles."),
+    population: int = typer.Option(_S.population, help="GA population C."),
+    generations: int = typer.Option(_S.generations, help="GA generations G."),
+    samples: int = typer.Option(_S.samples, help="Monte-Carlo duration samples K."),
+    patience: int = typer.Option(_S.patience, help="GA early stop after this many "
+                                 "generations without improvement."),
+    particles: int = typer.Option(_S.particles, help="Steered samples per motion request B."),
+    candidates: int = typer.Option(_S.candidates, help="SVDD candidates M per step."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+) -> None:
+    """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
+    figure, the table and the claims check. One trial is one task; resumable."""
+    from rapidds.experiments.ablation import (
+        check_settings,
+        dask_client,
+        log_session,
+        run_study,
+        study_store,
+    )
+
+    study = StudyConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
+                        cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
+                        generations=generations, samples=samples, patience=patience,
+                        particles=particles, candidates=candidates)
+    console = Console(soft_wrap=True)
+    err = Console(stderr=True, soft_wrap=True)
+    where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
+    with study_store(out) as store:
+        check_settings(study, store)  # before starting a cluster for nothing
+        try:
+            with dask_client(workers, scheduler) as client, _Progress(err) as bar:
+                outcome = run_study(study, store, client, bar.on_trial, bar.on_start)
+        except KeyboardInterrupt:
+            n = len(store.run_ids())
+            err.print(f"interrupted; {n} trials are stored in {out}; rerun the same command "
+                      "to finish", highlight=False)
+            raise typer.Exit(130) from None
+    log_session(out, study, outcome, where)
+    err.print(f"{outcome.ran} trials run, {outcome.skipped} already stored, "
+              f"{outcome.wall_s:.1f} s on {outcome.workers} workers ({where})", highlight=False)
+    _print_report(out, as_json, console)
+
+
+class _Progress:
+    """A bar counting stored trials on a terminal; one line per trial otherwise (logs)."""
+
+    def __init__(self, err: Console):
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.err = err
+        self.bar = Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(),
+                            TimeElapsedColumn(), TimeRemainingColumn(),
+                            TextColumn("{task.fields[info]}"), console=err, transient=False,
+                            disable=not err.is_terminal)
+        self.task: Any = None
+
+    def __enter__(self) -> _Progress:
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.bar.__exit__(None, None, None)
+
+    def on_start(self, total: int, skipped: int) -> None:
+        self.task = self.bar.add_task("trials", total=total, completed=skipped, info="")
+        if skipped:
+            self.err.print(f"{skipped} of {total} trials already stored; running the other "
+                           f"{total - skipped}", highlight=False)
+
+    def on_trial(self, result: dict[str, Any], stored: int, total: int) -> None:
+        last = result["records"][-min(4, len(result["records"])):]
+        cost = sum(r["realised"]["cost"] for r in last) / len(last)
+        info = f"{result['run_id']} {result['seconds']:.0f} s, last-4 cost {cost:.2f}"
+        self.bar.update(self.task, completed=stored, info=info)
+        if not self.err.is_terminal:
+            self.err.print(f"[{stored}/{total}] {info}", highlight=False, markup=False)
+
+
+@app.command("report")
+def report_cmd(
+    out: Path = typer.Argument(..., help="A folder written by 'rapidds ablation'."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+) -> None:
+    """Redraw a study's figure, table and claims check from its stored records."""
+    _print_report(out, as_json, Console(soft_wrap=True))
+

@@ -1,0 +1,305 @@
+"""The fetch ablation study on Dask: archetypes x adaptation levels x trials, one task per trial.
+
+A trial is one :class:`~rapidds.loop.AdaptiveRun` of all its cycles. It runs inside a Dask
+worker WITHOUT a store (a real cluster's workers cannot reach the client's disk) and returns its
+cycle records; the client writes each finished trial into ``DIR/study.sqlite`` in one
+transaction (:meth:`~rapidds.store.RunStore.record_trial`). So a killed worker or a killed run
+loses only the trials in flight, a rerun skips every stored trial, and a trial Dask re-ran after a
+worker died is stored once.
+
+Trial ``i`` of study seed ``s`` runs with seed ``s * TRIAL_STRIDE + i`` for every archetype and
+level: common random numbers across levels, and trial ``i`` of ``--seed 0`` is exactly
+``rapidds run --seed i`` with the same search settings.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, fields
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rapidds.errors import RapiddsError, StateError
+from rapidds.loop import ADAPT_LEVELS, RunConfig
+from rapidds.store import RunStore
+from rapidds.worlds.teammates import ARCHETYPES
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from rapidds.motion.policy import DiffusionPolicy
+
+PAPER_HUMANS: tuple[str, ...] = ("fast-outside", "slow-middle", "fast-middle", "slow-outside")
+"""The archetypes in the order of the paper's Figure 5 panels."""
+ABLATION: tuple[str, ...] = ("full", "spatial", "temporal", "none")
+BASELINES: tuple[str, ...] = ("oracle", "exact")
+TRIAL_STRIDE = 10_000  # trial seeds of one study seed never reach the next one's
+STORE_NAME = "study.sqlite"
+_PER_TRIAL = ("human", "adapt", "seed")  # what differs between the runs of one study
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """One study: which cells and how many trials, and the settings every trial shares.
+
+    The search settings default to the study's (chosen by measurement, docs/reproduction.md),
+    cheaper than a single ``rapidds run``: the full study has to fit in 30 minutes on 2 cores.
+    """
+
+    humans: tuple[str, ...] = PAPER_HUMANS
+    levels: tuple[str, ...] = ABLATION + BASELINES
+    trials: int = 20
+    cycles: int = 16
+    seed: int = 0
+    gamma: float = 1.75
+    lam: float = 15.0
+    population: int = 24
+    generations: int = 40
+    samples: int = 32
+    patience: int = 8
+    particles: int = 2
+    candidates: int = 4
+
+    def __post_init__(self) -> None:
+        for name, given, known in (("humans", self.humans, tuple(ARCHETYPES)),
+                                   ("adapt", self.levels, ADAPT_LEVELS)):
+            if not given:
+                raise RapiddsError(f"--{name} is empty; choose from {', '.join(known)}")
+            unknown = [g for g in given if g not in known]
+            if unknown:
+                raise RapiddsError(f"unknown --{name} value '{unknown[0]}'; "
+                                   f"one of {', '.join(known)}")
+            if len(set(given)) != len(given):
+                raise RapiddsError(f"--{name} lists a value twice: {','.join(given)}")
+        if not 1 <= self.trials <= TRIAL_STRIDE:
+            raise RapiddsError(f"--trials must be between 1 and {TRIAL_STRIDE}, got {self.trials}")
+        if self.seed < 0:
+            raise RapiddsError(f"--seed must be >= 0, got {self.seed}")
+        self.run_config(self.humans[0], self.levels[0], 0)  # validates the shared settings
+
+    def trial_seed(self, index: int) -> int:
+        return self.seed * TRIAL_STRIDE + index
+
+    def run_config(self, human: str, level: str, index: int) -> RunConfig:
+        return RunConfig(human=human, adapt=level, cycles=self.cycles, gamma=self.gamma,
+                         lam=self.lam, seed=self.trial_seed(index), population=self.population,
+                         generations=self.generations, samples=self.samples,
+                         patience=self.patience, particles=self.particles,
+                         candidates=self.candidates)
+
+    def trials_in_order(self) -> list[RunConfig]:
+        """Every trial, trial index outermost: a study stopped early holds about as many trials
+        of every cell, and fast (``exact``) and slow trials interleave across workers."""
+        return [self.run_config(h, lv, i) for i in range(self.trials)
+                for h in self.humans for lv in self.levels]
+
+    def shared(self) -> dict[str, Any]:
+        """The settings every run of this study shares (what a folder may hold only one of)."""
+        return shared_settings(asdict(self.run_config(self.humans[0], self.levels[0], 0)))
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+
+def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
+    """A stored run's config without what varies per trial, plus the study seed it came from."""
+    out = {k: v for k, v in run_config.items() if k not in _PER_TRIAL}
+    out["study_seed"] = int(run_config["seed"]) // TRIAL_STRIDE
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# worker side
+
+
+@lru_cache(maxsize=1)
+def _worker_policy() -> DiffusionPolicy:
+    """Loaded once per worker process, not once per trial (a load is ~0.3 s)."""
+    from rapidds.cli.run import load_policy
+
+    return load_policy(None)
+
+
+def run_trial(config: dict[str, Any]) -> dict[str, Any]:
+    """Run one trial (all its cycles) and return its records; the Dask task. Touches no files:
+    the client stores the result."""
+    import torch
+
+    from rapidds.loop import AdaptiveRun
+
+    torch.set_num_threads(1)  # one task per worker thread; more threads only fight
+    cfg = RunConfig(**config)
+    t0 = time.perf_counter()
+    records = AdaptiveRun(cfg, _worker_policy()).run()
+    return {"run_id": cfg.run_id, "config": asdict(cfg), "records": records,
+            "seconds": time.perf_counter() - t0, "pid": os.getpid()}
+
+
+# --------------------------------------------------------------------------------------------
+# client side
+
+
+@dataclass
+class StudyOutcome:
+    """total: trials in the study; skipped: already stored before; ran: stored by this call."""
+
+    total: int
+    skipped: int
+    ran: int = 0
+    wall_s: float = 0.0
+    workers: int = 0
+    trial_seconds: list[float] = field(default_factory=list)
+
+
+TrialCallback = Callable[[dict[str, Any], int, int], None]
+"""on_trial(result, stored_so_far, total), called after each trial is stored."""
+
+
+@contextmanager
+def study_store(out: Path) -> Iterator[RunStore]:
+    """``DIR/study.sqlite``, with ``DIR/.lock`` held so two studies never write one folder (the
+    lock dies with its process, so a killed run never leaves it behind)."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / ".lock", "w") as lock:
+        try:
+            import fcntl
+
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except ImportError:  # pragma: no cover - not POSIX: no lock, as before this check
+            pass
+        except OSError:
+            raise RapiddsError(f"another rapidds ablation is writing {out}") from None
+        with RunStore(out / STORE_NAME) as store:
+            yield store
+
+
+def check_settings(study: StudyConfig, store: RunStore) -> None:
+    """A folder holds one study: more trials, archetypes or levels may be added to it later,
+    other cycles, seeds or search settings may not (their curves could not be compared)."""
+    ids = store.run_ids()
+    if not ids:
+        return
+    # every stored run passed this check when it was stored: the first stands for all
+    want, have = study.shared(), shared_settings(store.run_config(ids[0]) or {})
+    if have != want:
+        diff = ", ".join(f"{k}={have.get(k)} (asked {want.get(k)})"
+                         for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k))
+        raise StateError(f"{store.path.parent} holds a study with other settings: {diff}; "
+                         "use another --out or the same settings")
+
+
+def finished_run_ids(store: RunStore, cycles: int) -> set[str]:
+    return {rid for rid in store.run_ids() if store.last_cycle(rid) == cycles - 1}
+
+
+def _task_key(cfg: RunConfig) -> str:
+    """Unique per run AND settings: a shared scheduler must not hand one study another's result."""
+    digest = hashlib.sha1(json.dumps(asdict(cfg), sort_keys=True).encode()).hexdigest()[:10]
+    return f"rapidds-trial-{cfg.run_id}-{digest}"
+
+
+def run_study(
+    study: StudyConfig, store: RunStore, client: Client, on_trial: TrialCallback | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+) -> StudyOutcome:
+    """Submit every trial not yet stored, store each as it finishes; returns the counts.
+    ``on_start(total, already_stored)`` is called once before the first result.
+
+    A failed trial stops the study (the others in flight are cancelled; everything stored so
+    far stays): a user error raised on a worker (e.g. no bundled policy) is re-raised as is.
+    """
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    check_settings(study, store)
+    done = finished_run_ids(store, study.cycles)
+    todo = [cfg for cfg in study.trials_in_order() if cfg.run_id not in done]
+    outcome = StudyOutcome(total=study.trials * len(study.humans) * len(study.levels),
+                           skipped=0)
+    outcome.skipped = outcome.total - len(todo)
+    outcome.workers = len(client.scheduler_info().get("workers", {}))
+    if on_start is not None:
+        on_start(outcome.total, outcome.skipped)
+    t0 = time.perf_counter()
+    # priority: in study order (Dask would otherwise pick freely among queued tasks)
+    futures = {client.submit(run_trial, asdict(cfg), key=_task_key(cfg), pure=False,
+                             retries=0, priority=len(todo) - k): cfg
+               for k, cfg in enumerate(todo)}
+    stored = outcome.skipped
+    try:
+        for fut in as_completed(list(futures)):
+            cfg = futures.pop(fut)
+            if fut.status == "error":
+                exc = fut.exception()
+                if isinstance(exc, RapiddsError):
+                    raise exc
+                if isinstance(exc, KilledWorker):
+                    raise RapiddsError(f"trial {cfg.run_id} killed its worker repeatedly "
+                                       f"(out of memory?); {stored} trials are stored, "
+                                       "rerun to continue") from exc
+                raise RuntimeError(f"trial {cfg.run_id} failed: {type(exc).__name__}: {exc}; "
+                                   f"{stored} trials are stored") from exc
+            if fut.status == "cancelled":
+                raise RapiddsError(f"trial {cfg.run_id} was cancelled by the Dask scheduler; "
+                                   f"{stored} trials are stored, rerun to continue")
+            result = fut.result()
+            fut.release()
+            if result["run_id"] != cfg.run_id:  # pragma: no cover - a key collision
+                raise StateError(f"task for {cfg.run_id} returned {result['run_id']}")
+            if store.record_trial(cfg.run_id, result["config"], result["records"]):
+                outcome.ran += 1
+                stored += 1
+                outcome.trial_seconds.append(float(result["seconds"]))
+                if on_trial is not None:
+                    on_trial(result, stored, outcome.total)
+    finally:
+        if futures:
+            client.cancel(list(futures))
+        outcome.wall_s = time.perf_counter() - t0
+    return outcome
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Client]:
+    """A client of the Dask cluster at ``scheduler``, or of a local cluster of ``workers``
+    single-threaded processes (default: one per CPU). Same work either way."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise RapiddsError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        with client:
+            yield client
+        return
+    if workers is not None and workers < 1:
+        raise RapiddsError(f"--workers must be >= 1, got {workers}")
+    n = workers or os.cpu_count() or 1
+    # ":0": the scheduler serves HTTP (health, metrics) even with no dashboard; a free port
+    # keeps two studies (or a test beside a study) from fighting over 8787.
+    with (
+        LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                     dashboard_address=":0", silence_logs=logging.ERROR) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client
+
+
+def log_session(out: Path, study: StudyConfig, outcome: StudyOutcome, where: str) -> None:
+    """Append this invocation's wall time to ``DIR/sessions.jsonl`` (the report lists them)."""
+    line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": round(outcome.wall_s, 2),
+            "ran": outcome.ran, "skipped": outcome.skipped, "total": outcome.total,
+            "workers": outcome.workers, "cluster": where,
+            "trial_seconds_sum": round(sum(outcome.trial_seconds), 2),
+            "study": asdict(study)}
+    with open(out / "sessions.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")

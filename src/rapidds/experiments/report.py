@@ -1,0 +1,377 @@
+"""Figures, tables and the paper's claims, from a study's stored records only (no recomputing).
+
+Statistics (also in docs/reproduction.md):
+
+- per cycle: median and quartiles over trials of the realised cost (the figure and ``--json``);
+- per trial: the mean realised cost of its last ``k = 4`` cycles, after exploration, when the
+  plan has settled ("trial score"); the table gives the median and IQR over trials of it and
+  its gap to the oracle's median;
+- claims: for each archetype and ablation level, the difference median(full) - median(level)
+  of trial scores, with a 95 % percentile bootstrap CI from 2000 paired resamples of trials
+  (trial i of every level shares its seed, so trials are resampled as pairs). "better" if the
+  CI lies below 0, "worse" if above, else "tie"; full is "at least as good as every ablation"
+  when no comparison is "worse".
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rapidds.errors import StateError
+from rapidds.experiments.ablation import (
+    ABLATION,
+    BASELINES,
+    PAPER_HUMANS,
+    STORE_NAME,
+    shared_settings,
+)
+from rapidds.fileio import atomic_write_text
+from rapidds.store import RunStore
+
+METRICS = ("cost", "makespan", "spatial", "min_separation")
+LAST_K = 4
+RESAMPLES = 2000
+CONFIDENCE = 0.95
+BOOTSTRAP_SEED = 0
+PAPER_COUNTS = {"spatial": 3, "temporal": 2}  # archetypes where full beats X (paper, Sec. V-A)
+LABELS = {"full": "full (space+time)", "spatial": "spatial only", "temporal": "temporal only",
+          "none": "none", "oracle": "oracle", "exact": "exact CP-SAT"}
+_LEVEL_ORDER = ABLATION + BASELINES
+
+
+@dataclass
+class StudyData:
+    """Complete trials of a stored study.
+
+    trials[human][level][seed] is a (cycles, len(METRICS)) array of realised values.
+    """
+
+    path: Path
+    cycles: int
+    settings: dict[str, Any]
+    trials: dict[str, dict[str, dict[int, np.ndarray]]]
+    incomplete: list[str] = field(default_factory=list)
+    sessions: list[dict[str, Any]] = field(default_factory=list)
+
+    def metric(self, human: str, level: str, name: str = "cost") -> np.ndarray:
+        """(trials, cycles), rows in trial-seed order (so rows of two levels pair up)."""
+        cell = self.trials[human][level]
+        m = METRICS.index(name)
+        return np.array([cell[s][:, m] for s in sorted(cell)]).reshape(len(cell), self.cycles)
+
+    def scores(self, human: str, level: str) -> dict[int, float]:
+        """Trial seed -> mean realised cost of its last k cycles."""
+        k = min(LAST_K, self.cycles)
+        return {s: float(a[-k:, 0].mean()) for s, a in self.trials[human][level].items()}
+
+    @property
+    def humans(self) -> list[str]:
+        return list(self.trials)
+
+    def levels(self, human: str) -> list[str]:
+        return list(self.trials[human])
+
+
+def _ordered(keys: set[str], order: tuple[str, ...]) -> list[str]:
+    return [k for k in order if k in keys] + sorted(keys - set(order))
+
+
+def load_study(out: Path) -> StudyData:
+    """Read ``out/study.sqlite``; a run missing cycles is listed in ``incomplete``, not used."""
+    path = out / STORE_NAME
+    if not path.is_file():
+        raise StateError(f"{out} holds no study ({STORE_NAME} missing); "
+                         "run 'rapidds ablation --out DIR' first")
+    raw: dict[str, dict[str, dict[int, np.ndarray]]] = {}
+    incomplete: list[str] = []
+    cycles: int | None = None
+    settings: dict[str, Any] | None = None
+    with RunStore(path) as store:
+        by_run: dict[str, list[dict[str, Any]]] = {}
+        for rec in store.records():
+            by_run.setdefault(rec["run_id"], []).append(rec)
+        for rid in store.run_ids():
+            cfg = store.run_config(rid) or {}
+            shared = shared_settings(cfg)
+            if settings is None:
+                settings, cycles = shared, int(cfg["cycles"])
+            elif shared != settings:
+                raise StateError(f"{path}: run '{rid}' has other settings than the study's")
+            recs = by_run.get(rid, [])
+            if [r["cycle"] for r in recs] != list(range(int(cfg["cycles"]))):
+                incomplete.append(rid)
+                continue
+            arr = np.array([[float(r["realised"][m]) for m in METRICS] for r in recs])
+            raw.setdefault(cfg["human"], {}).setdefault(cfg["adapt"], {})[int(cfg["seed"])] = arr
+    if cycles is None or settings is None or not raw:
+        raise StateError(f"{out} holds no finished trial yet")
+    trials = {h: {lv: raw[h][lv] for lv in _ordered(set(raw[h]), _LEVEL_ORDER)}
+              for h in _ordered(set(raw), PAPER_HUMANS)}
+    sessions = []
+    log = out / "sessions.jsonl"
+    if log.is_file():
+        for line in log.read_text().splitlines():
+            try:
+                sessions.append(json.loads(line))
+            except ValueError:
+                continue  # a line cut short by a kill: the others still count
+    return StudyData(out, cycles, settings, trials, incomplete, sessions)
+
+
+# --------------------------------------------------------------------------------------------
+# statistics
+
+
+def _quartiles(x: np.ndarray, axis: int | None = None) -> tuple[Any, Any, Any]:
+    q1, med, q3 = np.percentile(x, [25, 50, 75], axis=axis)
+    return q1, med, q3
+
+
+def summarise_curves(data: StudyData) -> dict[str, dict[str, dict[str, Any]]]:
+    """{human: {level: {"median", "q1", "q3": per-cycle lists, "trials": n}}}."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for h in data.humans:
+        out[h] = {}
+        for lv in data.levels(h):
+            q1, med, q3 = _quartiles(data.metric(h, lv), axis=0)
+            out[h][lv] = {"median": [round(float(v), 4) for v in med],
+                          "q1": [round(float(v), 4) for v in q1],
+                          "q3": [round(float(v), 4) for v in q3],
+                          "trials": len(data.trials[h][lv])}
+    return out
+
+
+def table_rows(data: StudyData) -> list[dict[str, Any]]:
+    """One row per archetype and level: trial-score median, IQR, gap to the oracle, and the
+    median makespan and spatial cost of the same cycles (where the cost comes from)."""
+    k = min(LAST_K, data.cycles)
+    rows = []
+    for h in data.humans:
+        oracle = data.scores(h, "oracle") if "oracle" in data.trials[h] else None
+        ref = float(np.median(list(oracle.values()))) if oracle else None
+        for lv in data.levels(h):
+            s = np.array(list(data.scores(h, lv).values()))
+            q1, med, q3 = (float(v) for v in _quartiles(s))
+            cell = data.trials[h][lv].values()
+            mk = float(np.median([a[-k:, 1].mean() for a in cell]))
+            sp = float(np.median([a[-k:, 2].mean() for a in cell]))
+            sep = float(np.median([a[-k:, 3].min() for a in cell]))
+            rows.append({
+                "archetype": h, "level": lv, "trials": len(s), "median": med, "q1": q1, "q3": q3,
+                "gap_to_oracle": None if ref is None else med - ref,
+                "gap_to_oracle_pct": None if not ref else 100.0 * (med - ref) / ref,
+                "makespan": mk, "spatial": sp, "min_separation": sep,
+            })
+    return rows
+
+
+def paired_bootstrap(
+    a: np.ndarray, b: np.ndarray, rng: np.random.Generator,
+    resamples: int = RESAMPLES, confidence: float = CONFIDENCE,
+) -> tuple[float, float, float]:
+    """median(a) - median(b) and its percentile CI, resampling the pairs (a[i], b[i])."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    idx = rng.integers(0, len(a), (resamples, len(a)))
+    d = np.median(a[idx], axis=1) - np.median(b[idx], axis=1)
+    tail = 50.0 * (1.0 - confidence)
+    lo, hi = np.percentile(d, [tail, 100.0 - tail])
+    return float(np.median(a) - np.median(b)), float(lo), float(hi)
+
+
+def verdict(lo: float, hi: float) -> str:
+    """For a CI of full - ablation (lower cost is better)."""
+    return "better" if hi < 0 else "worse" if lo > 0 else "tie"
+
+
+def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED
+                 ) -> dict[str, Any]:
+    """Per archetype, full against each ablation level; counts set beside the paper's."""
+    per: dict[str, Any] = {}
+    for h in data.humans:
+        if "full" not in data.trials[h]:
+            continue
+        full = data.scores(h, "full")
+        versus: dict[str, Any] = {}
+        for lv in ABLATION[1:]:
+            if lv not in data.trials[h]:
+                continue
+            other = data.scores(h, lv)
+            common = sorted(set(full) & set(other))
+            if len(common) < 2:
+                continue
+            rng = np.random.default_rng([seed, zlib.crc32(f"{h}/{lv}".encode())])
+            d, lo, hi = paired_bootstrap(np.array([full[s] for s in common]),
+                                         np.array([other[s] for s in common]), rng, resamples)
+            versus[lv] = {"diff": round(d, 4), "ci": [round(lo, 4), round(hi, 4)],
+                          "verdict": verdict(lo, hi), "pairs": len(common)}
+        per[h] = {"versus": versus,
+                  "full_at_least_as_good": (all(v["verdict"] != "worse" for v in versus.values())
+                                            if versus else None)}
+    counts = {}
+    for lv, paper in PAPER_COUNTS.items():
+        compared = [h for h in per if lv in per[h]["versus"]]
+        counts[lv] = {
+            "strictly_better": sum(per[h]["versus"][lv]["verdict"] == "better" for h in compared),
+            "lower_median": sum(per[h]["versus"][lv]["diff"] < 0 for h in compared),
+            "archetypes": len(compared), "paper": paper,
+        }
+    return {
+        "statistic": (f"per trial: mean realised cost of the last {min(LAST_K, data.cycles)} "
+                      "cycles; per level: median over trials; full - level with a "
+                      f"{CONFIDENCE:.0%} paired percentile bootstrap CI ({resamples} resamples "
+                      f"of trials, seed {seed}); better: CI < 0, worse: CI > 0, else tie"),
+        "per_archetype": per,
+        "full_better_than": counts,
+    }
+
+
+def summarise(data: StudyData) -> dict[str, Any]:
+    """The ``--json`` summary: per-cycle curves per archetype and level, plus ``claims``."""
+    out: dict[str, Any] = dict(summarise_curves(data))
+    out["claims"] = check_claims(data)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+
+
+def _f(v: float | None, fmt: str = ".2f") -> str:
+    return "–" if v is None else format(v, fmt)
+
+
+def table_markdown(rows: list[dict[str, Any]], k: int) -> str:
+    head = (f"| archetype | level | trials | median cost, last {k} | IQR | gap to oracle | "
+            "gap % | makespan | spatial | min. separation |\n"
+            "|---|---|---:|---:|---|---:|---:|---:|---:|---:|\n")
+    body = "".join(
+        f"| {r['archetype']} | {LABELS.get(r['level'], r['level'])} | {r['trials']} | "
+        f"{r['median']:.2f} | {r['q1']:.2f}–{r['q3']:.2f} | {_f(r['gap_to_oracle'], '+.2f')} | "
+        f"{_f(r['gap_to_oracle_pct'], '+.1f')} | {r['makespan']:.2f} | {r['spatial']:.3f} | "
+        f"{r['min_separation']:.2f} |\n"
+        for r in rows)
+    return head + body
+
+
+def table_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if v is None else round(v, 6) if isinstance(v, float) else v)
+                    for k, v in r.items()})
+    return buf.getvalue()
+
+
+def claims_markdown(claims: dict[str, Any]) -> str:
+    lines = ["| archetype | full − spatial only | full − temporal only | full − none | "
+             "full at least as good as every ablation |", "|---|---|---|---|---|"]
+    for h, c in claims["per_archetype"].items():
+        cells = []
+        for lv in ABLATION[1:]:
+            v = c["versus"].get(lv)
+            cells.append("–" if v is None else
+                         f"{v['diff']:+.2f} [{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] {v['verdict']}")
+        ok = c["full_at_least_as_good"]
+        yes = "–" if ok is None else "yes" if ok else "no"
+        lines.append(f"| {h} | " + " | ".join(cells) + f" | {yes} |")
+    lines.append("")
+    for lv, n in claims["full_better_than"].items():
+        lines.append(f"- full strictly better than {LABELS[lv]} (CI below 0): "
+                     f"**{n['strictly_better']} of {n['archetypes']}** archetypes "
+                     f"(paper: {n['paper']}); lower median: {n['lower_median']} of "
+                     f"{n['archetypes']}")
+    lines.append(f"\nStatistic: {claims['statistic']}.")
+    return "\n".join(lines) + "\n"
+
+
+def _curves_for_plot(data: StudyData) -> dict[str, dict[str, np.ndarray]]:
+    return {h: {LABELS.get(lv, lv): data.metric(h, lv) for lv in data.levels(h)}
+            for h in data.humans}
+
+
+def plot_settled(data: StudyData, path: Path) -> Path:
+    """The cycles after exploration only, on their own scale: exploration's alternating
+    allocations cost up to twice as much and flatten the differences that remain after it."""
+    from rapidds.plots._mpl import plt, save
+
+    first = int(np.ceil(data.cycles / 2))
+    names = data.humans
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
+    for ax, h in zip(axes[0], names, strict=True):
+        for lv in data.levels(h):
+            arr = data.metric(h, lv)[:, first:]
+            x = np.arange(first, data.cycles)
+            q1, med, q3 = _quartiles(arr, axis=0)
+            color = f"C{_LEVEL_ORDER.index(lv)}" if lv in _LEVEL_ORDER else None
+            ax.plot(x, med, label=LABELS.get(lv, lv), color=color, lw=1.6)
+            ax.fill_between(x, q1, q3, color=color, alpha=0.12)
+        ax.set_title(f"{h}, after exploration")
+        ax.set_xlabel("cycle")
+    axes[0][0].set_ylabel("realised cost")
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
+    """Write the figure (PNG, PDF; and the cycles after exploration alone, PNG), the table
+    (Markdown, CSV), summary.json and report.md."""
+    from rapidds.plots.curves import plot_study_panels
+
+    out = out or data.path
+    k = min(LAST_K, data.cycles)
+    curves = _curves_for_plot(data)
+    end = data.cycles / 2 - 0.5
+    paths = {
+        "png": plot_study_panels(curves, out / "ablation.png", end),
+        "pdf": plot_study_panels(curves, out / "ablation.pdf", end),
+    }
+    if data.cycles >= 4:
+        paths["settled"] = plot_settled(data, out / "ablation-settled.png")
+    rows = table_rows(data)
+    summary = summarise(data)
+    md_table = table_markdown(rows, k)
+    files: Mapping[str, tuple[str, str]] = {
+        "table_md": ("table.md", md_table),
+        "table_csv": ("table.csv", table_csv(rows)),
+        "summary": ("summary.json", json.dumps(summary, indent=1) + "\n"),
+        "report": ("report.md", report_markdown(data, md_table, summary["claims"])),
+    }
+    for key, (name, text) in files.items():
+        atomic_write_text(out / name, text)
+        paths[key] = out / name
+    return paths
+
+
+def report_markdown(data: StudyData, md_table: str, claims: dict[str, Any]) -> str:
+    s = data.settings
+    n = sum(len(c) for lv in data.trials.values() for c in lv.values())
+    settings = ", ".join(f"{k}={s[k]}" for k in (
+        "cycles", "gamma", "lam", "population", "generations", "samples", "patience",
+        "particles", "candidates", "study_seed") if k in s)
+    wall = [x for x in data.sessions if x.get("ran")]
+    timing = "".join(
+        f"- {x['finished']}: {x['ran']} trials in {x['wall_s']:.0f} s on {x['workers']} "
+        f"workers ({x['cluster']}); {x['skipped']} already stored\n" for x in wall)
+    incomplete = (f"\n{len(data.incomplete)} run(s) missing cycles were left out: "
+                  f"{', '.join(data.incomplete[:5])}\n" if data.incomplete else "")
+    return (
+        f"# Fetch ablation study\n\n{n} finished trials in `{data.path / STORE_NAME}`; "
+        f"{settings}.\n{incomplete}\n![realised cost per cycle](ablation.png)\n\n"
+        f"Median over trials (line) and interquartile range (band) of the realised cost per "
+        f"cycle; the red line marks the end of exploration (lambda = 0 after it).\n\n"
+        + ("![after exploration](ablation-settled.png)\n\n" if data.cycles >= 4 else "")
+        + f"## Last {min(LAST_K, data.cycles)} cycles\n\n{md_table}\n"
+        f"## The paper's claims\n\n{claims_markdown(claims)}"
+        + (f"\n## Sessions\n\n{timing}" if timing else "")
+    )
