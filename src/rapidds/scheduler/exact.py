@@ -2,9 +2,9 @@
 
 This is what a user of a constraint-programming scheduler would run: deterministic durations
 (the human's prior means and the robot's nominal durations), no proximity and no diversity. Time
-is integer after scaling by ``scale`` (durations are rounded to 1/scale s), each task gets one
-optional interval per allowed agent, one of which is present; intervals of an agent do not
-overlap; precedence is end_i <= start_j; the makespan is minimised.
+is integer after scaling by ``scale`` (durations are rounded to 1/scale s); each task gets one
+optional interval per allowed agent, exactly one of them present; the intervals of an agent do
+not overlap; precedence is end_i <= start_j; the makespan is minimised.
 """
 
 from __future__ import annotations
