@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import re
 import tempfile
 import time
 from pathlib import Path
 
 import torch
+from _common import cpu_model, update_docs_section
 
 from rapidds.experiments.ablation import StudyConfig, dask_client, run_study, study_store
 from rapidds.store import RunStore
@@ -67,7 +66,7 @@ def run(trials: int, cycles: int) -> str:
     speedup = one["wall"] / two["wall"]
     cpu = os.cpu_count()
     return (
-        f"Machine: {platform.processor() or platform.machine()}, {cpu} cores (shared with other "
+        f"Machine: {cpu_model()}, {cpu} cores (shared with other "
         f"jobs: 1-min load average {load0} at start, {load1} at end), torch "
         f"{torch.__version__}, 1 torch thread per worker.\n"
         f"Study: 2 archetypes x (full, spatial, temporal, exact) x {trials} trials = {n} trials "
@@ -87,17 +86,6 @@ def run(trials: int, cycles: int) -> str:
     )
 
 
-def update_docs(table: str, path: Path) -> None:
-    section = "## Ablation study\n\n`benchmarks/bench_ablation.py`\n\n" + table
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pat = re.compile(r"^## Ablation study\n.*?(?=^## |\Z)", re.S | re.M)
-    if pat.search(text):
-        text = pat.sub(lambda _: section + "\n", text).rstrip("\n") + "\n"
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -108,7 +96,7 @@ def main() -> None:
     table = run(args.trials, args.cycles)
     print(table)
     if args.update_docs:
-        update_docs(table, Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
+        update_docs_section("## Ablation study", "`benchmarks/bench_ablation.py`\n\n" + table)
 
 
 if __name__ == "__main__":
