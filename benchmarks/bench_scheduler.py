@@ -171,8 +171,10 @@ def report(throughput, ttb, gaps: list[GapRow], args: argparse.Namespace) -> str
     out = ["## Scheduler", ""]
     out.append(f"Machine: {machine()}. Measured {time.strftime('%Y-%m-%d')} with "
                f"`benchmarks/bench_scheduler.py{' --quick' if args.quick else ''}`"
-               f" (seed {args.seed}); the cores were shared with other work, so times "
-               "fluctuate by tens of percent between runs.")
+               f" (seed {args.seed}); 1-min load average {args.load[0]:.1f} at start, "
+               f"{_load():.1f} at end. The cores are shared with other work, so the seconds "
+               "are upper bounds that vary between runs; gaps and evaluation counts do not "
+               "depend on load.")
     out.append("")
     out.append(f"GA defaults: population {cfg.population}, generations {cfg.generations}, "
                f"patience {cfg.patience}, restart after {cfg.restart_after}, elite "
@@ -244,6 +246,13 @@ def write_section(text: str, path: Path = DOC) -> None:
     path.write_text(new.rstrip() + "\n")
 
 
+def _load() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return float("nan")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small smoke run (about 30 s)")
@@ -258,6 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     args.ga_seeds = args.ga_seeds or (1 if args.quick else 3)
     if count < 1 or args.ga_seeds < 1:
         parser.error("--instances and --ga-seeds must be >= 1")
+    args.load = (_load(),)
     print("throughput ...", file=sys.stderr)
     throughput = bench_throughput([10, 32], 0.5 if args.quick else 2.0, args.seed)
     print("time to best ...", file=sys.stderr)

@@ -357,6 +357,28 @@ def test_mutations_and_activation_respect_allowed_agents() -> None:
         s = child if CompiledSchedule.build(p, child) is not None else s
 
 
+def test_move_puts_the_task_where_its_expected_start_falls() -> None:
+    p = Problem("mv", tuple(Task(t, BOTH, 1.0, 0.0, 1.0) for t in "abcdef"))
+    scheduler = GeneticScheduler(p, FixedDurationMotion(p))
+    parent = Schedule(("a", "c", "e"), ("b", Wait("e"), "d", "f"))
+    start = np.array([0.0, 0.5, 1.0, 2.0, 3.0, 4.0])  # a b c d e f
+    py = random.Random(0)
+    moved = set()
+    for _ in range(60):
+        child = scheduler.mutate(parent, py, [1.0, 0, 0, 0, 0], start)
+        assert child is not None
+        (task,) = set(child.tasks("human")) ^ set(parent.tasks("human"))
+        moved.add(task)
+        for agent in ("human", "robot"):  # both sequences stay in start-time order
+            times = [start[p.index[t]] for t in child.tasks(agent)]
+            assert times == sorted(times)
+        if task == "c":  # in front of the wait that gates d: c must not inherit it
+            assert child.robot == ("b", "c", Wait("e"), "d", "f")
+        if task == "e":  # the wait on e is now on its own agent: repaired away
+            assert child.robot == ("b", "d", "e", "f")
+    assert moved == set("abcdef")
+
+
 def test_list_schedules_are_always_feasible() -> None:
     rng = np.random.default_rng(10)
     p = random_problem(rng, 12, restrict=0.3)

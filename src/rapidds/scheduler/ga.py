@@ -39,6 +39,8 @@ from rapidds.scheduler.diversity import AllocationHistory
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
 
 Progress = Callable[[int, float], None]
+# (parent, rng, parent's expected start times (n,) or None) -> child before repair, or None
+Operator = Callable[[Schedule, random.Random, np.ndarray | None], Schedule | None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,7 +117,7 @@ class GeneticScheduler:
         self._succ: dict[str, list[str]] = {t: [] for t in problem.ids}
         for a, b in problem.precedence:
             self._succ[a].append(b)
-        self._ops: dict[str, Callable[[Schedule, random.Random], Schedule | None]] = {
+        self._ops: dict[str, Operator] = {
             "move": self._move,
             "reorder": self._reorder,
             "crossover": self._crossover,
@@ -242,7 +244,8 @@ class GeneticScheduler:
         out: dict[Schedule, None] = {}
         misses = 0  # consecutive mutants seen before: many means the parents' surroundings are
         while len(out) < count and misses < 2 * count:  # exhausted (tiny problems)
-            child = self.mutate(rng.choice(parents).schedule, rng, weights)
+            parent = rng.choice(parents)
+            child = self.mutate(parent.schedule, rng, weights, parent.expected_start)
             if child is None or child in evaluated or child in out:
                 misses += 1
                 continue
@@ -311,13 +314,18 @@ class GeneticScheduler:
         return repair(Schedule(tuple(seqs["human"]), tuple(seqs["robot"])))
 
     def mutate(
-        self, parent: Schedule, rng: random.Random, weights: list[float] | None = None
+        self,
+        parent: Schedule,
+        rng: random.Random,
+        weights: list[float] | None = None,
+        start: np.ndarray | None = None,
     ) -> Schedule | None:
-        """One repaired mutant that differs from ``parent``; None if no operator applies."""
+        """One repaired mutant that differs from ``parent``; None if no operator applies.
+        ``start``: the parent's (n,) expected start times, where known (used by "move")."""
         weights = list(weights or self.config.weights())
         while sum(weights) > 0:
             k = rng.choices(range(len(MUTATIONS)), weights)[0]
-            child = self._ops[MUTATIONS[k]](parent, rng)
+            child = self._ops[MUTATIONS[k]](parent, rng, start)
             if child is not None:
                 child = repair(child)
                 if child != parent:
@@ -441,7 +449,12 @@ class GeneticScheduler:
                 hi = k
         return (lo, hi) if lo <= hi else (0, len(seq))
 
-    def _move(self, s: Schedule, rng: random.Random) -> Schedule | None:
+    def _move(self, s: Schedule, rng: random.Random, start: np.ndarray | None) -> Schedule | None:
+        """A random shared task to the other agent. With the parent's expected start times it
+        goes where its start falls in the other sequence (ahead of any waits there), so the new
+        allocation is judged with a sensible order; otherwise to a random position. Either way
+        within the precedence window. (Measured: fewer runs stuck above the optimum than with
+        random positions only; "reorder" and activation still try the other positions.)"""
         if not self._shared:
             return None
         task = rng.choice(self._shared)
@@ -449,10 +462,18 @@ class GeneticScheduler:
         dst = _other(src)
         seq = list(s.sequence(dst))
         lo, hi = self._window(seq, task)
-        seq.insert(rng.randint(lo, hi), task)
+        if start is not None and start.size:
+            at = start[self._index[task]]
+            pos = next((k for k, x in enumerate(seq)
+                        if isinstance(x, str) and start[self._index[x]] >= at), len(seq))
+            while pos > 0 and isinstance(seq[pos - 1], Wait):
+                pos -= 1
+            seq.insert(min(max(pos, lo), hi), task)
+        else:
+            seq.insert(rng.randint(lo, hi), task)
         return s.replace(src, (x for x in s.sequence(src) if x != task)).replace(dst, seq)
 
-    def _reorder(self, s: Schedule, rng: random.Random) -> Schedule | None:
+    def _reorder(self, s: Schedule, rng: random.Random, _: np.ndarray | None) -> Schedule | None:
         slots = [(a, k) for a in AGENTS if len(s.sequence(a)) >= 2
                  for k in range(len(s.sequence(a)))]
         if not slots:
@@ -471,7 +492,8 @@ class GeneticScheduler:
         seq.insert(rng.choice(choices), item)
         return s.replace(agent, seq)
 
-    def _crossover(self, s: Schedule, rng: random.Random) -> Schedule | None:
+    def _crossover(self, s: Schedule, rng: random.Random, _: np.ndarray | None
+                   ) -> Schedule | None:
         """Swap the tails after a cut point in each sequence. A task in a tail that the other
         agent may not do stays with its agent, after the incoming tail."""
         h, r = s.human, s.robot
@@ -489,7 +511,7 @@ class GeneticScheduler:
                  *(x for x in tail_r if not fits(x, "human")))
         return Schedule(human, robot)
 
-    def _add_wait(self, s: Schedule, rng: random.Random) -> Schedule | None:
+    def _add_wait(self, s: Schedule, rng: random.Random, _: np.ndarray | None) -> Schedule | None:
         agents = [a for a in AGENTS if s.sequence(a) and s.tasks(_other(a))]
         if not agents:
             return None
@@ -498,7 +520,8 @@ class GeneticScheduler:
         seq.insert(rng.randrange(len(seq)), Wait(rng.choice(s.tasks(_other(agent)))))
         return s.replace(agent, seq)
 
-    def _remove_wait(self, s: Schedule, rng: random.Random) -> Schedule | None:
+    def _remove_wait(self, s: Schedule, rng: random.Random, _: np.ndarray | None
+                     ) -> Schedule | None:
         slots = [(a, k) for a in AGENTS for k, x in enumerate(s.sequence(a))
                  if isinstance(x, Wait)]
         if not slots:
@@ -508,9 +531,9 @@ class GeneticScheduler:
         return s.replace(agent, seq[:k] + seq[k + 1 :])
 
     def neighbours(self, s: Schedule) -> list[Schedule]:
-        """Every single move, reorder, swap within an agent, exchange of two tasks between
-        agents, and wait removal of ``s`` (repaired, distinct, without ``s``): the polish
-        neighbourhood, O(n^2) schedules."""
+        """Every single move, reorder, swap within an agent, pair of adjacent swaps (one in each
+        agent), exchange of two tasks between agents, and wait removal of ``s`` (repaired,
+        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules."""
         out: dict[Schedule, None] = {}
         for task in self._shared:
             src = s.agent_of(task)
