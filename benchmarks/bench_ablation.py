@@ -5,10 +5,10 @@
 The study: fast-middle and slow-middle x full, spatial, temporal, exact, ``--trials`` trials of
 ``--cycles`` cycles, the study's default search settings (what ``rapidds ablation`` runs). Each
 worker count gets a fresh LocalCluster (single-threaded worker processes) and a fresh store; the
-time counted is from submitting the first trial to storing the last (``run_study``), and, apart,
-the cluster's start (worker processes importing torch). The two runs must store identical records
-(the result does not depend on how many workers computed it). With --update-docs the
-"## Ablation study" section of docs/benchmarks.md is replaced (or added).
+time counted is from submitting the first trial to storing the last (``run_study``); apart, the
+cluster's start, including each worker's imports and policy load (done before timing). The two
+runs must store identical records (the result does not depend on how many workers computed it).
+With --update-docs the "## Ablation study" section of docs/benchmarks.md is replaced (or added).
 """
 
 from __future__ import annotations
@@ -31,6 +31,22 @@ def _load() -> str:
         "/proc/loadavg").exists() else "n/a"
 
 
+MALLOC_NOTE = (
+    "Workers start without Dask's default MALLOC_TRIM_THRESHOLD_ "
+    "(`rapidds.experiments.ablation.LOCAL_WORKER_ENV`): with it, one trial took 2.2x the wall "
+    "time of a plain process (9.2 s against 4.1 s, 45 % of it system time); without it, the "
+    "same.\n"
+)
+
+
+def _warm_up() -> None:
+    from rapidds.experiments.ablation import _worker_policy
+    from rapidds.loop import _population_data
+
+    _worker_policy()
+    _population_data(24, 2)
+
+
 def _records(path: Path) -> dict[str, list[dict]]:
     with RunStore(path) as st:
         return {rid: [{k: v for k, v in r.items() if k != "seconds"} for r in st.records(rid)]
@@ -45,11 +61,16 @@ def measure(
     t0 = time.perf_counter()
     with dask_client(workers) as client:
         client.wait_for_workers(workers)
+        client.run(_warm_up)  # imports and the policy: paid once per worker, not measured
         start = time.perf_counter() - t0
+        cpu0 = client.run(time.process_time)
         with study_store(out) as store:
             res = run_study(study, store, client)
+        cpu1 = client.run(time.process_time)
     assert res.ran == res.total, (res.ran, res.total)
-    times = {"start": start, "wall": res.wall_s, "trial_sum": sum(res.trial_seconds)}
+    cpu = sum(cpu1[w] - cpu0.get(w, 0.0) for w in cpu1)
+    times = {"start": start, "wall": res.wall_s, "trial_sum": sum(res.trial_seconds),
+             "cpu": cpu}
     return times, _load(), _records(out / "study.sqlite")
 
 
@@ -63,7 +84,6 @@ def run(trials: int, cycles: int) -> str:
         one, _, rec1 = measure(study, 1, Path(tmp))
         two, load1, rec2 = measure(study, 2, Path(tmp))
     same = rec1 == rec2
-    speedup = one["wall"] / two["wall"]
     cpu = os.cpu_count()
     return (
         f"Machine: {cpu_model()}, {cpu} cores (shared with other "
@@ -73,16 +93,17 @@ def run(trials: int, cycles: int) -> str:
         f"of {cycles} cycles, study search settings (population {study.population}, generations "
         f"{study.generations}, samples {study.samples}, particles {study.particles}, candidates "
         f"{study.candidates}).\n\n"
-        "| workers | cluster start | study wall time | trials/min | sum of trial times | "
-        "speed-up |\n|---:|---:|---:|---:|---:|---:|\n"
-        f"| 1 | {one['start']:.1f} s | {one['wall']:.1f} s | {60 * n / one['wall']:.1f} | "
-        f"{one['trial_sum']:.1f} s | 1.00 |\n"
-        f"| 2 | {two['start']:.1f} s | {two['wall']:.1f} s | {60 * n / two['wall']:.1f} | "
-        f"{two['trial_sum']:.1f} s | {speedup:.2f} |\n\n"
-        f"Records identical on 1 and 2 workers: {'yes' if same else 'NO'}. "
-        "The sum of trial times is CPU-bound work as seen by the workers; when it grows from 1 to "
-        "2 workers, the 2 cores were not both free (other jobs, the client and the scheduler "
-        "share them).\n"
+        "| workers | cluster start | study wall time | trials/min | workers' CPU time | "
+        "cores used | speed-up |\n|---:|---:|---:|---:|---:|---:|---:|\n"
+        + "".join(
+            f"| {w} | {m['start']:.1f} s | {m['wall']:.1f} s | {60 * n / m['wall']:.1f} | "
+            f"{m['cpu']:.1f} s | {m['cpu'] / m['wall']:.2f} | {one['wall'] / m['wall']:.2f} |\n"
+            for w, m in ((1, one), (2, two)))
+        + f"\nRecords identical on 1 and 2 workers: {'yes' if same else 'NO'}. Cores used: the "
+        "workers' CPU time (time.process_time in each worker, summed) / wall time; below the "
+        "worker count when other jobs, the client or the scheduler held the cores. With the "
+        "same CPU work in both runs, speed-up = ratio of cores used, so on 2 free cores it "
+        "would approach 2. " + MALLOC_NOTE
     )
 
 

@@ -21,6 +21,7 @@ import pytest
 
 from rapidds.errors import RapiddsError
 from rapidds.experiments.ablation import (
+    LOCAL_WORKER_ENV,
     StudyConfig,
     dask_client,
     run_study,
@@ -166,10 +167,12 @@ def test_study_stores_records_and_writes_figures_and_tables(study):
 def test_killed_worker_loses_only_its_trial(serial, tmp_path):
     """A worker SIGKILLed mid-trial (on a cluster reached by address, as --scheduler does): Dask
     reruns its trial elsewhere, the study finishes and stores every trial once."""
+    import dask
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.ERROR) as cluster:
+    with dask.config.set(LOCAL_WORKER_ENV), \
+            LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                         dashboard_address=":0", silence_logs=logging.ERROR) as cluster:
         killed: list[int] = []
         with study_store(tmp_path / "w") as store, \
                 dask_client(scheduler=cluster.scheduler_address) as client:
