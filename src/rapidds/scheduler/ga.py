@@ -11,14 +11,16 @@ Evaluation (Algorithm 2) is batched over the generation and cached by schedule; 
 Four additions to the paper's loop, each measured on random instances against CP-SAT
 (``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`:
 
-- every mutant is evaluated together with its *active* version (:meth:`GeneticScheduler.activate`,
-  Giffler-Thompson left-justification): a change in one agent's order often pays off only if
-  the other agent's order follows, which single mutations rarely do together;
+- every mutant is evaluated together with two *active* versions (:meth:`GeneticScheduler.activate`,
+  Giffler-Thompson left-justification, by the mutant's order and by critical path): a change in
+  one agent's order often pays off only if the other agent's order follows, which single
+  mutations rarely do together;
 - the elite holds at most ``elites_per_allocation`` schedules per allocation (who does which
   task), so the population does not collapse onto one allocation;
 - a stalled population is replaced by a fresh list-scheduled one (``restart_after``);
-- the best schedule of each stalled population and the final best get a local search over their
-  whole single-step neighbourhood (``polish``).
+- the best schedule of each stalled population, the final best and the best schedule of each
+  of the next-best allocations get a local search over their whole single-step neighbourhood
+  (``polish``, ``polish_allocations``).
 """
 
 from __future__ import annotations
@@ -215,7 +217,17 @@ class GeneticScheduler:
             if cfg.patience and stall >= cfg.patience:
                 break
         if cfg.polish and best.schedule not in polished:
-            self._polish(best, evaluate)
+            polished.add(self._polish(best, evaluate).schedule)
+        if cfg.polish and cfg.polish_allocations > 1:
+            # Best of each runner-up allocation, polished: a local optimum of the best
+            # allocation's orders is often left through a neighbouring allocation.
+            tops: dict[frozenset[str], Evaluation] = {}
+            for e in _rank(list(evaluated.values())):
+                tops.setdefault(frozenset(e.schedule.tasks("human")), e)
+            for e in list(tops.values())[: cfg.polish_allocations]:
+                if e.schedule not in polished:
+                    polished.add(e.schedule)
+                    self._polish(e, evaluate)
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -251,24 +263,28 @@ class GeneticScheduler:
                 continue
             misses = 0
             out[child] = None
-            if self.config.activate_children and len(out) < count:
-                active = self.activate(child, mean, d_init)
-                if active is not None and active not in evaluated:
-                    out[active] = None
+            if self.config.activate_children:
+                for by_path in (False, True):
+                    active = self.activate(child, mean, d_init, critical_path=by_path)
+                    if len(out) < count and active is not None and active not in evaluated:
+                        out[active] = None
         return list(out)
 
-    def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray) -> Schedule | None:
+    def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray,
+                 critical_path: bool = False) -> Schedule | None:
         """Giffler-Thompson left-justification of ``s`` on expected durations.
 
         Keeps the allocation and rebuilds both sequences on the expected durations (human
         ``mean``, robot ``d_init``) so that no task could start earlier without delaying another
         (an active schedule); among tasks that compete for an agent the one earlier in ``s``
-        goes first. A wait token stays attached in front of the task that followed it. The
-        result is usually shorter than ``s`` and never deadlocks through order alone, so this
-        also repairs many deadlocked mutants. None if the waits make every order cyclic.
+        goes first, or with ``critical_path`` the one with the longest path to the end of the
+        job under this allocation (ties: earlier in ``s``). A wait token stays attached in
+        front of the task that followed it. The result is usually shorter than ``s`` and never
+        deadlocks through order alone, so this also repairs many deadlocked mutants. None if
+        the waits make every order cyclic.
         """
         agent_of: dict[str, Agent] = {}
-        rank: dict[str, int] = {}
+        rank: dict[str, tuple[float, int]] = {}
         attached: dict[str, list[Wait]] = {}
         for agent in AGENTS:
             waits: list[Wait] = []
@@ -276,7 +292,7 @@ class GeneticScheduler:
                 if isinstance(x, Wait):
                     waits.append(x)
                 else:
-                    agent_of[x], rank[x], attached[x] = agent, k, waits
+                    agent_of[x], rank[x], attached[x] = agent, (0.0, k), waits
                     waits = []
         index = self._index
         gated: dict[str, list[str]] = {t: [] for t in agent_of}  # gate -> tasks it gates
@@ -288,6 +304,9 @@ class GeneticScheduler:
                 gated[g].append(t)
         dur = {t: float(mean[index[t]] if a == "human" else d_init[index[t]])
                for t, a in agent_of.items()}
+        if critical_path:
+            tail = self._tails({t: {agent_of[t]: d} for t, d in dur.items()})
+            rank = {t: (-tail[t], k) for t, (_, k) in rank.items()}
         free = {"human": 0.0, "robot": 0.0}
         gate_time = dict.fromkeys(agent_of, 0.0)  # latest finish among a task's gates so far
         seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
