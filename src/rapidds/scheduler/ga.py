@@ -224,7 +224,10 @@ class GeneticScheduler:
             tops: dict[frozenset[str], Evaluation] = {}
             for e in _rank(list(evaluated.values())):
                 tops.setdefault(frozenset(e.schedule.tasks("human")), e)
+            spent = len(evaluated)
             for e in list(tops.values())[: cfg.polish_allocations]:
+                if len(evaluated) - spent > cfg.polish_budget * spent:
+                    break
                 if e.schedule not in polished:
                     polished.add(e.schedule)
                     self._polish(e, evaluate)
