@@ -62,10 +62,9 @@ class GAConfig:
             the overall best only. Descents from runner-up allocations reach optima that the
             best one's single-step neighbourhood cannot (measured: the runs more than 2 %
             above the CP-SAT optimum on 8-10 tasks fell from about 1 in 170 to none in 1800).
-        polish_budget: the runner-up polishes stop once they have evaluated this many times the
-            schedules the search evaluated before them (a polish under way finishes). On up to
-            10 tasks 1.0 rarely binds; on 32 tasks it keeps the solve within about twice the
-            time without runner-up polishes.
+        polish_budget: the runner-up polishes stop (between passes) once they have evaluated
+            this many times the schedules the search evaluated before them, so they at most
+            double a solve's evaluations. On up to 10 tasks 1.0 rarely binds.
         seed: seed of the random generator; the same seed and inputs give the same result.
     """
 
@@ -75,7 +74,7 @@ class GAConfig:
     elite_fraction: float = 0.25
     mutation_weights: dict[str, float] = field(default_factory=_default_weights)
     max_overlap_iters: int = 8
-    patience: int = 40
+    patience: int = 20
     restart_after: int = 10
     elites_per_allocation: int = 1
     activate_children: bool = True

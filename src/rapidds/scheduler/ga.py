@@ -224,13 +224,17 @@ class GeneticScheduler:
             tops: dict[frozenset[str], Evaluation] = {}
             for e in _rank(list(evaluated.values())):
                 tops.setdefault(frozenset(e.schedule.tasks("human")), e)
-            spent = len(evaluated)
+            limit = (1.0 + cfg.polish_budget) * len(evaluated)
+
+            def spent() -> bool:
+                return len(evaluated) > limit
+
             for e in list(tops.values())[: cfg.polish_allocations]:
-                if len(evaluated) - spent > cfg.polish_budget * spent:
+                if spent():
                     break
                 if e.schedule not in polished:
                     polished.add(e.schedule)
-                    self._polish(e, evaluate)
+                    self._polish(e, evaluate, spent)
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -356,11 +360,17 @@ class GeneticScheduler:
         return None
 
     def _polish(
-        self, start: Evaluation, evaluate: Callable[[Sequence[Schedule]], list[Evaluation]]
+        self,
+        start: Evaluation,
+        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        stop: Callable[[], bool] | None = None,
     ) -> Evaluation:
-        """Best-improvement local search over :meth:`neighbours`, one batch per pass."""
+        """Best-improvement local search over :meth:`neighbours`, one batch per pass; ``stop``
+        is asked before every pass."""
         current = start
         for _ in range(self.config.polish_passes):
+            if stop is not None and stop():
+                break
             candidates = self.neighbours(current.schedule)
             if not candidates:
                 break
