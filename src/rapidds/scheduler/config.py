@@ -61,7 +61,8 @@ class GAConfig:
             many best allocations (who does which task), not only the overall best; 0 or 1 =
             the overall best only. Descents from runner-up allocations reach optima that the
             best one's single-step neighbourhood cannot (measured: the runs more than 2 %
-            above the CP-SAT optimum on 8-10 tasks fell from about 1 in 170 to none in 1800).
+            above the CP-SAT optimum on 8-10 tasks fell from about 1 in 170 to none in 600,
+            with critical-path children; docs/design-notes.md, item 8).
         polish_budget: the runner-up polishes stop (between passes) once they have evaluated
             this many times the schedules the search evaluated before them, so they at most
             double a solve's evaluations. On up to 10 tasks 1.0 rarely binds.
