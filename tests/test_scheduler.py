@@ -470,7 +470,8 @@ def test_ga_defaults_reach_the_cp_sat_optimum_on_trap_instances(case: int, seed:
      ("mutation_weights", {"teleport": 1.0}), ("mutation_weights", {"move": -1.0}),
      ("mutation_weights", {"move": 0.0}), ("polish", "yes"), ("population", 2.5),
      ("restart_after", -1), ("elites_per_allocation", -1), ("polish_allocations", -1),
-     ("polish_budget", -0.5), ("polish_budget", float("nan"))],
+     ("polish_budget", -0.5), ("polish_budget", float("nan")), ("order_samples", -1),
+     ("order_allocations", 1.5)],
 )
 def test_config_rejects_bad_values(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):

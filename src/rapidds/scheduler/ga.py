@@ -218,23 +218,8 @@ class GeneticScheduler:
                 break
         if cfg.polish and best.schedule not in polished:
             polished.add(self._polish(best, evaluate).schedule)
-        if cfg.polish and cfg.polish_allocations > 1:
-            # Best of each runner-up allocation, polished: a local optimum of the best
-            # allocation's orders is often left through a neighbouring allocation.
-            tops: dict[frozenset[str], Evaluation] = {}
-            for e in _rank(list(evaluated.values())):
-                tops.setdefault(frozenset(e.schedule.tasks("human")), e)
-            limit = (1.0 + cfg.polish_budget) * len(evaluated)
-
-            def spent() -> bool:
-                return len(evaluated) > limit
-
-            for e in list(tops.values())[: cfg.polish_allocations]:
-                if spent():
-                    break
-                if e.schedule not in polished:
-                    polished.add(e.schedule)
-                    self._polish(e, evaluate, spent)
+        if cfg.polish and (cfg.polish_allocations > 1 or cfg.order_samples):
+            self._polish_runners_up(evaluated, evaluate, polished, rng, mean, d_init)
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -247,6 +232,51 @@ class GeneticScheduler:
             cache_misses=cache_stats[1],
             cache_size=cache_stats[2],
         )
+
+    def _polish_runners_up(
+        self,
+        evaluated: dict[Schedule, Evaluation],
+        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        polished: set[Schedule],
+        rng: random.Random,
+        mean: np.ndarray,
+        d_init: np.ndarray,
+    ) -> None:
+        """The end of a solve: for each of the ``order_allocations`` best allocations,
+        ``order_samples`` random active orders and a polish of the best of them; then a polish
+        of the best schedule of each of the ``polish_allocations`` best allocations; all within
+        ``polish_budget``. Both target
+        the same trap: the right allocation with an order no single move improves."""
+        cfg = self.config
+        limit = (1.0 + cfg.polish_budget) * len(evaluated)
+
+        def spent() -> bool:
+            return len(evaluated) > limit
+
+        def tops(count: int) -> list[Evaluation]:
+            best_of: dict[frozenset[str], Evaluation] = {}
+            for e in _rank(list(evaluated.values())):
+                best_of.setdefault(frozenset(e.schedule.tasks("human")), e)
+            return list(best_of.values())[:count]
+
+        for e in tops(cfg.order_allocations) if cfg.order_samples else []:
+            if spent():
+                return
+            orders = [self.activate(e.schedule, mean, d_init, order_rng=rng)
+                      for _ in range(cfg.order_samples)]
+            found = [o for o in orders if o is not None]
+            if found:
+                top = min(evaluate(found), key=lambda x: x.objective)
+                if top.schedule not in polished:
+                    polished.add(top.schedule)
+                    self._polish(top, evaluate, spent)
+        starts = tops(cfg.polish_allocations) if cfg.polish_allocations > 1 else []
+        for e in starts:
+            if spent():
+                return
+            if e.schedule not in polished:
+                polished.add(e.schedule)
+                self._polish(e, evaluate, spent)
 
     def _children(
         self,
@@ -278,17 +308,18 @@ class GeneticScheduler:
         return list(out)
 
     def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray,
-                 critical_path: bool = False) -> Schedule | None:
+                 critical_path: bool = False, order_rng: random.Random | None = None
+                 ) -> Schedule | None:
         """Giffler-Thompson left-justification of ``s`` on expected durations.
 
         Keeps the allocation and rebuilds both sequences on the expected durations (human
         ``mean``, robot ``d_init``) so that no task could start earlier without delaying another
         (an active schedule); among tasks that compete for an agent the one earlier in ``s``
         goes first, or with ``critical_path`` the one with the longest path to the end of the
-        job under this allocation (ties: earlier in ``s``). A wait token stays attached in
-        front of the task that followed it. The result is usually shorter than ``s`` and never
-        deadlocks through order alone, so this also repairs many deadlocked mutants. None if
-        the waits make every order cyclic.
+        job under this allocation (ties: earlier in ``s``), or with ``order_rng`` a random one.
+        A wait token stays attached in front of the task that followed it. The result is
+        usually shorter than ``s`` and never deadlocks through order alone, so this also
+        repairs many deadlocked mutants. None if the waits make every order cyclic.
         """
         agent_of: dict[str, Agent] = {}
         rank: dict[str, tuple[float, int]] = {}
@@ -314,6 +345,8 @@ class GeneticScheduler:
         if critical_path:
             tail = self._tails({t: {agent_of[t]: d} for t, d in dur.items()})
             rank = {t: (-tail[t], k) for t, (_, k) in rank.items()}
+        if order_rng is not None:
+            rank = {t: (order_rng.random(), k) for t, (_, k) in rank.items()}
         free = {"human": 0.0, "robot": 0.0}
         gate_time = dict.fromkeys(agent_of, 0.0)  # latest finish among a task's gates so far
         seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
