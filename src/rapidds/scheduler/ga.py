@@ -256,7 +256,7 @@ class GeneticScheduler:
         def tops(count: int) -> list[Evaluation]:
             best_of: dict[frozenset[str], Evaluation] = {}
             for e in _rank(list(evaluated.values())):
-                best_of.setdefault(frozenset(e.schedule.tasks("human")), e)
+                best_of.setdefault(_allocation(e), e)
             return list(best_of.values())[:count]
 
         for e in tops(cfg.order_allocations) if cfg.order_samples else []:
@@ -637,6 +637,11 @@ class GeneticScheduler:
         return list(out)
 
 
+def _allocation(e: Evaluation) -> frozenset[str]:
+    """Who does which task, as the set of the human's tasks."""
+    return frozenset(e.schedule.tasks("human"))
+
+
 def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) -> list[Evaluation]:
     """The ``count`` best, at most ``per_allocation`` of them with the same allocation (who does
     which task; 0 = no limit); slots left when allocations run out go to the best of the rest.
@@ -649,7 +654,7 @@ def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) ->
     for e in ranked:
         if len(chosen) == count:
             break
-        key = frozenset(e.schedule.tasks("human"))
+        key = _allocation(e)
         if taken.get(key, 0) < per_allocation:
             taken[key] = taken.get(key, 0) + 1
             chosen.append(e)
