@@ -8,7 +8,7 @@ by :func:`~rapidds.schedule.repair`; no operator puts a task on an agent that ma
 Evaluation (Algorithm 2) is batched over the generation and cached by schedule; the memory M (a
 :class:`TrajectoryCache`) lives for one solve, i.e. one cycle.
 
-Four additions to the paper's loop, each measured on random instances against CP-SAT
+Additions to the paper's loop, each measured on random instances against CP-SAT
 (``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`:
 
 - every mutant is evaluated together with two *active* versions (:meth:`GeneticScheduler.activate`,
@@ -20,7 +20,9 @@ Four additions to the paper's loop, each measured on random instances against CP
 - a stalled population is replaced by a fresh list-scheduled one (``restart_after``);
 - the best schedule of each stalled population, the final best and the best schedule of each
   of the next-best allocations get a local search over their whole single-step neighbourhood
-  (``polish``, ``polish_allocations``).
+  (``polish``, ``polish_allocations``);
+- before those last polishes, random active orders of the best allocations are tried and the
+  best of them polished (``order_samples``).
 """
 
 from __future__ import annotations
@@ -245,8 +247,8 @@ class GeneticScheduler:
         """The end of a solve: for each of the ``order_allocations`` best allocations,
         ``order_samples`` random active orders and a polish of the best of them; then a polish
         of the best schedule of each of the ``polish_allocations`` best allocations; all within
-        ``polish_budget``. Both target
-        the same trap: the right allocation with an order no single move improves."""
+        ``polish_budget``. Both target the same trap: the right allocation with an order no
+        single move improves."""
         cfg = self.config
         limit = (1.0 + cfg.polish_budget) * len(evaluated)
 
@@ -259,6 +261,11 @@ class GeneticScheduler:
                 best_of.setdefault(_allocation(e), e)
             return list(best_of.values())[:count]
 
+        def polish_from(e: Evaluation) -> None:
+            if e.schedule not in polished:
+                polished.add(e.schedule)
+                self._polish(e, evaluate, spent)
+
         for e in tops(cfg.order_allocations) if cfg.order_samples else []:
             if spent():
                 return
@@ -266,17 +273,11 @@ class GeneticScheduler:
                       for _ in range(cfg.order_samples)]
             found = [o for o in orders if o is not None]
             if found:
-                top = min(evaluate(found), key=lambda x: x.objective)
-                if top.schedule not in polished:
-                    polished.add(top.schedule)
-                    self._polish(top, evaluate, spent)
-        starts = tops(cfg.polish_allocations) if cfg.polish_allocations > 1 else []
-        for e in starts:
+                polish_from(min(evaluate(found), key=lambda x: x.objective))
+        for e in tops(cfg.polish_allocations) if cfg.polish_allocations > 1 else []:
             if spent():
                 return
-            if e.schedule not in polished:
-                polished.add(e.schedule)
-                self._polish(e, evaluate, spent)
+            polish_from(e)
 
     def _children(
         self,
