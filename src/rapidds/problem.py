@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
@@ -126,19 +127,25 @@ class Problem:
     def __post_init__(self) -> None:
         _check_consistent(self)
 
-    @property
+    # Cached: the scheduler asks for these for every candidate it evaluates. Do not mutate.
+    @cached_property
     def ids(self) -> tuple[str, ...]:
         return tuple(t.id for t in self.tasks)
 
-    @property
+    @cached_property
     def index(self) -> dict[str, int]:
         return {t.id: i for i, t in enumerate(self.tasks)}
+
+    @cached_property
+    def preceding(self) -> dict[str, tuple[str, ...]]:
+        """Direct precedence predecessors of every task."""
+        return {t: tuple(a for a, b in self.precedence if b == t) for t in self.ids}
 
     def task(self, task_id: str) -> Task:
         return self.tasks[self.index[task_id]]
 
     def predecessors(self, task_id: str) -> tuple[str, ...]:
-        return tuple(a for a, b in self.precedence if b == task_id)
+        return self.preceding[task_id]
 
     @property
     def shared_tasks(self) -> tuple[str, ...]:

@@ -142,12 +142,9 @@ class CompiledSchedule:
     @classmethod
     def build(cls, problem: Problem, schedule: Schedule) -> CompiledSchedule | None:
         idx = problem.index
-        where = {t: (a, k) for a, agent in enumerate(AGENTS)
-                 for k, t in enumerate(schedule.sequence(agent)) if isinstance(t, str)}
         seqs = [schedule.sequence(a) for a in AGENTS]
-        preds: dict[str, list[str]] = {t: [] for t in problem.ids}
-        for a, b in problem.precedence:
-            preds[b].append(a)
+        placed = {t for seq in seqs for t in seq if isinstance(t, str)}
+        preds = problem.preceding
         pos = [0, 0]
         done: set[str] = set()
         steps: list[_Step] = []
@@ -161,7 +158,7 @@ class CompiledSchedule:
                     if any(g not in done for g in gate):
                         break
                     if isinstance(item, Wait):
-                        if item.task not in where:
+                        if item.task not in placed:
                             return None
                         steps.append(_Step(a, idx[item.task], True, (idx[item.task],)))
                     else:
