@@ -179,8 +179,10 @@ def report(throughput, ttb, gaps: list[GapRow], args: argparse.Namespace) -> str
     out.append(f"GA defaults: population {cfg.population}, generations {cfg.generations}, "
                f"patience {cfg.patience}, restart after {cfg.restart_after}, elite "
                f"{cfg.elite_fraction:g} with at most {cfg.elites_per_allocation} per allocation,"
-               f" active children {cfg.activate_children}, polish {cfg.polish}, "
-               f"K = {cfg.samples} samples.")
+               f" active children {cfg.activate_children}, order search "
+               f"{cfg.order_search_nodes} placements per allocation, polish {cfg.polish} "
+               f"(runner-up allocations {cfg.polish_allocations}, budget {cfg.polish_budget:g}),"
+               f" K = {cfg.samples} samples.")
     out += ["", "### Evaluation throughput", "",
             "`evaluate_population` (Algorithm 2) on generations of 48 distinct candidates, "
             "K = 64 samples, fixed robot durations.", "",

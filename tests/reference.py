@@ -35,13 +35,17 @@ def sequence_makespan(problem: Problem, human: Sequence[str], robot: Sequence[st
         return math.inf
 
 
+def best_order(problem: Problem, human: Sequence[str], robot: Sequence[str]) -> float:
+    """Optimal makespan of one allocation over every pair of orders, no waits."""
+    return min(sequence_makespan(problem, ph, pr)
+               for ph in itertools.permutations(human) for pr in itertools.permutations(robot))
+
+
 def brute_force(problem: Problem) -> float:
     """Optimal makespan over every allocation and every pair of orders, no waits."""
     best = math.inf
     for agents in itertools.product(*(sorted(t.allowed) for t in problem.tasks)):
         h = [t for t, a in zip(problem.ids, agents, strict=True) if a == "human"]
         r = [t for t, a in zip(problem.ids, agents, strict=True) if a == "robot"]
-        for ph in itertools.permutations(h):
-            for pr in itertools.permutations(r):
-                best = min(best, sequence_makespan(problem, ph, pr))
+        best = min(best, best_order(problem, h, r))
     return best

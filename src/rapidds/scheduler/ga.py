@@ -11,6 +11,9 @@ Evaluation (Algorithm 2) is batched over the generation and cached by schedule; 
 Additions to the paper's loop, each measured on random instances against CP-SAT
 (``benchmarks/bench_scheduler.py``) and each switchable in :class:`GAConfig`:
 
+- every allocation (who does which task) the search meets is also evaluated in the shortest
+  order a small branch and bound finds for it (``order_search_nodes``,
+  :mod:`rapidds.scheduler.active`), so an allocation is not judged by a poor order;
 - every mutant is evaluated together with two *active* versions (:meth:`GeneticScheduler.activate`,
   Giffler-Thompson left-justification, by the mutant's order and by critical path): a change in
   one agent's order often pays off only if the other agent's order follows, which single
@@ -20,9 +23,7 @@ Additions to the paper's loop, each measured on random instances against CP-SAT
 - a stalled population is replaced by a fresh list-scheduled one (``restart_after``);
 - the best schedule of each stalled population, the final best and the best schedule of each
   of the next-best allocations get a local search over their whole single-step neighbourhood
-  (``polish``, ``polish_allocations``);
-- before those last polishes, random active orders of the best allocations are tried and the
-  best of them polished (``order_samples``).
+  (``polish``, ``polish_allocations``).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import numpy as np
 from rapidds.motion.interface import MotionModel, TrajectoryCache
 from rapidds.problem import AGENTS, Agent, Problem
 from rapidds.schedule import Item, Schedule, Wait, repair
+from rapidds.scheduler.active import AllocationOrders, longest_tails
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
@@ -167,8 +169,14 @@ class GeneticScheduler:
         best: Evaluation | None = None
         best_time = 0.0
 
+        searched: set[frozenset[str]] = set()  # allocations whose order has been searched
+
         def evaluate(schedules: Sequence[Schedule]) -> list[Evaluation]:
+            """Evaluations of ``schedules`` and then, with ``order_search_nodes``, of the
+            shortest order of each allocation among them not met before."""
             nonlocal best, best_time
+            if cfg.order_search_nodes:
+                schedules = [*schedules, *self._shortest_orders(schedules, searched, mean, d_init)]
             new = [s for s in dict.fromkeys(schedules) if s not in evaluated]
             if new:
                 fresh = evaluate_population(
@@ -220,8 +228,8 @@ class GeneticScheduler:
                 break
         if cfg.polish and best.schedule not in polished:
             polished.add(self._polish(best, evaluate).schedule)
-        if cfg.polish and (cfg.polish_allocations > 1 or cfg.order_samples):
-            self._polish_runners_up(evaluated, evaluate, polished, rng, mean, d_init)
+        if cfg.polish and cfg.polish_allocations > 1:
+            self._polish_runners_up(evaluated, evaluate, polished)
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -240,44 +248,36 @@ class GeneticScheduler:
         evaluated: dict[Schedule, Evaluation],
         evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
         polished: set[Schedule],
-        rng: random.Random,
-        mean: np.ndarray,
-        d_init: np.ndarray,
     ) -> None:
-        """The end of a solve: for each of the ``order_allocations`` best allocations,
-        ``order_samples`` random active orders and a polish of the best of them; then a polish
-        of the best schedule of each of the ``polish_allocations`` best allocations; all within
-        ``polish_budget``. Both target the same trap: the right allocation with an order no
-        single move improves."""
+        """The end of a solve: a polish of the best schedule of each of the
+        ``polish_allocations`` best allocations, within ``polish_budget``. The trap it targets:
+        the right allocation with an order no single move improves."""
         cfg = self.config
         limit = (1.0 + cfg.polish_budget) * len(evaluated)
-
-        def spent() -> bool:
-            return len(evaluated) > limit
-
-        def tops(count: int) -> list[Evaluation]:
-            best_of: dict[frozenset[str], Evaluation] = {}
-            for e in _rank(list(evaluated.values())):
-                best_of.setdefault(_allocation(e), e)
-            return list(best_of.values())[:count]
-
-        def polish_from(e: Evaluation) -> None:
+        best_of: dict[frozenset[str], Evaluation] = {}
+        for e in _rank(list(evaluated.values())):
+            best_of.setdefault(_allocation(e.schedule), e)
+        for e in list(best_of.values())[: cfg.polish_allocations]:
+            if len(evaluated) > limit:
+                return
             if e.schedule not in polished:
                 polished.add(e.schedule)
-                self._polish(e, evaluate, spent)
+                self._polish(e, evaluate, lambda: len(evaluated) > limit)
 
-        for e in tops(cfg.order_allocations) if cfg.order_samples else []:
-            if spent():
-                return
-            orders = [self.activate(e.schedule, mean, d_init, order_rng=rng)
-                      for _ in range(cfg.order_samples)]
-            found = [o for o in orders if o is not None]
-            if found:
-                polish_from(min(evaluate(found), key=lambda x: x.objective))
-        for e in tops(cfg.polish_allocations) if cfg.polish_allocations > 1 else []:
-            if spent():
-                return
-            polish_from(e)
+    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[frozenset[str]],
+                         mean: np.ndarray, d_init: np.ndarray) -> list[Schedule]:
+        """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
+        ``schedules`` not in ``searched`` (then added to it). Without waits: they only delay,
+        and the first schedule met with an allocation may carry any."""
+        out = []
+        for s in schedules:
+            key = _allocation(s)
+            if key not in searched:
+                searched.add(key)
+                bare = Schedule(s.tasks("human"), s.tasks("robot"))
+                out += self._orders(bare, mean, d_init).search(self.config.order_search_nodes,
+                                                               keep=1)[0]
+        return out
 
     def _children(
         self,
@@ -302,76 +302,35 @@ class GeneticScheduler:
             misses = 0
             out[child] = None
             if self.config.activate_children:
+                orders = self._orders(child, mean, d_init)
                 for by_path in (False, True):
-                    active = self.activate(child, mean, d_init, critical_path=by_path)
+                    active = orders.active(by_path)
                     if len(out) < count and active is not None and active not in evaluated:
                         out[active] = None
         return list(out)
 
     def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray,
-                 critical_path: bool = False, order_rng: random.Random | None = None
-                 ) -> Schedule | None:
+                 critical_path: bool = False) -> Schedule | None:
         """Giffler-Thompson left-justification of ``s`` on expected durations.
 
         Keeps the allocation and rebuilds both sequences on the expected durations (human
         ``mean``, robot ``d_init``) so that no task could start earlier without delaying another
         (an active schedule); among tasks that compete for an agent the one earlier in ``s``
         goes first, or with ``critical_path`` the one with the longest path to the end of the
-        job under this allocation (ties: earlier in ``s``), or with ``order_rng`` a random one.
+        job under this allocation (ties: earlier in ``s``).
         A wait token stays attached in front of the task that followed it. The result is
         usually shorter than ``s`` and never deadlocks through order alone, so this also
         repairs many deadlocked mutants. None if the waits make every order cyclic.
         """
-        agent_of: dict[str, Agent] = {}
-        rank: dict[str, tuple[float, int]] = {}
-        attached: dict[str, list[Wait]] = {}
-        for agent in AGENTS:
-            waits: list[Wait] = []
-            for k, x in enumerate(s.sequence(agent)):
-                if isinstance(x, Wait):
-                    waits.append(x)
-                else:
-                    agent_of[x], rank[x], attached[x] = agent, (0.0, k), waits
-                    waits = []
+        return self._orders(s, mean, d_init).active(critical_path)
+
+    def _orders(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray) -> AllocationOrders:
+        """The allocation of ``s`` on expected durations (human ``mean``, robot ``d_init``)."""
         index = self._index
-        gated: dict[str, list[str]] = {t: [] for t in agent_of}  # gate -> tasks it gates
-        pending: dict[str, int] = {}
-        for t in agent_of:
-            gates = dict.fromkeys((*self._preds[t], *(w.task for w in attached[t])))
-            pending[t] = len(gates)
-            for g in gates:
-                gated[g].append(t)
-        dur = {t: float(mean[index[t]] if a == "human" else d_init[index[t]])
-               for t, a in agent_of.items()}
-        if critical_path:
-            tail = self._tails({t: {agent_of[t]: d} for t, d in dur.items()})
-            rank = {t: (-tail[t], k) for t, (_, k) in rank.items()}
-        if order_rng is not None:
-            rank = {t: (order_rng.random(), k) for t, (_, k) in rank.items()}
-        free = {"human": 0.0, "robot": 0.0}
-        gate_time = dict.fromkeys(agent_of, 0.0)  # latest finish among a task's gates so far
-        seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
-        ready = [t for t in self.problem.ids if t in agent_of and pending[t] == 0]
-        placed = 0
-        while ready:
-            est = {t: max(free[agent_of[t]], gate_time[t]) for t in ready}
-            first = min(ready, key=lambda t: est[t] + dur[t])
-            agent = agent_of[first]
-            cutoff = est[first] + dur[first]
-            task = min((t for t in ready if agent_of[t] == agent and est[t] < cutoff),
-                       key=lambda t: rank[t])
-            ready.remove(task)
-            placed += 1
-            free[agent] = done = est[task] + dur[task]
-            seqs[agent].extend((*attached[task], task))
-            for t in gated[task]:
-                gate_time[t] = max(gate_time[t], done)
-                pending[t] -= 1
-                if pending[t] == 0:
-                    ready.append(t)
-        if placed < len(agent_of):
-            return None  # waits and precedence form a cycle
-        return repair(Schedule(tuple(seqs["human"]), tuple(seqs["robot"])))
+        return AllocationOrders(
+            s, self.problem.ids, self._preds,
+            lambda t, a: mean[index[t]] if a == "human" else d_init[index[t]],
+        )
 
     def mutate(
         self,
@@ -485,18 +444,8 @@ class GeneticScheduler:
     def _tails(self, durations: dict[str, dict[str, float]]) -> dict[str, float]:
         """Longest path from the start of each task to the end of the job (its deadline slack
         counted backwards), with each task at its faster agent's duration."""
-        tail: dict[str, float] = {}
-
-        def visit(t: str) -> float:
-            if t not in tail:
-                tail[t] = min(durations[t].values()) + max(
-                    (visit(s) for s in self._succ[t]), default=0.0
-                )
-            return tail[t]
-
-        for t in self.problem.ids:
-            visit(t)
-        return tail
+        return longest_tails(self.problem.ids, self._succ,
+                             {t: min(d.values()) for t, d in durations.items()})
 
     # -------------------------------------------------------------------------- operators
 
@@ -638,9 +587,9 @@ class GeneticScheduler:
         return list(out)
 
 
-def _allocation(e: Evaluation) -> frozenset[str]:
+def _allocation(s: Schedule) -> frozenset[str]:
     """Who does which task, as the set of the human's tasks."""
-    return frozenset(e.schedule.tasks("human"))
+    return frozenset(s.tasks("human"))
 
 
 def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) -> list[Evaluation]:
@@ -655,7 +604,7 @@ def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) ->
     for e in ranked:
         if len(chosen) == count:
             break
-        key = _allocation(e)
+        key = _allocation(e.schedule)
         if taken.get(key, 0) < per_allocation:
             taken[key] = taken.get(key, 0) + 1
             chosen.append(e)
