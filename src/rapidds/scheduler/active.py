@@ -4,7 +4,7 @@ For a fixed allocation (who does which task) and fixed durations, some makespan-
 *active*: no task could start earlier without delaying another. Giffler-Thompson builds an
 active schedule by repeatedly taking the agent whose next task would finish first and choosing,
 among that agent's tasks that could start before that finish, which goes next. A priority picks
-one choice (:meth:`AllocationOrders.build`); branching on every choice enumerates all active
+one choice (:meth:`AllocationOrders.active`); branching on every choice enumerates all active
 schedules, which :meth:`AllocationOrders.search` does depth first with a lower bound, so on small
 jobs it proves the shortest order of the allocation within its node budget.
 

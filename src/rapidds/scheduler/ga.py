@@ -119,7 +119,7 @@ class GeneticScheduler:
         self._shared = problem.shared_tasks
         self._desc = _closure(problem.ids, problem.precedence)
         self._anc = _closure(problem.ids, [(b, a) for a, b in problem.precedence])
-        self._preds = {t: problem.predecessors(t) for t in problem.ids}
+        self._preds = problem.preceding
         self._succ: dict[str, list[str]] = {t: [] for t in problem.ids}
         for a, b in problem.precedence:
             self._succ[a].append(b)
