@@ -141,6 +141,11 @@ class Problem:
         """Direct precedence predecessors of every task."""
         return {t: tuple(a for a, b in self.precedence if b == t) for t in self.ids}
 
+    @cached_property
+    def following(self) -> dict[str, tuple[str, ...]]:
+        """Direct precedence successors of every task."""
+        return {t: tuple(b for a, b in self.precedence if a == t) for t in self.ids}
+
     def task(self, task_id: str) -> Task:
         return self.tasks[self.index[task_id]]
 

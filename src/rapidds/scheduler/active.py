@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from operator import add
 
-from rapidds.problem import AGENTS, Agent
+from rapidds.problem import AGENTS, Agent, Problem
 from rapidds.schedule import Item, Schedule, Wait, repair
 
 # (task, agent) -> the duration to plan with
@@ -48,13 +48,12 @@ class AllocationOrders:
 
     Args:
         s: the schedule whose allocation and waits are kept; its order breaks ties.
-        ids: task ids in problem order (the order tasks become ready in, for determinism).
-        preds: precedence predecessors of every task.
+        problem: the job; its task order is the order tasks become ready in (determinism).
         duration: the duration of a task on an agent (e.g. expected human and nominal robot).
     """
 
-    def __init__(self, s: Schedule, ids: Sequence[str], preds: Mapping[str, Sequence[str]],
-                 duration: Duration):
+    def __init__(self, s: Schedule, problem: Problem, duration: Duration):
+        preds = problem.preceding
         agent_of: dict[str, int] = {}
         position: dict[str, int] = {}
         attached: dict[str, tuple[Wait, ...]] = {}
@@ -66,7 +65,7 @@ class AllocationOrders:
                 else:
                     agent_of[x], position[x], attached[x] = a, k, tuple(waits)
                     waits = []
-        self.ids = [t for t in ids if t in agent_of]
+        self.ids = [t for t in problem.ids if t in agent_of]
         number = {t: i for i, t in enumerate(self.ids)}
         self.agent = [agent_of[t] for t in self.ids]
         self.position = [position[t] for t in self.ids]  # index in its agent's sequence
@@ -79,11 +78,8 @@ class AllocationOrders:
             self.pending.append(len(gates))
             for g in gates:
                 self.gated[number[g]].append(i)
-        succ: dict[str, list[str]] = {t: [] for t in self.ids}
-        for u in self.ids:
-            for p in preds[u]:
-                succ[p].append(u)
-        tails = longest_tails(self.ids, succ, dict(zip(self.ids, self.dur, strict=True)))
+        tails = longest_tails(self.ids, problem.following,
+                              dict(zip(self.ids, self.dur, strict=True)))
         self.tail = [tails[t] for t in self.ids]
 
     def _start(self) -> _State:

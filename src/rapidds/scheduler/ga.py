@@ -120,9 +120,7 @@ class GeneticScheduler:
         self._desc = _closure(problem.ids, problem.precedence)
         self._anc = _closure(problem.ids, [(b, a) for a, b in problem.precedence])
         self._preds = problem.preceding
-        self._succ: dict[str, list[str]] = {t: [] for t in problem.ids}
-        for a, b in problem.precedence:
-            self._succ[a].append(b)
+        self._succ = problem.following
         self._ops: dict[str, Operator] = {
             "move": self._move,
             "reorder": self._reorder,
@@ -328,7 +326,7 @@ class GeneticScheduler:
         """The allocation of ``s`` on expected durations (human ``mean``, robot ``d_init``)."""
         index = self._index
         return AllocationOrders(
-            s, self.problem.ids, self._preds,
+            s, self.problem,
             lambda t, a: mean[index[t]] if a == "human" else d_init[index[t]],
         )
 
