@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from rapidds.worlds.base import Rect, World, reach_then_return_time, segments_hit_rects
+from rapidds.worlds.base import World
 from rapidds.worlds.fetch import MODES, FetchWorld, fetch_problem
+from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_rects
 from rapidds.worlds.teammates import (
     ARCHETYPES,
     Teammate,

@@ -1,56 +1,81 @@
-"""What every simulated world offers the rest of the system, plus the geometry it shares.
+"""The two seams every job plugs into: a :class:`World` (everything specific to one job cell) and
+a :class:`Teammate` (whoever does the human's tasks: a simulated person, someone in a browser, an
+experimenter typing observations).
 
-A world owns the physical side of a job: its :class:`~rapidds.problem.Problem`, the robot's
-state space (bounds, time step ``dt``, horizon ``H``), how long a robot trajectory takes to finish
-a task (d_j^r, the paper's completion index times ``dt``), the demonstrations a motion policy is
-trained on, and what to draw. Trajectories are arrays of shape (N, H, d): row k is the state at
-time k * dt, so the start pose is row 0.
+Nothing outside a world's folder knows its name: the loop, the CLI, the plots and the studies
+reach it through this contract and :mod:`rapidds.worlds.registry`.
+
+Spaces and shapes
+    Robot trajectory xi: (H, d) in the robot's own coordinates (fetch: its (x, y) position;
+    painting: 7 joint angles), row k at time k * dt, row 0 the start pose; batched (..., H, d).
+
+    Workspace: the physical space robot and person share, ``workspace_dim`` coordinates (fetch 2,
+    painting 3). The spatial model (paper Eqs. 7-11) and every distance live there.
+    :meth:`World.robot_points` maps robot trajectories into it: (..., H, P, d_ws), P body points
+    per row (fetch: the robot itself, P = 1; an arm: points along its links by forward
+    kinematics), so S_i(xi) is the max of s_i over all of them.
+
+    Human path: (T, K, d_ws), K body points over time (fetch: K = 1; painting: hands and
+    forearms), row t at time t * dt after the task started, the last row when it ended. A
+    (T, d_ws) array is the K = 1 shorthand (:func:`body_points`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol, runtime_checkable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
 from rapidds.problem import Problem
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
 __all__ = [
-    "Rect",
+    "HumanExecution",
+    "PopulationPrior",
     "RobotDemos",
+    "SimulatedTeammate",
+    "Teammate",
     "World",
-    "reach_then_return_time",
-    "segments_hit_rects",
+    "body_points",
 ]
 
 
+def body_points(path: np.ndarray) -> np.ndarray:
+    """A human path as (T, K, d_ws); a (T, d_ws) path is one body point (K = 1)."""
+    p = np.asarray(path, dtype=float)
+    if p.ndim == 2:
+        return p[:, None, :]
+    if p.ndim != 3:
+        raise ValueError(f"a human path must have shape (T, d) or (T, K, d), got {p.shape}")
+    return p
+
+
 @dataclass(frozen=True)
-class Rect:
-    """An axis-aligned wall rectangle [xmin, xmax] x [ymin, ymax] in world units."""
+class HumanExecution:
+    """What the person did for one task in one cycle: how long it took (s) and where their body
+    points were meanwhile, (T, K, d_ws) or (T, d_ws), sampled at the world's ``dt``."""
 
-    xmin: float
-    ymin: float
-    xmax: float
-    ymax: float
+    task: str
+    duration: float
+    trajectory: np.ndarray
 
-    def __post_init__(self) -> None:
-        if not (self.xmin < self.xmax and self.ymin < self.ymax):
-            raise ValueError(f"Rect needs xmin < xmax and ymin < ymax, got {self}")
 
-    def as_array(self) -> np.ndarray:
-        """(4,) [xmin, ymin, xmax, ymax]."""
-        return np.array([self.xmin, self.ymin, self.xmax, self.ymax], dtype=float)
+@dataclass(frozen=True)
+class PopulationPrior:
+    """What is known about people before meeting this one: other people doing every task.
 
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        """(...,) bool: which of the (..., 2) points lie inside or on the rectangle."""
-        p = np.asarray(points, dtype=float)
-        return (
-            (p[..., 0] >= self.xmin)
-            & (p[..., 0] <= self.xmax)
-            & (p[..., 1] >= self.ymin)
-            & (p[..., 1] <= self.ymax)
-        )
+    durations: task -> their observed durations (s), the temporal prior (mean and spread).
+    paths: task -> their paths, the spatial prior (paper Eq. 9).
+    Every world draws both from ONE population, so planning and the CLI start from one belief.
+    """
+
+    durations: Mapping[str, Sequence[float]]
+    paths: Mapping[str, Sequence[np.ndarray]]
 
 
 class RobotDemos(NamedTuple):
@@ -58,9 +83,10 @@ class RobotDemos(NamedTuple):
 
     trajectories: (N, H, d) float64, row 0 the robot's start pose.
     task_index: (N,) int64 into ``task_names`` (the policy's one-hot order).
-    task_names: the world's task ids.
-    modes: (N,) str, the motion mode of each row (e.g. "middle", "outside", "direct"), so tests
-        and plots can check that every mode is covered; the policy itself never sees it.
+    task_names: the world's robot task ids.
+    modes: (N,) str, the motion mode of each row (e.g. "middle", "outside", "direct",
+        "avoidant"), so tests and plots can check that every mode is covered; the policy itself
+        never sees it.
     """
 
     trajectories: np.ndarray
@@ -70,11 +96,59 @@ class RobotDemos(NamedTuple):
 
 
 @runtime_checkable
-class World(Protocol):
-    """A simulated job the planner can be run on (fetch game, painting arm, ...)."""
+class Teammate(Protocol):
+    """Whoever does the human's tasks. The loop asks it what the person did in one cycle."""
 
     @property
     def name(self) -> str: ...
+
+    def execute(
+        self, cycle: int, tasks: Sequence[str], rng: np.random.Generator
+    ) -> dict[str, HumanExecution]:
+        """What the person did in cycle ``cycle`` for their ``tasks`` (in planned order):
+        task -> :class:`HumanExecution`. A live person returns what was observed."""
+        ...
+
+
+@runtime_checkable
+class SimulatedTeammate(Teammate, Protocol):
+    """A simulated person: the ground truth a planner has to learn, and that an oracle knows."""
+
+    def at(self, cycle: int) -> SimulatedTeammate:
+        """The person as they are in ``cycle`` (themselves, unless they change over time)."""
+        ...
+
+    def perform(self, task: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+        """One execution of ``task``: (duration s, path (T, K, d_ws) or (T, d_ws))."""
+        ...
+
+    def true_mean_durations(self) -> dict[str, float]:
+        """task -> true mean duration (s)."""
+        ...
+
+    def true_std_durations(self) -> dict[str, float]:
+        """task -> true standard deviation of the duration (s)."""
+        ...
+
+
+@runtime_checkable
+class World(Protocol):
+    """One job cell: its problem, its people, its robot's motions and how to draw it."""
+
+    @property
+    def name(self) -> str:
+        """Registry name, e.g. "fetch"."""
+        ...
+
+    @property
+    def variant(self) -> str:
+        """Which variant of the job (one of ``variants``), e.g. painting's "constrained"."""
+        ...
+
+    @property
+    def variants(self) -> tuple[str, ...]:
+        """Variants this world offers, the default first."""
+        ...
 
     @property
     def task_ids(self) -> tuple[str, ...]:
@@ -83,113 +157,98 @@ class World(Protocol):
 
     @property
     def dt(self) -> float:
-        """Seconds per trajectory step."""
+        """Seconds per trajectory row (robot and human)."""
         ...
 
     @property
     def horizon(self) -> int:
-        """H, steps per robot trajectory; a multiple of 8 (the U-Net halves it three times)."""
+        """H, rows per robot trajectory; a multiple of 8 (the U-Net halves it three times)."""
         ...
 
     @property
     def state_dim(self) -> int:
-        """d, the dimension of one trajectory point."""
+        """d, coordinates of one robot trajectory row."""
         ...
 
     @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo (d,), hi (d,)): the box every trajectory point lies in."""
+    def workspace_dim(self) -> int:
+        """d_ws, coordinates of one workspace point."""
+        ...
+
+    @property
+    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo (d_ws,), hi (d_ws,)): the box the spatial model's grid spans."""
+        ...
+
+    @property
+    def spatial_beta(self) -> float:
+        """beta of Eq. 7 in 1 / workspace unit (fetch: 1 per metre on a 10 m map)."""
+        ...
+
+    @property
+    def spatial_grid(self) -> int:
+        """Grid points per workspace axis of the spatial model (V = this ** d_ws)."""
+        ...
+
+    @property
+    def teammate_names(self) -> tuple[str, ...]:
+        """Names of the simulated teammates this world offers (its vocabulary for --human)."""
+        ...
+
+    @property
+    def policy_defaults(self) -> Mapping[str, Any]:
+        """DiffusionConfig fields this world's policy is trained with (network size, steps)."""
+        ...
+
+    @property
+    def views(self) -> Mapping[str, tuple[int, int]]:
+        """Named 2-D views for pictures: view -> (horizontal, vertical) workspace axes."""
         ...
 
     def problem(self) -> Problem:
-        """Tasks, precedence, human priors from the population, robot nominal durations and the
-        objective weights."""
+        """Tasks, precedence, human priors from :meth:`prior`, robot nominal durations and the
+        objective's default weights (gamma, lambda)."""
         ...
 
-    def robot_start(self, task: str) -> np.ndarray:
-        """(d,) the robot's pose when it starts ``task``."""
+    def prior(self) -> PopulationPrior:
+        """The population of other people, the one source of the temporal and spatial priors."""
+        ...
+
+    def teammate(self, name: str) -> SimulatedTeammate:
+        """The simulated teammate ``name`` (one of ``teammate_names``); ValueError otherwise."""
+        ...
+
+    def robot_points(self, traj: np.ndarray) -> np.ndarray:
+        """Workspace points of robot trajectories: (..., H, d) -> (..., H, P, d_ws)."""
+        ...
+
+    def robot_rest(self) -> np.ndarray:
+        """(d,) the robot's pose while it has no task; every robot task starts and ends there."""
+        ...
+
+    def human_rest(self) -> np.ndarray:
+        """(K, d_ws) where the person's body points are while they have no task."""
         ...
 
     def completion_time(self, task: str, traj: np.ndarray) -> np.ndarray:
-        """(N,) seconds d_j^r after which the (N, H, d) trajectories have finished ``task``;
-        a large finite penalty for a trajectory that never does."""
+        """d_j^r: seconds after which robot trajectories (..., H, d) have finished ``task``; a
+        large finite penalty for one that never does (or cannot be executed)."""
         ...
 
     def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
-        """``n_per_mode`` noisy demonstrations of every motion mode of every robot task."""
+        """``n_per_mode`` noisy, executable demonstrations of every motion mode of every robot
+        task: the policy's training set."""
         ...
 
-    def obstacles(self) -> tuple[Rect, ...]:
-        """Wall rectangles, for collision checks and drawing."""
+    def bundled_policy(self) -> Path | None:
+        """Directory of the policy checkpoint shipped with this world, if there is one."""
         ...
 
-    def points_of_interest(self) -> dict[str, np.ndarray]:
-        """Named (d,) points to draw: homes, objects."""
+    def motion_label(self, task: str, traj: np.ndarray) -> str:
+        """A short name for the motion a (H, d) robot trajectory takes, for reports (fetch:
+        "middle" or "outside"); not used for planning."""
         ...
 
-
-def segments_hit_rects(
-    traj: np.ndarray, rects: np.ndarray | tuple[Rect, ...], margin: float = 0.0
-) -> np.ndarray:
-    """Which polylines touch a wall: a segment between consecutive points that meets any
-    rectangle (grown by ``margin`` on every side) counts, not only its sample points, so a fast
-    trajectory cannot jump through a thin wall between two steps.
-
-    traj: (N, T, 2) or (T, 2) points. rects: (R, 4) [xmin, ymin, xmax, ymax] or Rect objects.
-    Returns (N,) bool, or a 0-d bool for a single (T, 2) polyline. Slab test (Liang-Barsky),
-    vectorised over N x (T-1) x R.
-    """
-    p = np.asarray(traj, dtype=float)
-    single = p.ndim == 2
-    if single:
-        p = p[None]
-    if p.ndim != 3 or p.shape[-1] != 2:
-        raise ValueError(f"traj must have shape (N, T, 2) or (T, 2), got {np.shape(traj)}")
-    r = np.array([x.as_array() for x in rects]) if isinstance(rects, tuple) else np.asarray(rects)
-    if r.size == 0:
-        out = np.zeros(p.shape[0], dtype=bool)
-        return out[0] if single else out
-    r = r.reshape(-1, 4).astype(float) + np.array([-margin, -margin, margin, margin])
-    if p.shape[1] == 1:  # a single point: a degenerate segment
-        p = np.concatenate([p, p], axis=1)
-    a = p[:, :-1, None, :]  # (N, S, 1, 2)
-    d = (p[:, 1:] - p[:, :-1])[:, :, None, :]
-    lo = r[None, None, :, :2]  # (1, 1, R, 2)
-    hi = r[None, None, :, 2:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - a) / d
-        t2 = (hi - a) / d
-    parallel = d == 0
-    inside = (a >= lo) & (a <= hi)
-    # A segment parallel to an axis overlaps that slab for all t or for none.
-    t_enter = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
-    t_exit = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
-    enter = np.maximum(t_enter.max(axis=-1), 0.0)
-    leave = np.minimum(t_exit.min(axis=-1), 1.0)
-    hit = (enter <= leave).any(axis=(1, 2))
-    return hit[0] if single else hit
-
-
-def reach_then_return_time(
-    traj: np.ndarray,
-    goal: np.ndarray,
-    home: np.ndarray,
-    radius: float,
-    dt: float,
-    penalty: float,
-) -> np.ndarray:
-    """Completion time of a fetch: the first step k at which the trajectory is within ``radius``
-    of ``home`` having been within ``radius`` of ``goal`` at some step <= k; returned as k * dt
-    (row k is the state at time k * dt, so a trajectory back home at row k has finished at
-    k * dt seconds). Trajectories that never do it get ``penalty`` (finite, so costs stay
-    comparable and sortable).
-
-    traj: (..., H, d); goal, home: (d,). Returns (...,) float64.
-    """
-    x = np.asarray(traj, dtype=float)
-    near_goal = np.linalg.norm(x - np.asarray(goal, dtype=float), axis=-1) <= radius
-    near_home = np.linalg.norm(x - np.asarray(home, dtype=float), axis=-1) <= radius
-    done = np.logical_or.accumulate(near_goal, axis=-1) & near_home
-    k = np.argmax(done, axis=-1)
-    # Rounded so that e.g. 24 steps of 0.2 s read 4.8, not 4.800000000000001.
-    return np.where(done.any(axis=-1), np.round(k * dt, 9), penalty).astype(float)
+    def draw(self, ax: Axes, view: str) -> None:
+        """Draw the static scene (walls, tables, trays, homes) into ``ax`` in ``view``."""
+        ...

@@ -63,11 +63,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cache, cached_property
+from importlib.resources import files
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rapidds.problem import AGENTS, Agent, Objective, Problem, Task
-from rapidds.worlds.base import Rect, RobotDemos, reach_then_return_time, segments_hit_rects
+from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_rects
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from rapidds.worlds.teammates import Teammate
 
 __all__ = [
     "HOMES",
@@ -245,6 +254,79 @@ class FetchWorld:
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(2), np.full(2, SIZE)
+
+    @property
+    def variant(self) -> str:
+        return "default"
+
+    @property
+    def variants(self) -> tuple[str, ...]:
+        return ("default",)
+
+    @property
+    def workspace_dim(self) -> int:
+        return 2
+
+    @property
+    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.bounds
+
+    @property
+    def spatial_beta(self) -> float:
+        return 1.0
+
+    @property
+    def spatial_grid(self) -> int:
+        return 32
+
+    @property
+    def teammate_names(self) -> tuple[str, ...]:
+        from rapidds.worlds.teammates import ARCHETYPES
+
+        return tuple(ARCHETYPES)
+
+    @property
+    def policy_defaults(self) -> dict[str, object]:
+        return dict(POLICY_DEFAULTS)
+
+    @property
+    def views(self) -> dict[str, tuple[int, int]]:
+        return {"top": (0, 1)}
+
+    def prior(self) -> PopulationPrior:
+        from rapidds.worlds.teammates import population, population_statistics
+
+        rng = np.random.default_rng(self.prior_seed)
+        durations, paths = population_statistics(
+            self, population(self.prior_people, rng, world=self), self.prior_samples, rng)
+        return PopulationPrior(durations, paths)
+
+    def teammate(self, name: str) -> Teammate:
+        from rapidds.worlds.teammates import archetype
+
+        return archetype(name, self)
+
+    def robot_points(self, traj: np.ndarray) -> np.ndarray:
+        return np.asarray(traj, dtype=float)[..., None, :]
+
+    def robot_rest(self) -> np.ndarray:
+        return self.home("robot")
+
+    def human_rest(self) -> np.ndarray:
+        return self.home("human")[None, :]
+
+    def bundled_policy(self) -> Path | None:
+        path = Path(str(files("rapidds") / "data" / "fetch_policy"))
+        return path if path.is_dir() else None
+
+    def motion_label(self, task: str, traj: np.ndarray) -> str:
+        return self.route_mode(task, traj)
+
+    def draw(self, ax: Axes, view: str = "top") -> None:
+        from rapidds.plots.maps import plot_obstacles, plot_points
+
+        plot_obstacles(ax, self.obstacles())
+        plot_points(ax, self.points_of_interest())
 
     @property
     def penalty(self) -> float:

@@ -32,8 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rapidds.worlds.base import segments_hit_rects
+from rapidds.worlds.base import HumanExecution
 from rapidds.worlds.fetch import MODES, TASK_IDS, FetchWorld, Route, default_world
+from rapidds.worlds.geometry import segments_hit_rects
 
 __all__ = [
     "ARCHETYPES",
@@ -100,6 +101,21 @@ class Teammate:
             for i, t in enumerate(TASK_IDS)
         }
         object.__setattr__(self, "_habits", habits)
+
+    def at(self, cycle: int) -> Teammate:
+        """The same person in every cycle."""
+        return self
+
+    def execute(
+        self, cycle: int, tasks: Sequence[str], rng: np.random.Generator
+    ) -> dict[str, HumanExecution]:
+        """The person as they are in ``cycle`` performs ``tasks`` in order."""
+        person = self.at(cycle)
+        out = {}
+        for task in tasks:
+            d, path = person.perform(task, rng)
+            out[task] = HumanExecution(task, float(d), np.asarray(path, dtype=float))
+        return out
 
     def route(self, task: str) -> Route:
         """The person's habitual round trip for ``task`` (their mode, their deviation)."""
