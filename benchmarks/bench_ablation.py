@@ -41,10 +41,10 @@ MALLOC_NOTE = (
 
 def _warm_up() -> None:
     from rapidds.experiments.ablation import _worker_policy
-    from rapidds.loop import _population_data
+    from rapidds.worlds.registry import make_world
 
-    _worker_policy()
-    _population_data(24, 2)
+    _worker_policy("fetch")
+    make_world("fetch").prior()
 
 
 def _records(path: Path) -> dict[str, list[dict]]:

@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from _common import cpu_model, update_docs_section
 
-from rapidds.cli.run import load_policy
-from rapidds.loop import AdaptiveRun, RunConfig
-from rapidds.worlds.teammates import ARCHETYPES
+from rapidds.loop import AdaptiveRun, RunConfig, load_policy
+from rapidds.worlds.fetch import ARCHETYPES
+from rapidds.worlds.registry import make_world
 
 SECTION = "## Adaptive loop (fetch)"
 
@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--update-docs", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    policy = load_policy(None)
+    policy = load_policy(make_world("fetch"))
     rows, times = [], []
     wins = 0
     t_all = time.perf_counter()

@@ -18,8 +18,7 @@ import numpy as np
 import torch
 from _common import cpu_model, load_average, update_docs_section
 
-from rapidds.cli.run import load_policy
-from rapidds.loop import RunConfig, prior_model
+from rapidds.loop import RunConfig, load_policy, prior_model
 from rapidds.motion.steering import steer
 from rapidds.worlds.fetch import POLICY_DEFAULTS, FetchWorld
 
@@ -53,8 +52,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     world = FetchWorld()
-    policy = load_policy(None)
-    spatial = prior_model(world, world.problem(), RunConfig()).spatial
+    policy = load_policy(world)
+    spatial = prior_model(world, RunConfig().resolved(world)).spatial
 
     def value(xi: np.ndarray) -> np.ndarray:
         return world.completion_time("t3", xi) + 1.75 * spatial.cost(["t2"], xi)

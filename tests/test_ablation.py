@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -76,7 +75,7 @@ def serial() -> dict[str, list[dict]]:
     import torch
 
     torch.set_num_threads(1)
-    return {cfg.run_id: _strip(json.loads(json.dumps(run_trial(asdict(cfg))["records"])))
+    return {cfg.run_id: _strip(json.loads(json.dumps(run_trial(cfg.model_dump())["records"])))
             for cfg in STUDY.trials_in_order()}
 
 

@@ -3,13 +3,11 @@
 import numpy as np
 import pytest
 
-from rapidds.deploy import deploy
 from rapidds.human.spatial import point_cost
+from rapidds.loop.deploy import HumanExecution, deploy
 from rapidds.motion.interface import MotionPlan
 from rapidds.problem import Problem, Task
 from rapidds.schedule import Schedule, Wait, compile_schedule
-from rapidds.worlds.fetch import FetchWorld
-from rapidds.worlds.teammates import archetype
 
 BOTH = frozenset({"human", "robot"})
 
@@ -32,14 +30,13 @@ def _random_schedule(problem: Problem, rng: np.random.Generator) -> Schedule:
             return s
 
 
-def _perform_with(durations: dict[str, float]):
-    def perform(task, rng):
-        d = durations[task]
-        return d, np.tile([[0.0, 0.0]], (int(np.ceil(d / 0.5)) + 1, 1))
-    return perform
+def _observed(schedule: Schedule, durations: dict[str, float]) -> dict[str, HumanExecution]:
+    """A person standing still at the origin for the given durations."""
+    return {t: HumanExecution(t, durations[t], np.zeros((int(np.ceil(durations[t] / 0.2)) + 1, 2)))
+            for t in schedule.tasks("human")}
 
 
-def test_realised_timeline_obeys_precedence_waits_and_order():
+def test_realised_timeline_obeys_precedence_waits_and_order(fetch_world):
     problem = Problem(
         "p", tuple(Task(f"t{i}", BOTH, 3.0, 1.0, 2.0) for i in range(6)),
         precedence=(("t0", "t2"), ("t1", "t2"), ("t2", "t4"), ("t3", "t5")),
@@ -51,8 +48,7 @@ def test_realised_timeline_obeys_precedence_waits_and_order():
         human_d = {t: float(rng.uniform(0.5, 6.0)) for t in problem.ids}
         motions = {t: MotionPlan(t, frozenset(), float(rng.uniform(0.5, 6.0)), 0.0,
                                  np.zeros((4, 2))) for t in s.tasks("robot")}
-        dep = deploy(problem, s, motions, _perform_with(human_d), human_home=np.zeros(2),
-                     robot_home=np.ones(2), dt=0.5, beta=1.0, gamma=1.0, rng=rng)
+        dep = deploy(fetch_world, problem, s, motions, _observed(s, human_d), beta=1.0)
         idx = problem.index
         st, fi = dep.timeline.start[0], dep.timeline.finish[0]
         for a, b in problem.precedence:
@@ -73,19 +69,18 @@ def test_realised_timeline_obeys_precedence_waits_and_order():
     assert checked_waits > 50
 
 
-def test_fetch_costs_match_their_definition():
-    world = FetchWorld()
-    problem = world.problem()
-    person = archetype("fast-middle", world)
+def test_fetch_costs_match_their_definition(fetch_world):
+    world = fetch_world
+    problem = world.problem().with_objective(gamma=1.75)
+    person = world.teammate("fast-middle")
     s = Schedule(("t2", "t0"), ("t3", "t1"))
     motions = {}
     for j, mode in (("t3", "middle"), ("t1", "direct")):
         traj = world.robot_trajectory(j, mode)
         motions[j] = MotionPlan(j, frozenset(), float(world.completion_time(j, traj[None])[0]),
                                 0.0, traj)
-    dep = deploy(problem, s, motions, person.perform, human_home=world.home("human"),
-                 robot_home=world.home("robot"), dt=world.dt, beta=1.0, gamma=1.75,
-                 rng=np.random.default_rng(3))
+    human = person.execute(0, s.tasks("human"), np.random.default_rng(3))
+    dep = deploy(world, problem, s, motions, human, beta=1.0)
     # t3 (robot, middle) runs while the human does t2 by the middle route: they meet
     assert "t2" in dep.overlaps["t3"]
     want = point_cost(motions["t3"].trajectory, dep.human["t2"].trajectory, 1.0).max()
@@ -97,17 +92,13 @@ def test_fetch_costs_match_their_definition():
     out = world.robot_trajectory("t3", "outside")
     motions["t3"] = MotionPlan("t3", frozenset(), float(world.completion_time("t3", out[None])[0]),
                                0.0, out)
-    far = deploy(problem, s, motions, person.perform, human_home=world.home("human"),
-                 robot_home=world.home("robot"), dt=world.dt, beta=1.0, gamma=1.75,
-                 rng=np.random.default_rng(3))
+    far = deploy(world, problem, s, motions, human, beta=1.0)
     assert far.min_separation > dep.min_separation + 1.0
     assert far.spatial_by_task["t3"] < dep.spatial_by_task["t3"]
 
 
-def test_deadlocked_schedule_is_refused():
+def test_deadlocked_schedule_is_refused(fetch_world):
     problem = Problem("p", (Task("a", BOTH, 1.0, 0.0, 1.0), Task("b", BOTH, 1.0, 0.0, 1.0)))
     s = Schedule((Wait("b"), "a"), (Wait("a"), "b"))
     with pytest.raises(ValueError, match="deadlocked"):
-        deploy(problem, s, {}, _perform_with({"a": 1.0}), human_home=np.zeros(2),
-               robot_home=np.zeros(2), dt=0.1, beta=1.0, gamma=1.0,
-               rng=np.random.default_rng(0))
+        deploy(fetch_world, problem, s, {}, {}, beta=1.0)

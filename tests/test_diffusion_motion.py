@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from rapidds.cli.run import load_policy
 from rapidds.human.spatial import SpatialConfig, SpatialModel
+from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionModel, TrajectoryCache
 from rapidds.worlds.fetch import FetchWorld
@@ -26,7 +26,7 @@ def motion(world):
         SpatialConfig(bounds=tuple(zip(lo, hi, strict=True)), beta=1.0), paths)
     # gamma 5: V(middle) = 4.8 + 5 * 0.90 = 9.3 against V(outside) = 6.0 + 5 * 0.05 = 6.2 (at
     # gamma 1.75 the two differ by only 0.3 and greedy SVDD may settle on either)
-    return DiffusionMotion(load_policy(None), world.completion_time, spatial.cost, gamma=5.0,
+    return DiffusionMotion(load_policy(world), world.completion_time, spatial.cost, gamma=5.0,
                            config=SteeringConfig(particles=8, candidates=8, seed=0))
 
 

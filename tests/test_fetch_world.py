@@ -8,16 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from rapidds.worlds.base import World
-from rapidds.worlds.fetch import MODES, FetchWorld, fetch_problem
-from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_rects
-from rapidds.worlds.teammates import (
+from rapidds.worlds.base import SimulatedTeammate, World
+from rapidds.worlds.fetch import (
     ARCHETYPES,
-    Teammate,
+    MODES,
+    FetchTeammate,
+    FetchWorld,
     archetype,
+    fetch_problem,
     population,
-    population_statistics,
 )
+from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_rects
 
 CORRIDOR = (4.2, 5.8, 2.4, 5.2)  # x0, x1, y0, y1 of the central corridor between the blocks
 
@@ -60,6 +61,9 @@ def test_problem_is_the_papers_fetch_job(world: FetchWorld) -> None:
 
 def test_world_protocol_and_config(world: FetchWorld) -> None:
     assert isinstance(world, World)
+    assert isinstance(world.teammate("slow-middle"), SimulatedTeammate)
+    with pytest.raises(ValueError, match="variant"):
+        FetchWorld(variant="constrained")
     assert world.horizon % 8 == 0 and world.state_dim == 2
     lo, hi = world.bounds
     assert lo.shape == hi.shape == (2,) and np.all(lo < hi)
@@ -265,20 +269,20 @@ def test_population_is_mixed_and_statistics_are_complete(world: FetchWorld) -> N
         assert {p.routes[task] for p in people} == {"middle", "outside"}
     speeds = [p.speed for p in people]
     assert max(speeds) - min(speeds) > 1.0
-    durations, trajectories = population_statistics(world, people[:5], 3, rng)
-    assert set(durations) == set(trajectories) == set(world.task_ids)
+    prior = FetchWorld(prior_people=5, prior_samples=3).prior()
+    assert set(prior.durations) == set(prior.paths) == set(world.task_ids)
     for task in world.task_ids:
-        assert len(durations[task]) == len(trajectories[task]) == 15
-        assert all(tr.ndim == 2 and tr.shape[1] == 2 for tr in trajectories[task])
+        assert len(prior.durations[task]) == len(prior.paths[task]) == 15
+        assert all(tr.ndim == 2 and tr.shape[1] == 2 for tr in prior.paths[task])
 
 
 def test_teammate_rejects_bad_settings(world: FetchWorld) -> None:
     with pytest.raises(ValueError, match="modes are"):
-        Teammate("x", 3.0, 0.5, routes={"t0": "outside"}, world=world)
+        FetchTeammate("x", 3.0, 0.5, routes={"t0": "outside"}, world=world)
     with pytest.raises(ValueError, match="unknown task"):
-        Teammate("x", 3.0, 0.5, routes={"t7": "middle"}, world=world)
+        FetchTeammate("x", 3.0, 0.5, routes={"t7": "middle"}, world=world)
     with pytest.raises(ValueError, match="speed"):
-        Teammate("x", 0.0, 0.5, world=world)
+        FetchTeammate("x", 0.0, 0.5, world=world)
     with pytest.raises(ValueError, match="unknown archetype"):
         archetype("medium-middle", world)
 

@@ -11,19 +11,15 @@ import time
 
 import numpy as np
 import pytest
-import torch
+from conftest import SMALL_SEARCH as SMALL
 
-from rapidds.cli.run import load_policy
 from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
 from rapidds.store import RunStore
 
-SMALL = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)
-
 
 @pytest.fixture(scope="module")
-def policy():
-    torch.set_num_threads(1)
-    return load_policy(None)
+def policy(fetch_policy):
+    return fetch_policy
 
 
 def _strip(rec: dict) -> dict:

@@ -10,11 +10,23 @@ import pytest
 
 from rapidds.human.spatial import SpatialConfig, SpatialCostModel, SpatialModel
 from rapidds.plots._mpl import plt
-from rapidds.plots.maps import plot_paths, plot_spatial_cost, save_cost_maps
+from rapidds.plots.maps import (
+    plot_obstacles,
+    plot_paths,
+    plot_points,
+    plot_spatial_cost,
+    save_cost_maps,
+)
 
 
 def _line(a, b, n=60) -> np.ndarray:
     return np.linspace(a, b, n)
+
+
+def _scene(ax) -> None:
+    plot_obstacles(ax, [(4.5, 4.0, 5.5, 6.0),
+                        SimpleNamespace(xmin=0.0, ymin=6.0, xmax=1.0, ymax=7.0)])
+    plot_points(ax, {"home": (5, 1), "obj": (5, 9)})
 
 
 def test_cost_map_figure_writes_a_png_with_content(tmp_path):
@@ -29,8 +41,7 @@ def test_cost_map_figure_writes_a_png_with_content(tmp_path):
     out = save_cost_maps(
         model, tmp_path / "maps.png",
         paths={"t2": samples, "t3": [left[0], left[1][:10]]},
-        walls=[(4.5, 4.0, 5.5, 6.0), SimpleNamespace(xmin=0.0, ymin=6.0, xmax=1.0, ymax=7.0)],
-        points={"home": (5, 1), "obj": (5, 9)},
+        scene=_scene,
     )
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     img = mpimg.imread(out)[..., :3]

@@ -48,9 +48,3 @@ def resolve_problem(arg: str | Path) -> Path:
     raise ProblemError(
         f"{arg}: no such file or bundled example (bundled: {', '.join(example_names())})"
     )
-
-
-def fetch_policy_dir() -> Path:
-    """The fetch-world diffusion policy shipped with the package (trained by
-    ``rapidds train-policy --world fetch``; see docs/benchmarks.md for how and how long)."""
-    return Path(str(files("rapidds") / "data" / "fetch_policy"))

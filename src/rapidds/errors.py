@@ -15,3 +15,11 @@ class CheckpointError(RapiddsError):
 
 class StateError(RapiddsError):
     """Stored state (a run database, a saved model) is corrupt or inconsistent."""
+
+
+class ConfigError(RapiddsError, ValueError):
+    """A setting is out of range or inconsistent.
+
+    Both a :class:`RapiddsError` (the CLI prints one line, exit 2) and a ``ValueError`` (what
+    Python code expects from a rejected argument).
+    """

@@ -6,15 +6,16 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.console import Console
 
 from rapidds.cli import app
-from rapidds.experiments.ablation import ABLATION, BASELINES, StudyConfig
-from rapidds.loop import ADAPT_LEVELS
-from rapidds.worlds.teammates import ARCHETYPES
+from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, StudyConfig
+from rapidds.loop.config import ADAPT_LEVELS
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 _S = StudyConfig()
 
@@ -88,6 +89,8 @@ def ablation_cmd(
                         cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
                         generations=generations, samples=samples, patience=patience,
                         particles=particles, candidates=candidates)
+    from rich.console import Console
+
     console = Console(soft_wrap=True)
     err = Console(stderr=True, soft_wrap=True)
     where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
@@ -155,5 +158,7 @@ def report_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
 ) -> None:
     """Redraw a study's figure, table and claims check from its stored records."""
+    from rich.console import Console
+
     _print_report(out, as_json, Console(soft_wrap=True))
 

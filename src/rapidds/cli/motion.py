@@ -69,18 +69,20 @@ def _read_config_file(path: Path) -> dict[str, Any]:
 
 
 def _world_demos(name: str, per_mode: int, seed: int) -> tuple[Any, dict[str, Any]]:
-    """A bundled world's demonstrations (every route of every task) and its network defaults."""
+    """A registered world's demonstrations (every motion mode of every robot task) and its
+    network defaults."""
+    import numpy as np
+
     from rapidds.motion.config import ConfigError
     from rapidds.motion.demos import Demonstrations
-    from rapidds.worlds.fetch import POLICY_DEFAULTS, FetchWorld
+    from rapidds.worlds.registry import make_world
 
-    if name != "fetch":
-        raise ConfigError(f"unknown world '{name}'; available: fetch")
     if per_mode < 1:
         raise ConfigError(f"--demos-per-mode must be >= 1, got {per_mode}")
-    d = FetchWorld().robot_demonstrations(per_mode, np.random.default_rng(seed))
+    world = make_world(name)
+    d = world.robot_demonstrations(per_mode, np.random.default_rng(seed))
     demos = Demonstrations(d.trajectories.astype(np.float32), d.task_index, d.task_names)
-    return demos, dict(POLICY_DEFAULTS)
+    return demos, dict(world.policy_defaults)
 
 
 @app.command("train-policy")
@@ -90,8 +92,8 @@ def train_policy_cmd(
         "--demos", help="Demonstrations .npz (trajectories, task_index, task_names[, start]).")
     ] = None,
     world: Annotated[str | None, typer.Option(
-        help="Train on a bundled world's generated demonstrations instead (fetch), with the "
-        "world's network defaults.")] = None,
+        help="Train on a registered world's generated demonstrations instead (see 'rapidds "
+        "worlds'), with the world's network defaults.")] = None,
     demos_per_mode: Annotated[int, typer.Option(
         help="With --world: demonstrations per task and route.")] = 64,
     steps: Annotated[int | None, typer.Option(
@@ -197,45 +199,48 @@ def _sample_in_world(
     concurrent: list[str], spatial_file: Path | None, gamma: float, candidates: int,
     alpha: float, as_json: bool, out: Path | None,
 ) -> None:
-    """Samples in a bundled world: V = the world's completion time + gamma * max over the
+    """Samples in a registered world: V = the world's completion time + gamma * max over the
     concurrent human tasks of their spatial cost (population prior, or a saved person's model),
     drawn over that cost as a heat map with the walls (paper Figure 3 style)."""
+    from functools import partial
+
     import torch
 
-    from rapidds.cli.run import load_policy
     from rapidds.human.spatial import SpatialModel
-    from rapidds.loop import RunConfig, prior_model
+    from rapidds.loop.config import RunConfig
+    from rapidds.loop.model import prior_model, workspace_cost
+    from rapidds.loop.run import load_policy
     from rapidds.motion.steering import steer
     from rapidds.plots.maps import save_cost_maps
-    from rapidds.worlds.fetch import FetchWorld
+    from rapidds.worlds.registry import make_world
 
-    if world_name != "fetch":
-        fail(f"unknown world '{world_name}'; available: fetch")
     torch.set_num_threads(1)
-    world = FetchWorld()
-    policy = load_policy(policy_dir)
+    world = make_world(world_name)
+    policy = load_policy(world, policy_dir)
     if task not in policy.task_names:
         fail(f"task '{task}' is not one of the policy's tasks {list(policy.task_names)}")
     spatial = (SpatialModel.load(spatial_file) if spatial_file is not None
-               else prior_model(world, world.problem(), RunConfig()).spatial)
+               else prior_model(world, RunConfig(world=world_name).resolved(world)).spatial)
     unknown = [t for t in concurrent if t not in spatial]
     if unknown:
         fail(f"no spatial model for human task(s) {unknown}; known: {list(spatial.tasks)}")
+    cost = workspace_cost(world, spatial)
 
     def value(xi: np.ndarray) -> np.ndarray:
         v = world.completion_time(task, xi)
-        return v + gamma * spatial.cost(concurrent, xi) if concurrent else v
+        return v + gamma * cost(concurrent, xi) if concurrent else v
 
     result = steer(policy, task, n, value, num_candidates=candidates if concurrent else 1,
                    alpha=alpha, generator=seed)
     trajs = result.trajectories
     durations = world.completion_time(task, trajs)
-    costs = spatial.cost(concurrent, trajs)
-    routes = [world.route_mode(task, x) for x in trajs]
+    costs = cost(concurrent, trajs)
+    routes = [world.motion_label(task, x) for x in trajs]
     if out is not None:
         shown = concurrent or list(spatial.tasks)
-        save_cost_maps({t: spatial[t] for t in shown}, out, paths={t: trajs for t in shown},
-                       walls=world.obstacles(), points=world.points_of_interest(),
+        tool = world.robot_points(trajs)[..., -1, :]  # the last body point is the tool
+        save_cost_maps({t: spatial[t] for t in shown}, out, paths={t: tool for t in shown},
+                       scene=partial(world.draw, view=next(iter(world.views))),
                        titles={t: f"robot {task} {'steered away from' if concurrent else 'over'}"
                                f" human {t}" for t in shown})
     if as_json:

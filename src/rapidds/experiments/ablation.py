@@ -27,15 +27,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError, StateError
-from rapidds.loop import ADAPT_LEVELS, RunConfig
+from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 from rapidds.store import RunStore
-from rapidds.worlds.teammates import ARCHETYPES
 
 if TYPE_CHECKING:
     from distributed import Client
 
     from rapidds.motion.policy import DiffusionPolicy
 
+ARCHETYPES: tuple[str, ...] = ("fast-middle", "fast-outside", "slow-middle", "slow-outside")
+"""The fetch world's teammates (the study is the paper's fetch ablation)."""
 PAPER_HUMANS: tuple[str, ...] = ("fast-outside", "slow-middle", "fast-middle", "slow-outside")
 """The archetypes in the order of the paper's Figure 5 panels."""
 ABLATION: tuple[str, ...] = ("full", "spatial", "temporal", "none")
@@ -68,7 +69,7 @@ class StudyConfig:
     candidates: int = 4
 
     def __post_init__(self) -> None:
-        for name, given, known in (("humans", self.humans, tuple(ARCHETYPES)),
+        for name, given, known in (("humans", self.humans, ARCHETYPES),
                                    ("adapt", self.levels, ADAPT_LEVELS)):
             if not given:
                 raise RapiddsError(f"--{name} is empty; choose from {', '.join(known)}")
@@ -82,17 +83,23 @@ class StudyConfig:
             raise RapiddsError(f"--trials must be between 1 and {TRIAL_STRIDE}, got {self.trials}")
         if self.seed < 0:
             raise RapiddsError(f"--seed must be >= 0, got {self.seed}")
-        self.run_config(self.humans[0], self.levels[0], 0)  # validates the shared settings
+        self._trial(self.humans[0], self.levels[0], 0)  # validates the shared settings
 
     def trial_seed(self, index: int) -> int:
         return self.seed * TRIAL_STRIDE + index
 
+    def _trial(self, human: str, level: str, index: int) -> RunConfig:
+        return RunConfig(world="fetch", human=human, adapt=level, cycles=self.cycles,
+                         gamma=self.gamma, lam=self.lam, seed=self.trial_seed(index),
+                         population=self.population, generations=self.generations,
+                         samples=self.samples, patience=self.patience,
+                         particles=self.particles, candidates=self.candidates)
+
     def run_config(self, human: str, level: str, index: int) -> RunConfig:
-        return RunConfig(human=human, adapt=level, cycles=self.cycles, gamma=self.gamma,
-                         lam=self.lam, seed=self.trial_seed(index), population=self.population,
-                         generations=self.generations, samples=self.samples,
-                         patience=self.patience, particles=self.particles,
-                         candidates=self.candidates)
+        """The trial's settings, resolved against the fetch world (what is stored)."""
+        from rapidds.worlds.registry import make_world
+
+        return self._trial(human, level, index).resolved(make_world("fetch"))
 
     def trials_in_order(self) -> list[RunConfig]:
         """Every trial, trial index outermost: a study stopped early holds about as many trials
@@ -102,7 +109,7 @@ class StudyConfig:
 
     def shared(self) -> dict[str, Any]:
         """The settings every run of this study shares (what a folder may hold only one of)."""
-        return shared_settings(asdict(self.run_config(self.humans[0], self.levels[0], 0)))
+        return shared_settings(self.run_config(self.humans[0], self.levels[0], 0).model_dump())
 
 
 def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
@@ -116,12 +123,13 @@ def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
 # worker side
 
 
-@lru_cache(maxsize=1)
-def _worker_policy() -> DiffusionPolicy:
+@lru_cache(maxsize=4)
+def _worker_policy(world: str) -> DiffusionPolicy:
     """Loaded once per worker process, not once per trial (a load is ~0.3 s)."""
-    from rapidds.cli.run import load_policy
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
 
-    return load_policy(None)
+    return load_policy(make_world(world))
 
 
 def run_trial(config: dict[str, Any]) -> dict[str, Any]:
@@ -129,13 +137,13 @@ def run_trial(config: dict[str, Any]) -> dict[str, Any]:
     the client stores the result."""
     import torch
 
-    from rapidds.loop import AdaptiveRun
+    from rapidds.loop.run import AdaptiveRun
 
     torch.set_num_threads(1)  # one task per worker thread; more threads only fight
-    cfg = RunConfig(**config)
     t0 = time.perf_counter()
-    records = AdaptiveRun(cfg, _worker_policy()).run()
-    return {"run_id": cfg.run_id, "config": asdict(cfg), "records": records,
+    run = AdaptiveRun(RunConfig(**config), _worker_policy(config["world"]))
+    records = run.run()
+    return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
             "seconds": time.perf_counter() - t0, "pid": os.getpid()}
 
 
@@ -198,7 +206,7 @@ def finished_run_ids(store: RunStore, cycles: int) -> set[str]:
 
 def _task_key(cfg: RunConfig) -> str:
     """Unique per run AND settings: a shared scheduler must not hand one study another's result."""
-    digest = hashlib.sha1(json.dumps(asdict(cfg), sort_keys=True).encode()).hexdigest()[:10]
+    digest = hashlib.sha1(json.dumps(cfg.model_dump(), sort_keys=True).encode()).hexdigest()[:10]
     return f"rapidds-trial-{cfg.run_id}-{digest}"
 
 
@@ -226,7 +234,7 @@ def run_study(
         on_start(outcome.total, outcome.skipped)
     t0 = time.perf_counter()
     # priority: in study order (Dask would otherwise pick freely among queued tasks)
-    futures = {client.submit(run_trial, asdict(cfg), key=_task_key(cfg), pure=False,
+    futures = {client.submit(run_trial, cfg.model_dump(), key=_task_key(cfg), pure=False,
                              retries=0, priority=len(todo) - k): cfg
                for k, cfg in enumerate(todo)}
     stored = outcome.skipped

@@ -15,19 +15,11 @@ from typing import Any, Literal
 
 import torch
 
-from rapidds.errors import RapiddsError
+from rapidds.errors import ConfigError
 
 BETA_SCHEDULES = ("linear", "scaled_linear", "squaredcos_cap_v2")
 SAMPLERS = ("ddim", "ddpm")
 DEVICES = ("auto", "cpu", "cuda")
-
-
-class ConfigError(RapiddsError, ValueError):
-    """A motion configuration value is out of range or inconsistent.
-
-    Both a :class:`~rapidds.errors.RapiddsError` (the CLI prints one line, exit 2) and a
-    ``ValueError`` (what Python code expects from a rejected argument).
-    """
 
 
 @dataclass(frozen=True)

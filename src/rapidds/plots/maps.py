@@ -11,7 +11,7 @@ first two coordinates (top-down view).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -167,21 +167,19 @@ def save_cost_maps(
     path: str | Path,
     *,
     paths: Mapping[str, ArrayLike | Sequence[ArrayLike]] | None = None,
-    walls: Iterable[RectLike] = (),
-    points: Mapping[str, ArrayLike] | None = None,
+    scene: Callable[[Axes], None] | None = None,
     titles: Mapping[str, str] | None = None,
     ncols: int | None = None,
     path_color: str = "cyan",
     resolution: int = 150,
     dpi: int = 120,
 ) -> Path:
-    """One panel per human task: its learned cost s_i(x), the walls and points of interest, and
-    ``paths[task]`` (robot samples or observed human paths) over it; one shared colour bar.
-    Writes ``path`` (format from the suffix, e.g. PNG) and returns it."""
+    """One panel per human task: its learned cost s_i(x), the static scene (``scene(ax)``, e.g.
+    a world's ``draw``), and ``paths[task]`` (robot samples or observed human paths) over it;
+    one shared colour bar. Writes ``path`` (format from the suffix, e.g. PNG) and returns it."""
     items = [(tid, models[tid]) for tid in models]
     if not items:
         raise ValueError("save_cost_maps needs at least one task model")
-    walls = list(walls)
     ncols = min(len(items), 4) if ncols is None else ncols
     nrows = math.ceil(len(items) / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols + 0.8, 3.4 * nrows),
@@ -190,9 +188,8 @@ def save_cost_maps(
     for ax, (tid, model) in zip(axes.flat, items, strict=False):
         title = (titles or {}).get(tid, f"{tid} (n={model.n_obs})")
         im = plot_spatial_cost(model, ax, resolution=resolution, colorbar=False, title=title)
-        plot_obstacles(ax, walls)
-        if points:
-            plot_points(ax, points)
+        if scene is not None:
+            scene(ax)
         if paths and tid in paths:
             plot_paths(ax, paths[tid], color=path_color, alpha=0.8)
         ax.set_xlabel("x")

@@ -3,14 +3,15 @@ both agents' paths over the learned spatial cost of each human task (paper Figur
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 
 from rapidds.human.spatial import SpatialModel
 from rapidds.plots._mpl import plt, save
-from rapidds.plots.maps import plot_obstacles, plot_paths, plot_points, plot_spatial_cost
+from rapidds.plots.maps import plot_paths, plot_spatial_cost
 
 
 def save_cycle_map(
@@ -20,20 +21,18 @@ def save_cycle_map(
     human_paths: Mapping[str, np.ndarray],
     robot_paths: Mapping[str, np.ndarray],
     overlaps: Mapping[str, Sequence[str]],
-    walls: Iterable[object] = (),
-    points: Mapping[str, np.ndarray] | None = None,
+    scene: Callable[[Axes], None] | None = None,
     title: str = "",
 ) -> Path:
-    """One panel per human task: its learned cost s_i(x), the person's path for it (if they did
-    it this cycle) and the robot paths that ran while it ran."""
+    """One panel per human task: its learned cost s_i(x), the static scene (``scene(ax)``, e.g.
+    a world's ``draw``), the person's path for it (if they did it this cycle) and the robot's
+    workspace paths that ran while it ran."""
     tasks = list(spatial.tasks)
-    walls = list(walls)
     fig, axes = plt.subplots(1, len(tasks), figsize=(3.4 * len(tasks), 3.6), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
         plot_spatial_cost(spatial[task], ax, colorbar=False, title=f"s_{task}(x)")
-        plot_obstacles(ax, walls)
-        if points:
-            plot_points(ax, points)
+        if scene is not None:
+            scene(ax)
         if task in human_paths:
             plot_paths(ax, human_paths[task], color="gold", lw=2.0, label=f"human {task}")
         for j, concurrent in overlaps.items():

@@ -13,7 +13,8 @@ Spaces and shapes
     painting 3). The spatial model (paper Eqs. 7-11) and every distance live there.
     :meth:`World.robot_points` maps robot trajectories into it: (..., H, P, d_ws), P body points
     per row (fetch: the robot itself, P = 1; an arm: points along its links by forward
-    kinematics), so S_i(xi) is the max of s_i over all of them.
+    kinematics), so S_i(xi) is the max of s_i over all of them. The last of the P points is
+    the robot's tool (end effector): what pictures draw as its path.
 
     Human path: (T, K, d_ws), K body points over time (fetch: K = 1; painting: hands and
     forearms), row t at time t * dt after the task started, the last row when it ended. A

@@ -1,6 +1,6 @@
 """Simulated people for the fetch game: the ground truth the planner has to learn.
 
-A :class:`Teammate` is one person's TRUE model. Per task they take one route (their choice of
+A :class:`FetchTeammate` is one person's TRUE model. Per task they take one route (their choice of
 "middle" or "outside" for t2 and t3), walk at their own speed and spend a handling time at the
 object; their duration is Normal(mean, (cv * mean)^2) with mean = route length / speed +
 handling, truncated below at half the mean (nobody fetches twice as fast as they usually do;
@@ -29,19 +29,22 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rapidds.worlds.base import HumanExecution
-from rapidds.worlds.fetch import MODES, TASK_IDS, FetchWorld, Route, default_world
+from rapidds.worlds.fetch.map import MODES, TASK_IDS, Route
 from rapidds.worlds.geometry import segments_hit_rects
+
+if TYPE_CHECKING:
+    from rapidds.worlds.fetch.world import FetchWorld
 
 __all__ = [
     "ARCHETYPES",
-    "Teammate",
+    "FetchTeammate",
     "archetype",
     "population",
-    "population_statistics",
 ]
 
 _FAST = (4.8, 0.25)
@@ -57,7 +60,7 @@ _HABIT_CLEARANCE = 0.15  # metres a habitual route keeps from walls, room for pe
 
 
 @dataclass(frozen=True, eq=False)
-class Teammate:
+class FetchTeammate:
     """One simulated person.
 
     name: label. speed: walking speed, m/s. handling: seconds spent at the object in a cycle of
@@ -76,25 +79,25 @@ class Teammate:
     habit_seed: int = 0
     habit_sd: float = 0.15
     path_noise: float = 0.08
-    world: FetchWorld = field(default_factory=default_world, repr=False)
+    world: FetchWorld = field(kw_only=True, repr=False)
     _habits: dict[str, Route] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         for attr in ("speed", "cv"):
             v = getattr(self, attr)
             if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"Teammate.{attr} must be a finite number > 0, got {v!r}")
+                raise ValueError(f"FetchTeammate.{attr} must be a finite number > 0, got {v!r}")
         for attr in ("handling", "habit_sd", "path_noise"):
             v = getattr(self, attr)
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"Teammate.{attr} must be a finite number >= 0, got {v!r}")
+                raise ValueError(f"FetchTeammate.{attr} must be a finite number >= 0, got {v!r}")
         routes = {t: self.routes.get(t, MODES[t][0]) for t in TASK_IDS}
         for t in self.routes:
             if t not in MODES:
-                raise ValueError(f"Teammate.routes names unknown task {t!r}")
+                raise ValueError(f"FetchTeammate.routes names unknown task {t!r}")
         for t, m in routes.items():
             if m not in MODES[t]:
-                raise ValueError(f"Teammate.routes[{t!r}] = {m!r}; modes are {MODES[t]}")
+                raise ValueError(f"FetchTeammate.routes[{t!r}] = {m!r}; modes are {MODES[t]}")
         object.__setattr__(self, "routes", routes)
         habits = {
             t: self._habit(t, np.random.default_rng([self.habit_seed, i]))
@@ -102,7 +105,7 @@ class Teammate:
         }
         object.__setattr__(self, "_habits", habits)
 
-    def at(self, cycle: int) -> Teammate:
+    def at(self, cycle: int) -> FetchTeammate:
         """The same person in every cycle."""
         return self
 
@@ -198,67 +201,40 @@ def _arc_at(times: np.ndarray, route: Route, walking: float, dwell: float) -> np
     )
 
 
-def archetype(name: str, world: FetchWorld | None = None) -> Teammate:
+def archetype(name: str, world: FetchWorld) -> FetchTeammate:
     """One of the paper's four archetypes: "fast-middle", "fast-outside", "slow-middle",
     "slow-outside" (speed x route for t2 and t3; see the module docstring)."""
     if name not in ARCHETYPES:
         raise ValueError(f"unknown archetype {name!r}; choose from {', '.join(ARCHETYPES)}")
     (speed, handling), mode = ARCHETYPES[name]
-    return Teammate(
+    return FetchTeammate(
         name=name,
         speed=speed,
         handling=handling,
         routes={"t2": mode, "t3": mode},
         habit_seed=1000 + list(ARCHETYPES).index(name),
-        world=world or default_world(),
+        world=world,
     )
 
 
 def population(n: int, rng: np.random.Generator,
-               world: FetchWorld | None = None) -> list[Teammate]:
+               world: FetchWorld) -> list[FetchTeammate]:
     """``n`` other people, the source of the priors: speed U(2.0, 3.8) m/s, handling
     U(0.2, 1.0) s, cv U(0.06, 0.15), and for t2 and t3 independently the middle or the
     outside route with probability 1/2 each, so the population is mixed in both."""
     if n < 1:
         raise ValueError(f"population size must be >= 1, got {n}")
-    w = world or default_world()
     people = []
     for i in range(n):
         people.append(
-            Teammate(
+            FetchTeammate(
                 name=f"person-{i}",
                 speed=float(rng.uniform(2.4, 5.0)),
                 handling=float(rng.uniform(0.2, 1.0)),
                 routes={t: str(rng.choice(MODES[t])) for t in ("t2", "t3")},
                 cv=float(rng.uniform(0.06, 0.15)),
                 habit_seed=int(rng.integers(2**31)),
-                world=w,
+                world=world,
             )
         )
     return people
-
-
-def population_statistics(
-    world: FetchWorld,
-    people: Sequence[Teammate],
-    n_samples: int,
-    rng: np.random.Generator,
-) -> tuple[dict[str, list[float]], dict[str, list[np.ndarray]]]:
-    """Every person performs every task ``n_samples`` times.
-
-    Returns (durations, trajectories): task -> list of len(people) * n_samples durations
-    (seconds) and of the matching (T, 2) trajectories, person-major. The durations give the
-    human priors of the problem (mean and spread across people and cycles), the trajectories
-    the prior of the spatial model (paper Eq. 9).
-    """
-    if n_samples < 1:
-        raise ValueError(f"n_samples must be >= 1, got {n_samples}")
-    durations: dict[str, list[float]] = {t: [] for t in world.task_ids}
-    trajectories: dict[str, list[np.ndarray]] = {t: [] for t in world.task_ids}
-    for person in people:
-        for task in world.task_ids:
-            for _ in range(n_samples):
-                d, traj = person.perform(task, rng)
-                durations[task].append(d)
-                trajectories[task].append(traj)
-    return durations, trajectories

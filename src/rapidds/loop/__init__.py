@@ -1,0 +1,33 @@
+"""The multi-cycle loop (paper Algorithm 1): configuration, belief, deployment and the run.
+
+Submodules are imported on first use, so ``from rapidds.loop import RunConfig`` stays cheap
+(the run itself needs torch).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+    from rapidds.loop.deploy import Deployment, deploy
+    from rapidds.loop.model import HumanModel, prior_model
+    from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult, load_policy
+
+_WHERE = {
+    "ADAPT_LEVELS": "config", "RunConfig": "config",
+    "Deployment": "deploy", "deploy": "deploy",
+    "HumanModel": "model", "prior_model": "model",
+    "AdaptiveRun": "run", "CyclePlan": "run", "CycleResult": "run", "load_policy": "run",
+}
+__all__ = [
+    "ADAPT_LEVELS", "AdaptiveRun", "CyclePlan", "CycleResult", "Deployment", "HumanModel",
+    "RunConfig", "deploy", "load_policy", "prior_model",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'rapidds.loop' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"rapidds.loop.{_WHERE[name]}"), name)

@@ -1,0 +1,87 @@
+"""What determines a run: world, teammate, adaptation level, cycles, objective and search."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from rapidds.settings import Settings
+from rapidds.worlds.base import World
+
+__all__ = ["ADAPT_LEVELS", "Adapt", "RunConfig"]
+
+Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
+ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
+
+_Count = Annotated[int, Field(ge=1)]
+_Weight = Annotated[float, Field(ge=0)]
+
+
+class RunConfig(Settings):
+    """Everything that determines a run. Stored with the run, so ``--resume`` under other
+    settings is refused rather than mixing two experiments in one record.
+
+    world, variant: the registered world and its variant (None: its default).
+    human: the simulated teammate, by the world's name for it (None: the world's first one);
+        a run with a live person names them here.
+    adapt: which models learn: ``full`` (both), ``spatial``, ``temporal``, ``none``; ``oracle``
+        plans with the teammate's true model (the floor); ``exact`` is what a user of a
+        constraint scheduler would run: a CP-SAT schedule on the prior mean durations, the
+        robot's fastest motions (no proximity term, no waits), nothing learned.
+    cycles: I, cycles in the run. gamma: proximity weight, lam: diversity weight for the first
+        half of the cycles (then 0, as in the paper's ablation); None takes the world's.
+    seed: cycle c draws every random number from (seed, c).
+    population, generations, samples, patience: genetic search (C, G, K, early stop).
+    particles, candidates: steered samples per motion request (B) and SVDD candidates (M).
+    beta, rho: spatial distance decay (1 / workspace unit; None: the world's) and observation
+        noise variance. grid_points: spatial grid points per axis (None: the world's).
+    surrogate: evaluate spatial costs with the MLP surrogate (the paper) instead of exact grid
+        interpolation; costs a refit per cycle.
+    """
+
+    world: str = "fetch"
+    variant: str | None = None
+    human: str | None = None
+    adapt: Adapt = "full"
+    cycles: Annotated[int, Field(ge=1, le=100_000)] = 16
+    gamma: _Weight | None = None
+    lam: _Weight | None = None
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    population: Annotated[int, Field(ge=2, le=100_000)] = 24
+    generations: Annotated[int, Field(ge=1, le=1_000_000)] = 40
+    samples: Annotated[int, Field(ge=1, le=100_000)] = 32
+    patience: Annotated[int, Field(ge=0)] = 8
+    particles: Annotated[int, Field(ge=1, le=4096)] = 4
+    candidates: Annotated[int, Field(ge=1, le=4096)] = 8
+    beta: Annotated[float, Field(gt=0)] | None = None
+    rho: Annotated[float, Field(gt=0)] = 0.05
+    grid_points: Annotated[int, Field(ge=2, le=512)] | None = None
+    surrogate: bool = False
+
+    def resolved(self, world: World) -> RunConfig:
+        """Every None replaced by the world's value: what is stored, so a resumed run cannot
+        pick up a changed default."""
+        problem = world.problem()
+        return self.replace(
+            variant=world.variant,
+            human=self.human if self.human is not None else world.teammate_names[0],
+            gamma=problem.objective.gamma if self.gamma is None else self.gamma,
+            lam=problem.objective.lam if self.lam is None else self.lam,
+            beta=world.spatial_beta if self.beta is None else self.beta,
+            grid_points=world.spatial_grid if self.grid_points is None else self.grid_points,
+        )
+
+    @property
+    def run_id(self) -> str:
+        world = self.world if self.variant in (None, "default") else f"{self.world}-{self.variant}"
+        return f"{world}-{self.human}-{self.adapt}-s{self.seed}"
+
+    def lam_at(self, cycle: int) -> float:
+        """lambda for ``cycle``: constant for the first half of the cycles, then 0."""
+        lam = self.lam or 0.0
+        return lam if cycle < self.cycles / 2 else 0.0
+
+    @property
+    def exploration_end(self) -> float:
+        return self.cycles / 2 - 0.5

@@ -1,0 +1,104 @@
+"""What the planner believes about the person (temporal + spatial models and past allocations),
+how that belief starts (the world's population prior), and what an oracle knows instead."""
+
+from __future__ import annotations
+
+import json
+import zlib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rapidds.errors import RapiddsError, StateError
+from rapidds.human.spatial import SpatialConfig, SpatialModel
+from rapidds.human.temporal import TemporalModel
+from rapidds.loop.config import RunConfig
+from rapidds.scheduler import AllocationHistory
+from rapidds.worlds.base import SimulatedTeammate, Teammate, World
+
+__all__ = [
+    "HumanModel",
+    "check_teammate",
+    "oracle_spatial",
+    "prior_model",
+    "spatial_config",
+    "workspace_cost",
+]
+
+
+@dataclass
+class HumanModel:
+    """What the planner believes about the person; serialised after every cycle."""
+
+    temporal: TemporalModel
+    spatial: SpatialModel
+    history: AllocationHistory = field(default_factory=AllocationHistory)
+
+    def to_bytes(self) -> bytes:
+        doc = {"temporal": self.temporal.to_dict(), "spatial": self.spatial.to_dict(),
+               "history": self.history.to_dict()}
+        return zlib.compress(json.dumps(doc).encode())
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> HumanModel:
+        try:
+            doc = json.loads(zlib.decompress(data))
+            return cls(TemporalModel.from_dict(doc["temporal"]),
+                       SpatialModel.from_dict(doc["spatial"]),
+                       AllocationHistory.from_dict(doc["history"]))
+        except (zlib.error, ValueError, TypeError, KeyError) as exc:
+            raise StateError(f"stored human model is corrupt ({exc})") from None
+
+
+def spatial_config(world: World, cfg: RunConfig) -> SpatialConfig:
+    """The spatial model's grid over the world's shared workspace (``cfg`` resolved)."""
+    lo, hi = world.workspace_bounds
+    assert cfg.beta is not None and cfg.grid_points is not None, "resolve the config first"
+    return SpatialConfig.from_box(lo, hi, beta=cfg.beta, rho=cfg.rho,
+                                  grid_points=cfg.grid_points, use_surrogate=cfg.surrogate,
+                                  seed=cfg.seed)
+
+
+def prior_model(world: World, cfg: RunConfig) -> HumanModel:
+    """A new teammate's model: temporal and spatial priors from the world's population
+    (paper Eq. 9 for the spatial one)."""
+    prior = world.prior()
+    spatial = SpatialModel.from_population(spatial_config(world, cfg), prior.paths)
+    spatial.refit()
+    return HumanModel(TemporalModel.from_population(world.problem(), prior.durations), spatial)
+
+
+def oracle_spatial(world: World, cfg: RunConfig, teammate: SimulatedTeammate,
+                   n: int = 24) -> SpatialModel:
+    """The person's true expected spatial cost: Eq. 9 over ``n`` of their own paths per task."""
+    rng = np.random.default_rng([cfg.seed, 7919])
+    tasks = [t.id for t in world.problem().tasks if t.can("human")]
+    own = {t: [teammate.perform(t, rng)[1] for _ in range(n)] for t in tasks}
+    model = SpatialModel.from_population(spatial_config(world, cfg), own)
+    model.refit()
+    return model
+
+
+def workspace_cost(
+    world: World, spatial: SpatialModel
+) -> Callable[[Iterable[str], np.ndarray], np.ndarray]:
+    """max_{i in C_j} S_i of robot trajectories (N, H, d), taken over the robot's workspace
+    points (identity for a mobile robot, forward kinematics for an arm)."""
+
+    def cost(tasks: Iterable[str], xi: np.ndarray) -> np.ndarray:
+        pts = world.robot_points(xi)
+        return spatial.cost(tasks, pts.reshape(pts.shape[0], -1, pts.shape[-1]))
+
+    return cost
+
+
+def check_teammate(world: World, cfg: RunConfig, teammate: Teammate | None) -> Teammate:
+    """The run's teammate: the injected one (a live person) or the world's simulated one."""
+    if teammate is not None:
+        return teammate
+    assert cfg.human is not None
+    if cfg.human not in world.teammate_names:
+        raise RapiddsError(f"unknown human '{cfg.human}' for world {world.name}; one of "
+                           f"{', '.join(world.teammate_names)}")
+    return world.teammate(cfg.human)

@@ -1,0 +1,312 @@
+"""The RAPIDDS multi-cycle loop (paper Algorithm 1), one cycle in four steps.
+
+:meth:`AdaptiveRun.plan` searches the schedule with the genetic scheduler, whose robot motions
+come from the steered diffusion policy; :meth:`~AdaptiveRun.execute` has the teammate do their
+part and realises the cycle; :meth:`~AdaptiveRun.learn` updates the models the adaptation level
+names; :meth:`~AdaptiveRun.record` stores the cycle in one transaction. Each step can be called
+on its own, so a caller can show the plan to a person, wait for what they did, then learn.
+
+A run resumes from its last stored cycle with the models exactly as they were, because every
+cycle draws its random numbers from (seed, cycle) and the stored state holds everything learned.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rapidds.errors import CheckpointError, RapiddsError, StateError
+from rapidds.human.spatial import SpatialModel
+from rapidds.loop.config import RunConfig
+from rapidds.loop.deploy import Deployment, deploy
+from rapidds.loop.model import (
+    HumanModel,
+    check_teammate,
+    oracle_spatial,
+    prior_model,
+    workspace_cost,
+)
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.interface import TrajectoryCache
+from rapidds.motion.policy import DiffusionPolicy
+from rapidds.problem import Problem
+from rapidds.scheduler import (
+    Evaluation,
+    GAConfig,
+    GeneticScheduler,
+    evaluate_population,
+    solve_exact,
+)
+from rapidds.store import RunStore
+from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.registry import make_world
+
+__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "load_policy"]
+
+LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) models updated
+    "full": (True, True),
+    "spatial": (False, True),
+    "temporal": (True, False),
+    "none": (False, False),
+    "oracle": (False, False),
+    "exact": (False, False),
+}
+
+
+def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
+    """The checkpoint at ``path``, or the world's bundled policy."""
+    directory = path or world.bundled_policy()
+    if directory is None:
+        raise CheckpointError(
+            f"no bundled {world.name} policy in this install; train one with "
+            f"'rapidds train-policy --world {world.name} --out DIR' and pass --policy DIR"
+        )
+    return DiffusionPolicy.load(directory, device="cpu")
+
+
+@dataclass
+class CyclePlan:
+    """The plan of one cycle: the best evaluated schedule with its robot motions and expected
+    costs, the lambda it was planned with, and what the search did.
+
+    ``rng`` is the cycle's random stream after planning; execution continues from it, so a
+    simulated cycle draws the same numbers whether it is run in one call or step by step.
+    """
+
+    cycle: int
+    best: Evaluation
+    lam: float
+    search: dict[str, Any]
+    rng: np.random.Generator = field(repr=False)
+    seconds: float = 0.0
+
+
+@dataclass
+class CycleResult:
+    """A finished cycle: its record (as stored), the plan and what happened."""
+
+    record: dict[str, Any]
+    plan: CyclePlan
+    deployment: Deployment
+
+
+class AdaptiveRun:
+    """One teammate, one adaptation level, ``cycles`` cycles; optionally stored and resumable.
+
+    world: defaults to the registry's ``config.world``; teammate: defaults to the world's
+    simulated ``config.human`` (pass a live person's teammate to run with them); policy:
+    defaults to the world's bundled one; store: where every cycle is recorded.
+    """
+
+    def __init__(self, config: RunConfig, policy: DiffusionPolicy | None = None,
+                 store: RunStore | None = None, world: World | None = None,
+                 teammate: Teammate | None = None):
+        self.world = world or make_world(config.world, config.variant)
+        self.config = config.resolved(self.world)
+        self.teammate = check_teammate(self.world, self.config, teammate)
+        if self.config.adapt == "oracle" and not isinstance(self.teammate, SimulatedTeammate):
+            raise RapiddsError("--adapt oracle needs a simulated teammate (it plans with their "
+                               "true model)")
+        self.policy = policy or load_policy(self.world)
+        self.store = store
+        self.problem: Problem = self.world.problem().with_objective(
+            gamma=self.config.gamma, lam=self.config.lam)
+        self.model = prior_model(self.world, self.config)
+        self._oracle_spatial: SpatialModel | None = None
+        self.next_cycle = 0
+        self._timing: dict[int, dict[str, float]] = {}
+        if store is not None:
+            self._attach(store)
+
+    def _attach(self, store: RunStore) -> None:
+        rid = self.config.run_id
+        store.create_run(rid, self.config.model_dump())
+        last = store.last_cycle(rid)
+        if last is not None:
+            state = store.state(rid, last)
+            if state is None:
+                raise StateError(f"run '{rid}' cycle {last} has no stored model")
+            self.model = HumanModel.from_bytes(state)
+            self.next_cycle = last + 1
+
+    @property
+    def finished(self) -> bool:
+        return self.next_cycle >= self.config.cycles
+
+    # -- plan ---------------------------------------------------------------------------------
+    def _durations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """(K, n) planning samples and (n,) means from the belief (or the truth for oracle)."""
+        k = self.config.samples
+        if self.config.adapt == "oracle":
+            person = self._truth()
+            ids = self.problem.ids
+            mean_d, sd_d = person.true_mean_durations(), person.true_std_durations()
+            mean = np.array([mean_d.get(t, np.nan) for t in ids])
+            sd = np.array([sd_d.get(t, np.nan) for t in ids])
+            return np.maximum(rng.normal(mean, sd, (k, len(ids))), 0.5 * mean), mean
+        return self.model.temporal.sample(k, rng), self.model.temporal.mean()
+
+    def _truth(self) -> SimulatedTeammate:
+        assert isinstance(self.teammate, SimulatedTeammate)
+        return self.teammate.at(self.next_cycle)
+
+    def _spatial(self) -> SpatialModel:
+        if self.config.adapt != "oracle":
+            return self.model.spatial
+        if self._oracle_spatial is None:
+            self._oracle_spatial = oracle_spatial(self.world, self.config, self._truth())
+        return self._oracle_spatial
+
+    def _plan_exact(
+        self, motion: DiffusionMotion, samples: np.ndarray, mean: np.ndarray
+    ) -> tuple[Evaluation, dict[str, Any]]:
+        """CP-SAT on the prior mean durations, scored like every other plan."""
+        exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
+        cache = TrajectoryCache(motion)
+        ev = evaluate_population(self.problem, [exact.schedule], samples, mean, cache,
+                                 motion.nominal_durations(self.problem),
+                                 self.problem.objective.gamma, 0.0, self.model.history)[0]
+        return ev, {"solver": "cp-sat", "optimal": exact.optimal,
+                    "motion_requests": cache.misses}
+
+    def plan(self) -> CyclePlan:
+        """Plan the next cycle from the current belief (nothing changes until it is recorded)."""
+        if self.finished:
+            raise RapiddsError(f"run '{self.config.run_id}' is finished "
+                               f"({self.config.cycles} cycles)")
+        cfg, c = self.config, self.next_cycle
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([cfg.seed, c])
+        samples, mean = self._durations(rng)
+        exact = cfg.adapt == "exact"
+        gamma = 0.0 if exact else self.problem.objective.gamma  # the CP-SAT user ignores proximity
+        motion = DiffusionMotion(
+            self.policy, self.world.completion_time,
+            workspace_cost(self.world, self._spatial()), gamma,
+            SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
+                           seed=int(rng.integers(2**31))),
+        )
+        ga_seed = int(rng.integers(2**31))
+        lam = 0.0 if exact else cfg.lam_at(c)
+        if exact:
+            best, search = self._plan_exact(motion, samples, mean)
+        else:
+            # The GA's runner-up polishes off: every new (j, C_j) they reach is a steering
+            # call, and they made a fetch trial ~50 % dearer (5.5 s against 3.6 s in the full
+            # study) for a 4-task job the GA already solves. The order search off too: on this
+            # job it changed no plan and no motion request in 32 cycles, and off keeps the
+            # plans of the committed study (docs/reproduction.md).
+            ga = GeneticScheduler(self.problem.with_objective(lam=lam), motion, GAConfig(
+                population=cfg.population, generations=cfg.generations, samples=cfg.samples,
+                patience=cfg.patience, polish_allocations=1, order_search_nodes=0,
+                seed=ga_seed))
+            result = ga.solve(samples, mean, history=self.model.history)
+            best = result.best
+            search = {"generations": result.generations_run, "evaluations": result.evaluations,
+                      "motion_requests": result.cache_misses}
+        return CyclePlan(c, best, lam, search, rng, time.perf_counter() - t0)
+
+    # -- execute ------------------------------------------------------------------------------
+    def execute(self, plan: CyclePlan,
+                observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
+        """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
+        live person did), and the cycle is realised with the robot's planned motions."""
+        self._check_current(plan)
+        t0 = time.perf_counter()
+        tasks = plan.best.schedule.tasks("human")
+        human = (dict(observed) if observed is not None
+                 else self.teammate.execute(plan.cycle, tasks, plan.rng))
+        dep = deploy(self.world, self.problem, plan.best.schedule, plan.best.motions, human,
+                     beta=self.model.spatial.config.beta)
+        self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
+        return dep
+
+    # -- learn --------------------------------------------------------------------------------
+    def learn(self, plan: CyclePlan, deployment: Deployment) -> None:
+        """Update the models the adaptation level names with what the person did, and the
+        allocation history (every level: it is what happened, not a model)."""
+        self._check_current(plan)
+        t0 = time.perf_counter()
+        learn_time, learn_space = LEARNS[self.config.adapt]
+        for task, ex in deployment.human.items():
+            if learn_time:
+                self.model.temporal.observe(task, ex.duration)
+            if learn_space:
+                self.model.spatial.observe(task, ex.trajectory)
+        if learn_space:
+            self.model.spatial.refit(deployment.human)
+        self.model.history.record(plan.best.schedule)
+        self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
+
+    # -- record -------------------------------------------------------------------------------
+    def record(self, plan: CyclePlan, deployment: Deployment) -> dict[str, Any]:
+        """The cycle's record; stored (with the model after learning) in one transaction when a
+        store is attached. Advances the run to the next cycle."""
+        self._check_current(plan)
+        cfg, best, dep = self.config, plan.best, deployment
+        idx = self.problem.index
+        timing = self._timing.pop(plan.cycle, {})
+        deploy_s, update_s = timing.get("deploy", 0.0), timing.get("update", 0.0)
+        record: dict[str, Any] = {
+            "cycle": plan.cycle,
+            "human": [str(x) for x in best.schedule.human],
+            "robot": [str(x) for x in best.schedule.robot],
+            "routes": {j: self.world.motion_label(j, p.trajectory)
+                       for j, p in best.motions.items() if p.trajectory is not None},
+            "gamma": self.problem.objective.gamma,
+            "lambda": plan.lam,
+            "expected": {
+                "makespan": best.makespan_mean, "makespan_std": best.makespan_std,
+                "spatial": best.spatial, "diversity": best.diversity,
+                "objective": best.objective, "converged": best.converged,
+                "overlaps": {j: sorted(v) for j, v in best.overlaps.items()},
+            },
+            "realised": {
+                "makespan": dep.makespan, "spatial": dep.spatial, "cost": dep.cost,
+                "min_separation": dep.min_separation,
+                "overlaps": {j: sorted(v) for j, v in dep.overlaps.items()},
+                "timeline": {t: [float(dep.timeline.start[0, idx[t]]),
+                                 float(dep.timeline.finish[0, idx[t]])] for t in self.problem.ids},
+            },
+            "observed": {t: ex.duration for t, ex in dep.human.items()},
+            "belief": {"mean_durations": dict(zip(self.problem.ids,
+                                                  self.model.temporal.mean().tolist(),
+                                                  strict=True))},
+            "search": plan.search,
+            "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
+                        "total": plan.seconds + deploy_s + update_s},
+        }
+        if self.store is not None:
+            arrays = {f"robot/{j}": p for j, p in dep.robot.items()}
+            arrays.update({f"human/{t}": ex.trajectory for t, ex in dep.human.items()})
+            self.store.record_cycle(cfg.run_id, plan.cycle, record, arrays, self.model.to_bytes())
+        self.next_cycle += 1
+        return record
+
+    def _check_current(self, plan: CyclePlan) -> None:
+        if plan.cycle != self.next_cycle:
+            raise RapiddsError(f"plan is for cycle {plan.cycle}, the run is at cycle "
+                               f"{self.next_cycle}")
+
+    # -- all together -------------------------------------------------------------------------
+    def step(self) -> CycleResult:
+        """Plan, execute, learn and record one cycle with the run's teammate."""
+        plan = self.plan()
+        dep = self.execute(plan)
+        self.learn(plan, dep)
+        return CycleResult(self.record(plan, dep), plan, dep)
+
+    def run(self, on_cycle: Callable[[CycleResult], None] | None = None) -> list[dict[str, Any]]:
+        """Run the remaining cycles; returns their records."""
+        out = []
+        while not self.finished:
+            res = self.step()
+            out.append(res.record)
+            if on_cycle is not None:
+                on_cycle(res)
+        return out
