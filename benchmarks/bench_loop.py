@@ -22,7 +22,6 @@ from rapidds.worlds.registry import make_world
 SECTION = "## Adaptive loop (fetch)"
 
 
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", type=int, default=3)

@@ -11,6 +11,8 @@ from rapidds.motion.policy import DiffusionPolicy
 from rapidds.worlds.fetch import FetchWorld
 from rapidds.worlds.registry import make_world
 
+torch.set_num_threads(1)  # the networks are small; threads only fight on 2 cores
+
 SMALL_SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2,
                     candidates=4)
 """GA and steering settings small enough for tests, large enough to plan well on fetch."""
@@ -25,7 +27,6 @@ def fetch_world() -> FetchWorld:
 
 @pytest.fixture(scope="session")
 def fetch_policy(fetch_world: FetchWorld) -> DiffusionPolicy:
-    torch.set_num_threads(1)  # the networks are small; threads only fight on 2 cores
     return load_policy(fetch_world)
 
 

@@ -103,6 +103,7 @@ def study(tmp_path_factory):
     return out, before, json.loads(res.stdout), res.stderr
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_to_the_same_records(study, serial):
     out, before, _, err = study
     assert 1 <= len(before) < 8, len(before)  # killed midway, every stored trial whole
@@ -163,6 +164,7 @@ def test_study_stores_records_and_writes_figures_and_tables(study):
         assert float(row["median"]) == pytest.approx(score, abs=1e-5)
 
 
+@pytest.mark.slow
 def test_killed_worker_loses_only_its_trial(serial, tmp_path):
     """A worker SIGKILLed mid-trial (on a cluster reached by address, as --scheduler does): Dask
     reruns its trial elsewhere, the study finishes and stores every trial once."""

@@ -22,8 +22,6 @@ from rapidds.motion.policy import CONFIG_FILE, WEIGHTS_FILE, DiffusionPolicy
 from rapidds.motion.train import check_compatible, total_steps, train_policy
 from rapidds.motion.unet import TemporalUnet1d
 
-torch.set_num_threads(1)
-
 # Small enough to train in about a second on one busy core.
 TINY = dict(down_dims=(16, 32), step_embed_dim=16, num_train_timesteps=50,
             num_inference_steps=8, batch_size=32, lr=3e-3, lr_warmup_steps=5, device="cpu")

@@ -2,23 +2,19 @@
 
 import numpy as np
 import pytest
-import torch
 
 from rapidds.human.spatial import SpatialConfig, SpatialModel
-from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionModel, TrajectoryCache
-from rapidds.worlds.fetch import FetchWorld
 
 
 @pytest.fixture(scope="module")
-def world():
-    return FetchWorld()
+def world(fetch_world):
+    return fetch_world
 
 
 @pytest.fixture(scope="module")
-def motion(world):
-    torch.set_num_threads(1)
+def motion(world, fetch_policy):
     # A person known to take the middle route to t2: their cost covers the central corridor.
     paths = {"t2": [world.trajectory("human", "t2", "middle")]}
     lo, hi = world.bounds
@@ -26,7 +22,7 @@ def motion(world):
         SpatialConfig(bounds=tuple(zip(lo, hi, strict=True)), beta=1.0), paths)
     # gamma 5: V(middle) = 4.8 + 5 * 0.90 = 9.3 against V(outside) = 6.0 + 5 * 0.05 = 6.2 (at
     # gamma 1.75 the two differ by only 0.3 and greedy SVDD may settle on either)
-    return DiffusionMotion(load_policy(world), world.completion_time, spatial.cost, gamma=5.0,
+    return DiffusionMotion(fetch_policy, world.completion_time, spatial.cost, gamma=5.0,
                            config=SteeringConfig(particles=8, candidates=8, seed=0))
 
 
@@ -80,6 +76,7 @@ def test_bad_steering_config_rejected():
         SteeringConfig(alpha=float("nan"))
 
 
+@pytest.mark.slow
 def test_sample_in_world_cli_steers_and_draws(tmp_path):
     import json
     import subprocess

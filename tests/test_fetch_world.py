@@ -23,9 +23,9 @@ from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_r
 CORRIDOR = (4.2, 5.8, 2.4, 5.2)  # x0, x1, y0, y1 of the central corridor between the blocks
 
 
-@pytest.fixture(scope="module")
-def world() -> FetchWorld:
-    return FetchWorld()
+@pytest.fixture()
+def world(fetch_world: FetchWorld) -> FetchWorld:
+    return fetch_world
 
 
 def _in_box(p: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
@@ -327,8 +327,7 @@ def test_bundled_fetch_example_matches_the_world():
         )
 
 
-def test_route_mode_recognises_every_demonstrated_route():
-    world = FetchWorld()
+def test_route_mode_recognises_every_demonstrated_route(world: FetchWorld) -> None:
     demos = world.robot_demonstrations(3, np.random.default_rng(0))
     for traj, k, mode in zip(demos.trajectories, demos.task_index, demos.modes, strict=True):
         assert world.route_mode(demos.task_names[k], traj) == mode

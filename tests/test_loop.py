@@ -76,6 +76,7 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
 
 
+@pytest.mark.slow
 def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
     args = ["run", "--human", "slow-middle", "--cycles", "5", "--seed", "3",
             "--population", "12", "--generations", "10", "--samples", "16",
@@ -128,3 +129,48 @@ def test_exact_baseline_plans_with_cp_sat_and_learns_nothing(policy):
     assert all(r["lambda"] == 0.0 for r in records)
     assert not any(str(x).startswith("wait:") for r in records for x in r["human"] + r["robot"])
     assert run.model.temporal.to_dict() == prior  # nothing learned
+
+
+@pytest.mark.parametrize(("adapt", "learns_time", "learns_space"), [
+    ("full", True, True), ("spatial", False, True), ("temporal", True, False),
+    ("none", False, False), ("oracle", False, False),
+])
+def test_each_level_updates_exactly_the_models_it_names(policy, adapt, learns_time, learns_space):
+    run = AdaptiveRun(RunConfig(human="slow-middle", adapt=adapt, cycles=1, **SMALL), policy)
+    time0, space0 = run.model.temporal.to_dict(), run.model.spatial.to_dict()
+    run.run()
+    assert (run.model.temporal.to_dict() != time0) is learns_time
+    assert (run.model.spatial.to_dict() != space0) is learns_space
+    assert sum(run.model.history.count(t, a) for t in run.problem.ids
+               for a in ("human", "robot")) == 4  # what happened is recorded at every level
+
+
+def test_a_cycle_in_steps_equals_a_whole_step(policy):
+    cfg = RunConfig(human="fast-middle", cycles=2, seed=5, **SMALL)
+    whole = AdaptiveRun(cfg, policy)
+    want = [_strip(r) for r in whole.run()]
+
+    # a caller that shows the plan, waits for the person, then learns: here the "person" is
+    # the same simulated teammate, observed outside the run and handed in
+    stepped = AdaptiveRun(cfg, policy)
+    got = []
+    while not stepped.finished:
+        plan = stepped.plan()
+        seen = stepped.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"), plan.rng)
+        dep = stepped.execute(plan, observed=seen)
+        stepped.learn(plan, dep)
+        got.append(_strip(stepped.record(plan, dep)))
+    assert got == want
+
+    stale = stepped.plan if not stepped.finished else None
+    assert stale is None  # a finished run plans no more
+    with pytest.raises(Exception, match="is finished"):
+        stepped.plan()
+
+
+def test_a_plan_belongs_to_its_cycle(policy):
+    run = AdaptiveRun(RunConfig(human="fast-middle", cycles=3, **SMALL), policy)
+    plan = run.plan()
+    run.step()  # the run moved on to cycle 1 without this plan
+    with pytest.raises(Exception, match="plan is for cycle 0"):
+        run.execute(plan)

@@ -21,8 +21,6 @@ from rapidds.human.spatial import (
     point_cost,
 )
 
-torch.set_num_threads(1)
-
 BOUNDS = ((0.0, 10.0), (0.0, 10.0))
 ROUTE_A = [(5, 1), (2, 3), (2, 7), (5, 9)]
 ROUTE_B = [(5, 1), (8, 3), (8, 7), (5, 9)]

@@ -13,7 +13,6 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-import torch
 from typer.testing import CliRunner
 
 from rapidds.cli import _register, app
@@ -27,8 +26,6 @@ from rapidds.motion.steering import (
     value_function,
 )
 from rapidds.motion.train import train_policy
-
-torch.set_num_threads(1)
 
 B, M = 64, 8
 TOL = 0.15  # arrival tolerance of the completion index (routes are about 1.2 and 1.9 long)

@@ -16,28 +16,24 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
-import numpy as np
 import typer
 
-from rapidds.bundled import resolve_problem
 from rapidds.cli import app, fail
 from rapidds.errors import RapiddsError
-from rapidds.human.temporal import SAMPLING_METHODS, Sampling, TemporalModel
-from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
-from rapidds.problem import Problem, load_problem
-from rapidds.render import key_value_table, makespan_line, render_gantt, render_sequences
-from rapidds.schedule import Timeline, compile_schedule
-from rapidds.scheduler import (
-    Evaluation,
-    GAConfig,
-    GeneticScheduler,
-    evaluate_population,
-    solve_exact,
-)
+from rapidds.scheduler.config import GAConfig
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from rapidds.human.temporal import Sampling
+    from rapidds.problem import Problem
+    from rapidds.schedule import Timeline
+    from rapidds.scheduler import Evaluation
 
 _GA = GAConfig()  # the defaults shown in --help are the scheduler's own
+SAMPLING_METHODS = ("predictive", "plugin")  # rapidds.human.temporal's, without importing it
 
 
 def sample_durations(
@@ -48,6 +44,10 @@ def sample_durations(
     The samples use their own stream spawned from ``seed`` (the search uses ``seed`` itself), so
     the two never share random numbers; public so a test or a script can reproduce the numbers.
     """
+    import numpy as np
+
+    from rapidds.human.temporal import TemporalModel
+
     temporal = TemporalModel.from_problem(problem, sampling=sampling)
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     return temporal.sample(samples, rng), temporal.mean()
@@ -106,6 +106,9 @@ def _expected_timeline(
     problem: Problem, evaluation: Evaluation, human_mean: np.ndarray
 ) -> Timeline:
     """The plan at mean human durations and the chosen robot motions' durations (K = 1)."""
+    from rapidds.motion.interface import FixedDurationMotion
+    from rapidds.schedule import compile_schedule
+
     compiled = compile_schedule(problem, evaluation.schedule)
     assert compiled is not None  # only called for feasible plans
     robot = FixedDurationMotion(problem).nominal_durations(problem)
@@ -115,6 +118,8 @@ def _expected_timeline(
 
 
 def _report(problem: Problem, evaluation: Evaluation, extra: dict[str, Any]) -> dict[str, Any]:
+    import numpy as np
+
     mk = np.asarray(evaluation.makespan, dtype=float)
     sched = evaluation.schedule.to_json()
     out: dict[str, Any] = {
@@ -140,6 +145,8 @@ def _report(problem: Problem, evaluation: Evaluation, extra: dict[str, Any]) -> 
 def _print_text(
     problem: Problem, evaluation: Evaluation, report: dict[str, Any], human_mean: np.ndarray
 ) -> None:
+    from rapidds.render import key_value_table, makespan_line, render_gantt, render_sequences
+
     width = max(40, min(100, shutil.get_terminal_size((88, 24)).columns - 8))
     if report["solver"] == "cp-sat":
         head = (f"{problem.name}: exact CP-SAT on mean durations "
@@ -204,6 +211,11 @@ def plan(
 ) -> None:
     """Plan one cycle for a new teammate: who does what, in which order, where to wait."""
     _check_options(population, generations, samples, seed, gamma, lam, sampling, time_limit)
+    from rapidds.bundled import resolve_problem
+    from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
+    from rapidds.problem import load_problem
+    from rapidds.scheduler import GeneticScheduler, evaluate_population
+
     try:
         prob = load_problem(resolve_problem(problem)).with_objective(gamma, lam)
     except RapiddsError as exc:
@@ -211,11 +223,13 @@ def plan(
         return
     if seed is None:
         seed = secrets.randbelow(2**31)
-    human_samples, human_mean = sample_durations(prob, seed, samples, cast(Sampling, sampling))
+    human_samples, human_mean = sample_durations(prob, seed, samples, cast("Sampling", sampling))
     motion = FixedDurationMotion(prob)
     common = {"seed": seed, "samples": samples, "sampling": sampling}
 
     if exact:
+        from rapidds.scheduler.exact import solve_exact
+
         t0 = time.perf_counter()
         try:
             exact_result = solve_exact(prob, time_limit_s=time_limit)

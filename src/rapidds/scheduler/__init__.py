@@ -6,13 +6,26 @@
 - :func:`evaluate_population` is Algorithm 2 for a batch of candidates.
 - :func:`diversity` and :class:`AllocationHistory` are the corrected diversity term z_d.
 - :func:`solve_exact` is the CP-SAT baseline on mean durations.
+
+The search and the CP-SAT baseline load on first use: listing the CLI's options imports
+neither, and the genetic search never pays for importing OR-Tools.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory, diversity, diversity_term
-from rapidds.scheduler.evaluate import Evaluation, evaluate_population
-from rapidds.scheduler.exact import ExactResult, solve_exact
-from rapidds.scheduler.ga import GeneticScheduler, PlanResult
+
+if TYPE_CHECKING:
+    from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+    from rapidds.scheduler.exact import ExactResult, solve_exact
+    from rapidds.scheduler.ga import GeneticScheduler, PlanResult
+
+_LAZY = {"Evaluation": "evaluate", "evaluate_population": "evaluate", "ExactResult": "exact",
+         "solve_exact": "exact", "GeneticScheduler": "ga", "PlanResult": "ga"}
 
 __all__ = [
     "MUTATIONS",
@@ -27,3 +40,9 @@ __all__ = [
     "evaluate_population",
     "solve_exact",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module 'rapidds.scheduler' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"rapidds.scheduler.{_LAZY[name]}"), name)

@@ -1,0 +1,77 @@
+"""CLI start-up: CPU time of ``rapidds --help`` and of ``rapidds plan examples/fetch.yaml``.
+
+Each command runs ``--repeat`` times in a fresh process; the CPU time (user + system) of the
+child is read with getrusage, so other load on the machine changes it little. Also lists which
+heavy libraries each command imports.
+
+    .venv/bin/python benchmarks/bench_cli.py [--repeat 10] [--update-docs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from _common import cpu_model, load_average, update_docs_section
+
+ROOT = Path(__file__).resolve().parents[1]
+SECTION = "## CLI start-up"
+COMMANDS = {
+    "rapidds --help": ["--help"],
+    "rapidds run --help": ["run", "--help"],
+    "rapidds plan examples/fetch.yaml": ["plan", str(ROOT / "examples" / "fetch.yaml"),
+                                         "--seed", "0"],
+}
+HEAVY = ("torch", "diffusers", "distributed", "matplotlib", "ortools", "pandas", "mujoco")
+PROBE = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n    pass\n"
+         f"print(','.join(m for m in {HEAVY!r} if m in sys.modules), file=sys.stderr)")
+
+
+def cpu_seconds(argv: list[str]) -> tuple[float, float]:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()", *argv],
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--repeat", type=int, default=10)
+    ap.add_argument("--update-docs", action="store_true")
+    args = ap.parse_args()
+    load0 = load_average()
+    rows = []
+    for label, argv in COMMANDS.items():
+        cpu_seconds(argv)  # warm the file cache
+        runs = [cpu_seconds(argv) for _ in range(args.repeat)]
+        probe = subprocess.run([sys.executable, "-c", PROBE, *argv], capture_output=True,
+                               text=True).stderr.strip().splitlines()
+        heavy = probe[-1] if probe else ""
+        rows.append((label, statistics.median(c for c, _ in runs), max(c for c, _ in runs),
+                     statistics.median(w for _, w in runs), heavy or "none"))
+        print(f"{label}: CPU median {rows[-1][1]:.3f} s, max {rows[-1][2]:.3f} s, "
+              f"wall {rows[-1][3]:.3f} s, heavy imports: {rows[-1][4]}", flush=True)
+    body = (
+        f"`benchmarks/bench_cli.py --repeat {args.repeat}`: each command in a fresh process, CPU "
+        f"time (user + system) of the child. Machine: {cpu_model()}, 2 cores; 1-min load average "
+        f"{load0} at start, {load_average()} at end. Goals (issue 11): `rapidds --help` under "
+        "0.5 s of CPU, `rapidds plan examples/fetch.yaml` under 1 s.\n\n"
+        "| command | CPU s (median) | CPU s (max) | wall s (median) | heavy libraries imported |\n"
+        "|---|---:|---:|---:|---|\n"
+        + "".join(f"| `{r[0]}` | {r[1]:.2f} | {r[2]:.2f} | {r[3]:.2f} | {r[4]} |\n" for r in rows)
+    )
+    if args.update_docs:
+        update_docs_section(SECTION, body)
+    print(body)
+
+
+if __name__ == "__main__":
+    main()
