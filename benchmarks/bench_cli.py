@@ -28,7 +28,8 @@ COMMANDS = {
                                          "--seed", "0"],
 }
 HEAVY = ("torch", "diffusers", "distributed", "matplotlib", "ortools", "pandas", "mujoco")
-PROBE = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n    pass\n"
+PROBE = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\n"
+         "except SystemExit:\n    pass\n"
          f"print(','.join(m for m in {HEAVY!r} if m in sys.modules), file=sys.stderr)")
 
 
