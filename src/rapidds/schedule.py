@@ -1,8 +1,8 @@
 """Schedules: one sequence per agent of task ids and wait tokens, and their timelines.
 
-Semantics under given durations (DESIGN.md section 5): an agent starts its next item when it is
-free, every precedence predecessor of that task has finished, and, for a wait token ``w_i``, task
-``i`` has finished. A wait takes no time. Precedence is ``finish_i <= start_j`` (the paper's
+Semantics under given durations (docs/design-notes.md item 16): an agent starts its next item
+when it is free, every precedence predecessor of that task has finished, and, for a wait token
+``w_i``, task ``i`` has finished. A wait takes no time. Precedence is ``finish_i <= start_j`` (the paper's
 strict inequality read as <= on a timeline). A cycle among agent order, precedence and wait edges
 is a deadlock: the schedule is infeasible.
 

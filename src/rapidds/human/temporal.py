@@ -2,7 +2,7 @@
 
 Each human task i has a duration d ~ N(mu_i, sigma_i^2) with unknown (mu_i, sigma_i^2) and a
 conjugate Normal-Inverse-Gamma belief NIG(mu, nu, alpha, beta) over them (paper, "Temporal
-Adaptation"; DESIGN.md section 4). One observed duration x gives
+Adaptation"; docs/design-notes.md items 4 and 13). One observed duration x gives
 
     mu' = (nu*mu + x)/(nu+1),  nu' = nu+1,  alpha' = alpha+1/2,
     beta' = beta + nu*(x-mu)^2 / (2(nu+1)).

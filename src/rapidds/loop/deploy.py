@@ -3,9 +3,9 @@
 The human's actual durations and paths come from the teammate (simulated, recorded or live);
 the robot's from its chosen motions. Precedence and waits are enforced as they really happen:
 the realised timeline is the schedule simulated on the actual durations. Realised costs
-(DESIGN.md section 6): makespan; spatial cost, the S of each robot trajectory against the human
-paths that actually overlapped it in time; cost = makespan + gamma x spatial; and the smallest
-time-synchronised distance between the robot's and the person's body points.
+(docs/design-notes.md item 15): makespan; spatial cost, the S of each robot trajectory against
+the human paths that actually overlapped it in time; cost = makespan + gamma x spatial; and the
+smallest time-synchronised distance between the robot's and the person's body points.
 """
 
 from __future__ import annotations

@@ -35,7 +35,8 @@ class GAConfig:
             keys weigh 0. Shifting weight between the operators by +-0.1 made no measurable
             difference on the tuning instances.
         max_overlap_iters: cap on the rounds of Algorithm 2's overlap loop ("while some C_j
-            changed") per candidate; the loop can oscillate between overlap sets (DESIGN.md 3.2).
+            changed") per candidate; the loop can oscillate between overlap sets
+            (docs/design-notes.md item 2).
         patience: stop when the best objective has not improved for this many generations;
             0 = always run all ``generations``.
         restart_after: when the current population's best has not improved for this many

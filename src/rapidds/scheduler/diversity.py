@@ -1,4 +1,4 @@
-"""The allocation-diversity term z_d (paper Eq. 5, corrected as in DESIGN.md 3.1).
+"""The allocation-diversity term z_d (paper Eq. 5, corrected as in docs/design-notes.md item 1).
 
 As printed, Eq. 5 sums signed deviations from the mean and is identically 0. The corrected term
 uses absolute imbalance and counts the candidate's own assignment:

@@ -7,7 +7,7 @@ new robot durations change the timeline, so C_j are recomputed, until they stop 
 
 The loop runs synchronously over all candidates: each round gathers the (j, C_j) of every
 candidate still iterating and asks the cache once, so a diffusion policy samples a generation's
-new motions in one batch. The loop can oscillate (DESIGN.md 3.2): it is capped at
+new motions in one batch. The loop can oscillate (docs/design-notes.md item 2): it is capped at
 ``max_overlap_iters`` rounds, stops when an overlap state repeats, and then keeps the best
 evaluated variant with ``converged=False``.
 
