@@ -2,9 +2,9 @@
 
 Semantics under given durations (docs/design-notes.md item 16): an agent starts its next item
 when it is free, every precedence predecessor of that task has finished, and, for a wait token
-``w_i``, task ``i`` has finished. A wait takes no time. Precedence is ``finish_i <= start_j`` (the paper's
-strict inequality read as <= on a timeline). A cycle among agent order, precedence and wait edges
-is a deadlock: the schedule is infeasible.
+``w_i``, task ``i`` has finished. A wait takes no time. Precedence is ``finish_i <= start_j``
+(the paper's strict inequality read as <= on a timeline). A cycle among agent order, precedence
+and wait edges is a deadlock: the schedule is infeasible.
 
 Timelines are vectorised over K duration samples: one topological pass over the items with arrays
 of shape (K,), so all samples of a candidate cost one Python loop.
