@@ -174,3 +174,20 @@ def test_a_plan_belongs_to_its_cycle(policy):
     run.step()  # the run moved on to cycle 1 without this plan
     with pytest.raises(Exception, match="plan is for cycle 0"):
         run.execute(plan)
+
+
+def test_resume_redraws_missing_charts_and_names_changed_settings(tmp_path):
+    args = ["run", "--cycles", "2", "--population", "8", "--generations", "3", "--samples", "8",
+            "--particles", "2", "--candidates", "2", "--out", str(tmp_path)]
+    first = subprocess.run(_cli(*args), capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    chart = tmp_path / "gantt" / "fetch-fast-middle-full-s0-cycle-01.png"
+    chart.unlink()  # as if the run had been killed between storing cycle 1 and drawing it
+    again = subprocess.run(_cli(*args, "--resume"), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert "already finished (2 cycles)" in again.stderr
+    assert chart.is_file()
+    other = subprocess.run(_cli(*args[:-2], "--population", "9", "--out", str(tmp_path),
+                                "--resume"), capture_output=True, text=True, timeout=300)
+    assert other.returncode == 2
+    assert "population=8 (asked 9)" in other.stderr and "Traceback" not in other.stderr

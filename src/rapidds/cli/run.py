@@ -99,6 +99,20 @@ def gantt_path(out: Path, run_id: str, cycle: int) -> Path:
     return out / "gantt" / f"{run_id}-cycle-{cycle:02d}.png"
 
 
+def redraw_missing_gantts(run: AdaptiveRun, out: Path) -> None:
+    """Charts of stored cycles that a kill left undrawn (a cycle is stored before its chart)."""
+    from rapidds.loop.run import timeline_of
+    from rapidds.plots.gantt import save_gantt
+
+    assert run.store is not None
+    rid = run.config.run_id
+    for rec in run.store.records(rid):
+        path = gantt_path(out, rid, rec["cycle"])
+        if not path.exists():
+            save_gantt(timeline_of(run.problem, rec), path,
+                       title=f"{rid} cycle {rec['cycle']} (realised)")
+
+
 def execute(
     cfg: RunConfig, policy: DiffusionPolicy | None, out: Path | None, resume: bool,
     as_json: bool, con: Console, title: str | None = None,
@@ -117,8 +131,11 @@ def execute(
     if store is not None and run.next_cycle and not resume:
         fail(f"{out} already holds run '{rid}' ({run.next_cycle} cycles); "
              "pass --resume to continue it or choose another --out")
-    err = Console(stderr=True)
-    if not as_json:
+    err = Console(stderr=True, soft_wrap=True)
+    if run.finished:
+        err.print(f"run '{rid}' in {out} is already finished ({run.config.cycles} cycles); "
+                  "nothing to run, pictures redrawn", highlight=False)
+    if not as_json and not run.finished:
         con.print(f"[bold]{title or rid}[/bold]")
         con.print(_line(_HEADER), highlight=False)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -144,6 +161,7 @@ def execute(
                       f"stored{'; continue with --resume' if out else ''}")
             raise typer.Exit(130) from None
     if out is not None:
+        redraw_missing_gantts(run, out)
         write_pictures(run, out)
     return run
 

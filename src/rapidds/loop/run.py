@@ -35,6 +35,7 @@ from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
+from rapidds.schedule import Schedule, Timeline
 from rapidds.scheduler import (
     Evaluation,
     GAConfig,
@@ -46,7 +47,7 @@ from rapidds.store import RunStore
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.registry import make_world
 
-__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "load_policy"]
+__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "load_policy", "timeline_of"]
 
 LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) models updated
     "full": (True, True),
@@ -67,6 +68,15 @@ def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
             f"'rapidds train-policy --world {world.name} --out DIR' and pass --policy DIR"
         )
     return DiffusionPolicy.load(directory, device="cpu")
+
+
+def timeline_of(problem: Problem, record: Mapping[str, Any]) -> Timeline:
+    """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
+    schedule = Schedule.from_json({"human": record["human"], "robot": record["robot"]})
+    times = record["realised"]["timeline"]
+    start = np.array([[times[t][0] for t in problem.ids]])
+    finish = np.array([[times[t][1] for t in problem.ids]])
+    return Timeline(problem, schedule, start, finish)
 
 
 @dataclass
@@ -125,6 +135,14 @@ class AdaptiveRun:
 
     def _attach(self, store: RunStore) -> None:
         rid = self.config.run_id
+        stored = store.run_config(rid)
+        if stored is not None and stored != self.config.model_dump():
+            mine = self.config.model_dump()
+            diff = ", ".join(f"{k}={stored.get(k)!r} (asked {mine.get(k)!r})"
+                             for k in sorted(set(stored) | set(mine))
+                             if stored.get(k) != mine.get(k))
+            raise StateError(f"run '{rid}' in {store.path} was stored with other settings: "
+                             f"{diff}; use the same settings or another --out")
         store.create_run(rid, self.config.model_dump())
         last = store.last_cycle(rid)
         if last is not None:
