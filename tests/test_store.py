@@ -272,9 +272,9 @@ except (StateError, OSError) as exc:
 def test_readonly_open_reads_a_store_on_read_only_media(tmp_path):
     """A store copied into a folder and file nobody may write (the child drops root's power to
     ignore permission bits): reading works, opening it for writing is refused."""
-    import store_workers
+    import os_helpers
 
-    if not store_workers.can_obey_permissions():
+    if not os_helpers.can_obey_permissions():
         pytest.skip("cannot drop CAP_DAC_OVERRIDE here, so permission bits are not enforced")
     src = tmp_path / "src" / "run.sqlite"
     with RunStore(src) as st:
@@ -289,7 +289,7 @@ def test_readonly_open_reads_a_store_on_read_only_media(tmp_path):
     try:
         res = subprocess.run([sys.executable, "-c", _READ_SCRIPT, str(media / "run.sqlite")],
                              capture_output=True, text=True, timeout=60,
-                             preexec_fn=store_workers.obey_permissions)
+                             preexec_fn=os_helpers.obey_permissions)
     finally:
         media.chmod(0o755)
     assert res.returncode == 0, res.stderr
@@ -300,12 +300,12 @@ def test_readonly_open_reads_a_store_on_read_only_media(tmp_path):
 # -- many processes ---------------------------------------------------------------------------
 def _rounds(tmp_path: Path, configs: list[dict], rounds: int) -> list[tuple]:
     """len(configs) spawned processes open ``rounds`` new stores, all at once each round."""
-    import store_workers
+    import os_helpers
 
     ctx = mp.get_context("spawn")
     barrier, results = ctx.Barrier(len(configs)), ctx.Queue()
     paths = [str(tmp_path / f"r{k}" / "run.sqlite") for k in range(rounds)]
-    procs = [ctx.Process(target=store_workers.open_rounds,
+    procs = [ctx.Process(target=os_helpers.open_rounds,
                          args=(barrier, paths, w, cfg, results)) for w, cfg in enumerate(configs)]
     for p in procs:
         p.start()

@@ -106,7 +106,7 @@ def execute(
 
     from rapidds.plots.gantt import save_gantt
 
-    store = RunStore(out / "run.sqlite") if out is not None else None
+    store = RunStore(out / "run.sqlite", lock_as="rapidds run") if out is not None else None
     if store is not None:
         done = store.last_cycle(cfg.run_id)
         if done is not None and not resume:
@@ -125,7 +125,7 @@ def execute(
         def on_cycle(res: CycleResult) -> None:
             rec = res.record
             if as_json:
-                print(json.dumps(rec), flush=True)
+                print(json.dumps(rec, allow_nan=False), flush=True)
             else:
                 console.print(_line(_cycle_row(rec)), highlight=False)
             if out is not None:
@@ -200,7 +200,7 @@ def demo_cmd(
         sub = out / level
         resume = False
         if (sub / "run.sqlite").exists():
-            with RunStore(sub / "run.sqlite") as st:
+            with RunStore.open_readonly(sub / "run.sqlite") as st:
                 resume = st.last_cycle(cfg.run_id) is not None
         runs[level] = execute(cfg, policy, sub, resume, False, console,
                               title=f"{human}, adaptation: {level}")

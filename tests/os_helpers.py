@@ -1,5 +1,5 @@
-"""Helpers for tests/test_store.py that run in other processes (spawned: importable by name) and
-the privilege drop that makes permission bits count for root (tests run as root here)."""
+"""Test helpers about processes: workers for tests/test_store.py (spawned, so importable by name)
+and the privilege drop that makes permission bits count for root (tests run as root here)."""
 
 from __future__ import annotations
 
