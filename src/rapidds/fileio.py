@@ -23,11 +23,23 @@ def new_file_mode() -> int:
     return 0o666 & ~mask
 
 
+def ensure_folder(path: str | Path) -> Path:
+    """``mkdir -p``, with one clear line when a file stands where a folder must be."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RapiddsError(f"{path} exists and is not a folder") from None
+    except NotADirectoryError:
+        raise RapiddsError(f"cannot make folder {path}: part of that path is a file") from None
+    return path
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write via a temporary file in the same folder and rename; permissions follow the umask
     like any other new file (mkstemp alone would leave them 0600)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    ensure_folder(path.parent)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -52,8 +64,7 @@ def locked_folder(folder: str | Path, what: str) -> Iterator[Path]:
     writing {folder}". An flock dies with its process, so a killed run never leaves a stale lock
     behind. The lock file is the only file this creates; it is left in place (deleting it would
     let a third process lock a fresh inode while the second still holds the old one)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = ensure_folder(folder)
     # "a", not "w": taking the lock must not truncate (change) a file another process holds.
     with open(folder / LOCK_NAME, "a") as lock:
         try:

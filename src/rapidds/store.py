@@ -44,7 +44,7 @@ from urllib.parse import urlencode
 import numpy as np
 
 from rapidds.errors import StateError
-from rapidds.fileio import locked_folder, new_file_mode
+from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
 
 SCHEMA_VERSION = 1
 
@@ -166,7 +166,7 @@ class RunStore:
 
     def _open_for_writing(self) -> sqlite3.Connection:
         deadline = time.monotonic() + self.timeout
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        ensure_folder(self.path.parent)
         if not os.path.lexists(self.path):
             self._publish_new()
         db = self._connect(mode="rw")  # never creates: a file gone meanwhile is an error
