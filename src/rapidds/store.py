@@ -162,6 +162,8 @@ class RunStore:
             return StateError(f"{self.path}: not a rapidds run store ({exc})")
         if name.startswith("SQLITE_CANTOPEN"):
             return StateError(f"{self.path}: cannot open the run store ({exc})")
+        if name.startswith(("SQLITE_READONLY", "SQLITE_FULL", "SQLITE_IOERR")):
+            return StateError(f"{self.path}: cannot write the run store ({exc})")
         return StateError(f"{self.path}: run store error ({name or type(exc).__name__}: {exc})")
 
     def _open_for_writing(self) -> sqlite3.Connection:
