@@ -59,13 +59,14 @@ failed=0
 for i in $(seq 1 "$runs"); do
   log="$work/run-$i.log"
   start=$(date +%s)
-  if make -C "$clone" "${make_args[@]}" test >"$log" 2>&1; then
+  if make --no-print-directory -C "$clone" "${make_args[@]}" test >"$log" 2>&1; then
     passed=$((passed + 1)); verdict=passed
   else
     failed=$((failed + 1)); verdict="FAILED (log: $log)"
   fi
-  echo "run $i/$runs: $verdict in $(( $(date +%s) - start )) s," \
-       "$(tail -n 1 "$log" | tr -s ' ')," "load $(cut -d' ' -f1-3 /proc/loadavg)"
+  summary=$(grep -E "[0-9]+ (passed|failed|error)" "$log" | tail -n 1 || tail -n 1 "$log")
+  echo "run $i/$runs: $verdict in $(( $(date +%s) - start )) s ($summary)," \
+       "load $(cut -d' ' -f1-3 /proc/loadavg)"
 done
 
 echo "$passed passed, $failed failed"
