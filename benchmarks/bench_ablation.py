@@ -48,7 +48,7 @@ def _warm_up() -> None:
 
 
 def _records(path: Path) -> dict[str, list[dict]]:
-    with RunStore(path) as st:
+    with RunStore.open_readonly(path) as st:
         return {rid: [{k: v for k, v in r.items() if k != "seconds"} for r in st.records(rid)]
                 for rid in st.run_ids()}
 

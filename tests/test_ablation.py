@@ -56,7 +56,7 @@ def _strip(records: list[dict]) -> list[dict]:
 
 
 def _records(out: Path) -> dict[str, list[dict]]:
-    with RunStore(out / "study.sqlite") as st:
+    with RunStore.open_readonly(out / "study.sqlite") as st:
         return {rid: _strip(st.records(rid)) for rid in st.run_ids()}
 
 
@@ -64,7 +64,7 @@ def _finished(out: Path, cycles: int = 4) -> int:
     path = out / "study.sqlite"
     if not path.exists():
         return 0
-    with RunStore(path) as st:
+    with RunStore.open_readonly(path) as st:
         return sum(st.last_cycle(r) == cycles - 1 for r in st.run_ids())
 
 
@@ -95,7 +95,7 @@ def study(tmp_path_factory):
     finally:
         os.killpg(proc.pid, signal.SIGKILL)  # the whole run: client, scheduler and workers
         proc.wait()
-    with RunStore(out / "study.sqlite") as st:
+    with RunStore.open_readonly(out / "study.sqlite") as st:
         before = {rid: st.records(rid) for rid in st.run_ids()}
     res = subprocess.run(_cli("ablation", "--out", str(out), "--json", *ARGS),
                          capture_output=True, text=True, timeout=300)
@@ -111,7 +111,8 @@ def test_killed_run_resumes_to_the_same_records(study, serial):
     assert f"{len(before)} of 8 trials already stored" in err
     assert f"{8 - len(before)} trials run, {len(before)} already stored" in err
     assert _records(out) == serial
-    with RunStore(out / "study.sqlite") as st:  # stored trials were skipped, not redone
+    # stored trials were skipped, not redone
+    with RunStore.open_readonly(out / "study.sqlite") as st:
         for rid, recs in before.items():
             assert st.records(rid) == recs
 
@@ -120,7 +121,7 @@ def test_study_stores_records_and_writes_figures_and_tables(study):
     out, _, summary, _ = study
     recs = _records(out)
     assert set(recs) == RUN_IDS
-    with RunStore(out / "study.sqlite") as st:
+    with RunStore.open_readonly(out / "study.sqlite") as st:
         for rid in RUN_IDS:
             cfg = st.run_config(rid)
             assert cfg is not None and cfg["cycles"] == 4 and cfg["candidates"] == 2

@@ -95,13 +95,13 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         if db.exists():
-            with RunStore(db) as st:
+            with RunStore.open_readonly(db) as st:
                 if (st.last_cycle("fetch-slow-middle-full-s3") or -1) + 1 >= kill_at:
                     break
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    with RunStore(db) as st:
+    with RunStore.open_readonly(db) as st:
         stored = st.last_cycle("fetch-slow-middle-full-s3")
     assert stored is not None and stored < 4, "the run finished before it could be killed"
 
@@ -111,7 +111,8 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
     resumed = subprocess.run(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
                              capture_output=True, text=True, env=env, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
-    with RunStore(tmp_path / "a" / "run.sqlite") as a, RunStore(db) as b:
+    with RunStore.open_readonly(tmp_path / "a" / "run.sqlite") as a, \
+            RunStore.open_readonly(db) as b:
         ra, rb = a.records(), b.records()
         assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
         last = ra[-1]["cycle"]

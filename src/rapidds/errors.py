@@ -1,5 +1,9 @@
 """Errors a user can act on. The CLI turns each into one line on stderr and exit code 2."""
 
+from __future__ import annotations
+
+import os
+
 
 class RapiddsError(Exception):
     """Base class for errors caused by the user's input, not by a bug."""
@@ -23,3 +27,15 @@ class ConfigError(RapiddsError, ValueError):
     Both a :class:`RapiddsError` (the CLI prints one line, exit 2) and a ``ValueError`` (what
     Python code expects from a rejected argument).
     """
+
+
+def os_error_line(exc: OSError) -> str:
+    """One line for an error of the file system: the path(s), then what the system said, e.g.
+    ``/media/out/.lock: Read-only file system``."""
+    what = exc.strerror or str(exc) or type(exc).__name__
+    if exc.filename is None:
+        return what
+    where = os.fsdecode(exc.filename)
+    if exc.filename2 is not None:
+        where += f" -> {os.fsdecode(exc.filename2)}"
+    return f"{where}: {what}"

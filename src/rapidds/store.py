@@ -3,22 +3,48 @@
 One transaction per cycle, so a run killed at any moment holds exactly the cycles that finished,
 and ``--resume`` continues from the last one with the human model as it was then. The store is
 also what ``rapidds report`` and the ablation study read back.
+
+Many processes may open one store at the same moment (a run and a poll, two runs racing for one
+new ``--out``, a study's client and ``rapidds report``):
+
+* A new store is built under a private temporary name (WAL mode, then the schema in one
+  transaction) and published with ``os.link``, which fails rather than replace a file that is
+  already there. So the file at a store's path is absent or a whole store, never a half-made one;
+  when two processes create it at once, one link wins and the other opens the winner's store.
+  (This replaces switching a new shared file to WAL: ``PRAGMA journal_mode=WAL`` answers
+  SQLITE_BUSY at once, without the busy handler, while another connection holds a lock.)
+* Since rapidds never shows an empty file under a store's name, a 0-byte file there is not a
+  store and is refused, after waiting for the write lock in case another program (or an older
+  rapidds) holds it while initialising the file right now. Any other SQLite database or
+  non-SQLite file is refused too. A refused file is only read, never altered.
+* A store not yet in WAL mode (an older rapidds's, or one a user switched) is switched with the
+  pragma retried on SQLITE_BUSY, with a bounded backoff, until ``timeout``.
+* Readers (:meth:`RunStore.open_readonly`) open ``mode=ro``: no DDL, no inserts, no file
+  created on a missing path. On a read-only folder without a WAL index (``-shm``) they read the
+  file as immutable: no process can be writing it then, since a WAL writer keeps that index.
+* A writer may hold the folder lock (``lock_as``, :func:`rapidds.fileio.locked_folder`) for
+  as long as the store is open, so two commands never write one folder.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import json
+import os
 import sqlite3
+import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlencode
 
 import numpy as np
 
 from rapidds.errors import StateError
+from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
 
 SCHEMA_VERSION = 1
 
@@ -58,32 +84,236 @@ def _from_npy(b: bytes) -> np.ndarray:
     return np.load(io.BytesIO(b), allow_pickle=False)
 
 
-class RunStore:
-    """A SQLite file holding one or many runs (an ablation study keeps all its trials in one)."""
+_TABLES = frozenset({"meta", "runs", "cycles", "arrays"})
+DEFAULT_TIMEOUT = 30.0
+"""Seconds a store waits for another process's write lock before giving up."""
 
-    def __init__(self, path: str | Path):
+# Errors that say the file is not (or no longer) a database rapidds can read.
+_NOT_A_STORE = ("SQLITE_NOTADB", "SQLITE_CORRUPT", "SQLITE_ERROR")
+# A read-only folder without the WAL index (-shm) that a reader would have to create.
+_NO_WAL_INDEX = ("SQLITE_READONLY_DIRECTORY", "SQLITE_READONLY_CANTINIT", "SQLITE_CANTOPEN")
+# Filesystems without hard links (FAT, some network shares) answer os.link with one of these.
+_NO_HARD_LINKS = {errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EMLINK}
+
+
+def _errname(exc: sqlite3.Error) -> str:
+    return getattr(exc, "sqlite_errorname", "") or ""
+
+
+def _busy(exc: sqlite3.Error) -> bool:
+    return _errname(exc).startswith(("SQLITE_BUSY", "SQLITE_LOCKED"))
+
+
+def _uri(path: Path, **params: str) -> str:
+    """A SQLite URI of ``path``: as_uri percent-encodes '?', '#' and '%' in the name."""
+    return f"{path.absolute().as_uri()}?{urlencode(params)}"
+
+
+def _dumps(obj: Any) -> str:
+    """JSON without NaN or Infinity: a non-finite result is a bug to see, not a value to keep."""
+    return json.dumps(obj, allow_nan=False)
+
+
+class RunStore:
+    """A SQLite file holding one or many runs (an ablation study keeps all its trials in one).
+
+    ``RunStore(path)`` creates the store (and its folder) or opens it for writing;
+    :meth:`open_readonly` opens an existing one for reading only. ``timeout``: seconds to wait
+    for another process's write lock (opening and every transaction), then StateError.
+    ``lock_as``: hold ``path.parent/.lock`` while the store is open, refusing a second writer
+    of the folder with "another {lock_as} is writing ...".
+    """
+
+    def __init__(self, path: str | Path, *, readonly: bool = False,
+                 timeout: float = DEFAULT_TIMEOUT, lock_as: str | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.readonly = readonly
+        self.timeout = float(timeout)
+        self._held = ExitStack()
         try:
-            self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.execute("PRAGMA foreign_keys=ON")
-            self._db.executescript(_SCHEMA)
-            # Two processes may open a new store at once (a run and a reader): first one wins.
-            self._db.execute(
-                "INSERT OR IGNORE INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),)
-            )
-            row = self._db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+            if lock_as is not None:
+                self._held.enter_context(locked_folder(self.path.parent, lock_as))
+            try:
+                self._db = self._open_readonly() if readonly else self._open_for_writing()
+            except sqlite3.Error as exc:
+                raise self._failure(exc) from None
+        except BaseException:
+            self._held.close()
+            raise
+
+    @classmethod
+    def open_readonly(cls, path: str | Path, *, timeout: float = DEFAULT_TIMEOUT) -> RunStore:
+        """An existing store, for reading: never creates, alters or initialises a file, and
+        works on read-only media. A missing file is a StateError."""
+        return cls(path, readonly=True, timeout=timeout)
+
+    # opening --------------------------------------------------------------------------------
+    def _connect(self, **params: str) -> sqlite3.Connection:
+        return sqlite3.connect(_uri(self.path, **params), uri=True, timeout=self.timeout,
+                               isolation_level=None)
+
+    def _failure(self, exc: sqlite3.Error) -> StateError:
+        """One line for what went wrong talking to SQLite."""
+        name = _errname(exc)
+        if _busy(exc):
+            return StateError(f"{self.path}: locked by another process for more than "
+                              f"{self.timeout:g} s; try again when it has finished")
+        if name.startswith(_NOT_A_STORE):
+            return StateError(f"{self.path}: not a rapidds run store ({exc})")
+        if name.startswith("SQLITE_CANTOPEN"):
+            return StateError(f"{self.path}: cannot open the run store ({exc})")
+        if name.startswith(("SQLITE_READONLY", "SQLITE_FULL", "SQLITE_IOERR")):
+            return StateError(f"{self.path}: cannot write the run store ({exc})")
+        return StateError(f"{self.path}: run store error ({name or type(exc).__name__}: {exc})")
+
+    def _open_for_writing(self) -> sqlite3.Connection:
+        deadline = time.monotonic() + self.timeout
+        ensure_folder(self.path.parent)
+        if not os.path.lexists(self.path):
+            self._publish_new()
+        db = self._connect(mode="rw")  # never creates: a file gone meanwhile is an error
+        try:
+            if self._inspect(db) is None:
+                # An empty database: another program (or an older rapidds) may have created the
+                # file and be writing its schema right now. Wait for its write lock and look
+                # again; still empty means it is simply not a store.
+                db.execute("BEGIN IMMEDIATE")
+                try:
+                    found = self._inspect(db)
+                finally:
+                    db.execute("ROLLBACK")
+                if found is None:
+                    raise StateError(f"{self.path}: an empty file, not a rapidds run store; "
+                                     "remove it or choose another path")
+            self._ensure_wal(db, deadline)
+            db.execute("PRAGMA synchronous=FULL")
+            db.execute("PRAGMA foreign_keys=ON")
+        except BaseException:
+            db.close()
+            raise
+        return db
+
+    def _open_readonly(self) -> sqlite3.Connection:
+        if not self.path.exists():
+            raise StateError(f"{self.path}: no such run store")
+        if not self.path.is_file():
+            raise StateError(f"{self.path}: not a file, so not a rapidds run store")
+        db = self._connect(mode="ro")
+        try:
+            found = self._inspect(db)
+        except sqlite3.OperationalError as exc:
+            if not _errname(exc).startswith(_NO_WAL_INDEX):
+                db.close()
+                raise
+            # A read-only folder without the WAL index: no writer has the store open (a WAL
+            # writer keeps its -shm there), so reading the file as immutable is exact.
+            db.close()
+            db = self._connect(mode="ro", immutable="1")
+            try:
+                found = self._inspect(db)
+            except BaseException:
+                db.close()
+                raise
+        except BaseException:
+            db.close()
+            raise
+        if found is None:
+            db.close()
+            raise StateError(f"{self.path}: an empty file, not a rapidds run store")
+        return db
+
+    def _inspect(self, db: sqlite3.Connection) -> int | None:
+        """The store's schema version; None for an empty database; StateError for a file that
+        is not a rapidds store. Only reads."""
+        try:
+            tables = {r[0] for r in db.execute(
+                "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
+            if not tables:
+                return None
+            if not tables >= _TABLES:
+                shown = ", ".join(sorted(tables)[:6]) + (", ..." if len(tables) > 6 else "")
+                raise StateError(f"{self.path}: not a rapidds run store (an SQLite database "
+                                 f"with tables {shown})")
+            row = db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
         except sqlite3.DatabaseError as exc:
-            raise StateError(f"{self.path}: not a rapidds run store ({exc})") from None
+            if _errname(exc).startswith(_NOT_A_STORE):
+                raise StateError(f"{self.path}: not a rapidds run store ({exc})") from None
+            raise
+        if row is None or not str(row[0]).isdigit():
+            raise StateError(f"{self.path}: not a rapidds run store (no schema version)")
         if int(row[0]) != SCHEMA_VERSION:
             raise StateError(
                 f"{self.path}: store schema {row[0]}, this rapidds reads {SCHEMA_VERSION}"
             )
+        return int(row[0])
+
+    def _ensure_wal(self, db: sqlite3.Connection, deadline: float) -> None:
+        """Switch to WAL (readers never wait for the writer). The pragma needs an exclusive
+        lock and answers SQLITE_BUSY at once, without the busy handler, while anyone else holds
+        a lock, so it is retried with a growing pause until the deadline."""
+        if db.execute("PRAGMA journal_mode").fetchone()[0].lower() == "wal":
+            return
+        pause = 0.001
+        while True:
+            try:
+                mode = db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+                break
+            except sqlite3.OperationalError as exc:
+                left = deadline - time.monotonic()
+                if not _busy(exc) or left <= 0:
+                    raise
+                time.sleep(min(pause, left))
+                pause = min(2 * pause, 0.05)
+        if mode.lower() != "wal":
+            raise StateError(f"{self.path}: cannot use the WAL journal here (SQLite kept "
+                             f"'{mode}'); put the store on a local disk")
+
+    def _publish_new(self) -> None:
+        """Build a whole store under a private name and link it into place (see the module
+        docstring); a store another process linked first wins and this one is discarded."""
+        fd, name = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.",
+                                    suffix=".new")
+        os.close(fd)
+        tmp = Path(name)
+        try:
+            os.chmod(tmp, new_file_mode())
+            db = sqlite3.connect(tmp, isolation_level=None)
+            try:
+                db.execute("PRAGMA journal_mode=WAL")
+                db.executescript(f"BEGIN IMMEDIATE; {_SCHEMA} "
+                                 f"INSERT INTO meta VALUES ('schema', '{SCHEMA_VERSION}'); "
+                                 "COMMIT;")
+            finally:
+                db.close()  # checkpoints: the whole store is in the file now
+            try:
+                os.link(tmp, self.path)
+            except FileExistsError:
+                pass  # another process published its store first: open that one
+            except OSError as exc:
+                if exc.errno not in _NO_HARD_LINKS:
+                    raise
+                self._publish_by_copy(tmp)
+        finally:
+            for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")):
+                p.unlink(missing_ok=True)
+
+    def _publish_by_copy(self, tmp: Path) -> None:
+        """Without hard links: create the name exclusively and copy. A process opening the store
+        during the copy may find it incomplete and be refused; it can simply retry."""
+        try:
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, new_file_mode())
+        except FileExistsError:
+            return
+        with os.fdopen(fd, "wb") as f:
+            f.write(tmp.read_bytes())
+            f.flush()
+            os.fsync(f.fileno())
 
     def close(self) -> None:
-        self._db.close()
+        try:
+            self._db.close()
+        finally:
+            self._held.close()
 
     def __enter__(self) -> RunStore:
         return self
@@ -93,37 +323,62 @@ class RunStore:
 
     @contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
-        self._db.execute("BEGIN IMMEDIATE")
+        """One write transaction, taken up front (BEGIN IMMEDIATE waits for another writer up to
+        ``timeout``); SQLite's failures (locked, disk full, read-only) become StateError."""
+        if self.readonly:
+            raise StateError(f"{self.path} was opened read-only")
         try:
-            yield self._db
-        except BaseException:
-            self._db.execute("ROLLBACK")
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
+        except sqlite3.IntegrityError:
             raise
-        self._db.execute("COMMIT")
+        except sqlite3.Error as exc:
+            raise self._failure(exc) from None
+
+    def _rows(self, sql: str, args: tuple[Any, ...] = ()) -> list[Any]:
+        try:
+            return self._db.execute(sql, args).fetchall()
+        except sqlite3.Error as exc:
+            raise self._failure(exc) from None
+
+    def _json(self, text: str, what: str) -> Any:
+        try:
+            return json.loads(text)
+        except (TypeError, ValueError) as exc:
+            raise StateError(f"{self.path}: corrupt stored JSON in {what} ({exc})") from None
 
     # runs -----------------------------------------------------------------------------------
-    def create_run(self, run_id: str, config: dict[str, Any]) -> None:
-        """Register a run. Re-creating an existing run with a different config is refused, so a
-        resumed run cannot silently continue under other settings."""
-        existing = self.run_config(run_id)
-        if existing is not None:
-            if existing != json.loads(json.dumps(config)):
-                raise StateError(
-                    f"run '{run_id}' already exists in {self.path} with other settings; "
-                    "use another --out or the same settings"
-                )
-            return
-        with self._tx() as db:
-            db.execute(
-                "INSERT INTO runs VALUES (?, ?, ?)", (run_id, time.time(), json.dumps(config))
+    def _register(self, db: sqlite3.Connection, run_id: str, config: dict[str, Any]) -> None:
+        """Insert the run, or check that the stored one has these settings; inside a
+        transaction, so two processes registering one run at once cannot both insert."""
+        cfg_json = _dumps(config)
+        db.execute("INSERT INTO runs VALUES (?, ?, ?) ON CONFLICT (run_id) DO NOTHING",
+                   (run_id, time.time(), cfg_json))
+        (stored,) = db.execute("SELECT config FROM runs WHERE run_id=?", (run_id,)).fetchone()
+        if self._json(stored, f"run '{run_id}'") != json.loads(cfg_json):
+            raise StateError(
+                f"run '{run_id}' already exists in {self.path} with other settings; "
+                "use another --out or the same settings"
             )
 
+    def create_run(self, run_id: str, config: dict[str, Any]) -> None:
+        """Register a run. Re-creating an existing run with a different config is refused, so a
+        resumed run cannot silently continue under other settings. One transaction: two
+        processes creating one run at once both succeed (same settings) or one is refused."""
+        with self._tx() as db:
+            self._register(db, run_id, config)
+
     def run_config(self, run_id: str) -> dict[str, Any] | None:
-        row = self._db.execute("SELECT config FROM runs WHERE run_id=?", (run_id,)).fetchone()
-        return None if row is None else json.loads(row[0])
+        rows = self._rows("SELECT config FROM runs WHERE run_id=?", (run_id,))
+        return self._json(rows[0][0], f"run '{run_id}'") if rows else None
 
     def run_ids(self) -> list[str]:
-        return [r[0] for r in self._db.execute("SELECT run_id FROM runs ORDER BY run_id")]
+        return [r[0] for r in self._rows("SELECT run_id FROM runs ORDER BY run_id")]
 
     # cycles ---------------------------------------------------------------------------------
     def record_cycle(
@@ -140,7 +395,7 @@ class RunStore:
             with self._tx() as db:
                 db.execute(
                     "INSERT INTO cycles VALUES (?, ?, ?, ?, ?)",
-                    (run_id, cycle, json.dumps(record), state, time.time()),
+                    (run_id, cycle, _dumps(record), state, time.time()),
                 )
                 db.executemany(
                     "INSERT INTO arrays VALUES (?, ?, ?, ?)",
@@ -161,16 +416,8 @@ class RunStore:
         """
         if not records:
             raise ValueError(f"trial '{run_id}' has no cycle records")
-        cfg_json = json.dumps(config)
         with self._tx() as db:
-            row = db.execute("SELECT config FROM runs WHERE run_id=?", (run_id,)).fetchone()
-            if row is None:
-                db.execute("INSERT INTO runs VALUES (?, ?, ?)", (run_id, time.time(), cfg_json))
-            elif json.loads(row[0]) != json.loads(cfg_json):
-                raise StateError(
-                    f"run '{run_id}' already exists in {self.path} with other settings; "
-                    "use another --out or the same settings"
-                )
+            self._register(db, run_id, config)
             (have,) = db.execute(
                 "SELECT COUNT(*) FROM cycles WHERE run_id=?", (run_id,)
             ).fetchone()
@@ -184,13 +431,13 @@ class RunStore:
             now = time.time()
             db.executemany(
                 "INSERT INTO cycles VALUES (?, ?, ?, NULL, ?)",
-                [(run_id, int(r["cycle"]), json.dumps(r), now) for r in records],
+                [(run_id, int(r["cycle"]), _dumps(r), now) for r in records],
             )
         return True
 
     def last_cycle(self, run_id: str) -> int | None:
-        row = self._db.execute("SELECT MAX(cycle) FROM cycles WHERE run_id=?", (run_id,)).fetchone()
-        return None if row[0] is None else int(row[0])
+        (last,) = self._rows("SELECT MAX(cycle) FROM cycles WHERE run_id=?", (run_id,))[0]
+        return None if last is None else int(last)
 
     def records(self, run_id: str | None = None) -> list[dict[str, Any]]:
         """Cycle records in order; each gains ``run_id`` and ``cycle``."""
@@ -200,23 +447,28 @@ class RunStore:
             sql += " WHERE run_id=?"
             args = (run_id,)
         out = []
-        for rid, cyc, rec in self._db.execute(sql + " ORDER BY run_id, cycle", args):
-            d = json.loads(rec)
+        for rid, cyc, rec in self._rows(sql + " ORDER BY run_id, cycle", args):
+            d = self._json(rec, f"run '{rid}' cycle {cyc}")
+            if not isinstance(d, dict):
+                raise StateError(f"{self.path}: corrupt stored JSON in run '{rid}' cycle {cyc} "
+                                 f"(a {type(d).__name__}, not an object)")
             d.update(run_id=rid, cycle=cyc)
             out.append(d)
         return out
 
     def state(self, run_id: str, cycle: int) -> bytes | None:
-        row = self._db.execute(
-            "SELECT state FROM cycles WHERE run_id=? AND cycle=?", (run_id, cycle)
-        ).fetchone()
-        if row is None:
+        rows = self._rows("SELECT state FROM cycles WHERE run_id=? AND cycle=?", (run_id, cycle))
+        if not rows:
             raise StateError(f"run '{run_id}' has no cycle {cycle}")
-        return row[0]
+        return rows[0][0]
 
     def arrays(self, run_id: str, cycle: int) -> dict[str, np.ndarray]:
-        rows = self._db.execute(
+        rows = self._rows(
             "SELECT name, data FROM arrays WHERE run_id=? AND cycle=? ORDER BY name",
             (run_id, cycle),
         )
-        return {name: _from_npy(data) for name, data in rows}
+        try:
+            return {name: _from_npy(data) for name, data in rows}
+        except (TypeError, ValueError, OSError) as exc:
+            raise StateError(f"{self.path}: corrupt stored array in run '{run_id}' cycle "
+                             f"{cycle} ({exc})") from None

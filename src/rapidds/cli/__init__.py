@@ -1,21 +1,20 @@
 """``rapidds`` command line. Each submodule registers its commands on :data:`app`.
 
-Errors a user can fix (:class:`~rapidds.errors.RapiddsError`) become one line on stderr and exit
-code 2; typer's own usage errors also exit 2.
+Errors a user can fix (:class:`~rapidds.errors.RapiddsError`, typer's usage errors, a file the
+system refuses) become one line on stderr and exit code 2; a closed pipe ends the output quietly;
+anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import os
 import sys
 
 import typer
 
-try:  # typer >= 0.24 vendors click; its exceptions are not click's
-    from typer._click import exceptions as _cx
-except ImportError:  # pragma: no cover - older typer on top of click
-    import click.exceptions as _cx  # type: ignore[no-redef]
-
-from rapidds.errors import RapiddsError
+from rapidds.errors import RapiddsError, os_error_line
 
 app = typer.Typer(
     name="rapidds",
@@ -47,24 +46,61 @@ def _register() -> None:
             importlib.import_module(f"{__name__}.{mod.name}")
 
 
-def main() -> None:
-    _register()
+def _typer_errors(name: str) -> tuple[type[BaseException], ...]:
+    """Every exception class called ``name`` the installed typer can raise. typer >= 0.24 vendors
+    click as ``typer._click`` (Abort and Exit then live in ``typer.exceptions``); older typer
+    raises click's own. Looked up by name in whichever layout is installed."""
+    layouts = (("typer._click.exceptions", "typer.exceptions")
+               if importlib.util.find_spec("typer._click") else ("click.exceptions",))
+    found: list[type[BaseException]] = []
+    for module in layouts:
+        cls = getattr(importlib.import_module(module), name, None)
+        if isinstance(cls, type) and issubclass(cls, BaseException) and cls not in found:
+            found.append(cls)
+    return tuple(found)
+
+
+def _quiet_broken_pipe() -> None:
+    """The reader of stdout went away (``rapidds ... | head``): stop without a word. stdout is
+    pointed at /dev/null first so the interpreter's final flush cannot fail a second time (the
+    recipe of the Python docs, "Note on SIGPIPE"); exit 1, as Python itself does on EPIPE."""
     try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout has no file descriptor (already replaced)
+        pass
+    sys.exit(1)
+
+
+def main() -> None:
+    no_args = _typer_errors("NoArgsIsHelpError")
+    usage = _typer_errors("UsageError")
+    click_error = _typer_errors("ClickException")
+    abort = _typer_errors("Abort")
+    try:
+        _register()
         rc = app(standalone_mode=False)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at interpreter exit
     except RapiddsError as exc:
         typer.echo(f"rapidds: error: {exc}", err=True)
         sys.exit(2)
-    except _cx.NoArgsIsHelpError:
+    except no_args:
         sys.exit(0)  # typer has printed the help already
-    except _cx.UsageError as exc:
+    except usage as exc:
         # One line, not click's boxed usage panel; the hint names the right --help.
-        where = exc.ctx.command_path if exc.ctx else "rapidds"
+        ctx = getattr(exc, "ctx", None)
+        where = ctx.command_path if ctx else "rapidds"
         typer.echo(f"rapidds: error: {exc.format_message()} (see '{where} --help')", err=True)
         sys.exit(2)
-    except _cx.ClickException as exc:
+    except click_error as exc:
         typer.echo(f"rapidds: error: {exc.format_message()}", err=True)
         sys.exit(exc.exit_code)
-    except _cx.Abort:
+    except (*abort, KeyboardInterrupt):
         typer.echo("rapidds: interrupted", err=True)
         sys.exit(130)
+    except BrokenPipeError:
+        _quiet_broken_pipe()
+    except OSError as exc:  # read-only file system, a file where a folder must be, no space...
+        typer.echo(f"rapidds: error: {os_error_line(exc)}", err=True)
+        sys.exit(2)
     sys.exit(rc if isinstance(rc, int) else 0)

@@ -78,6 +78,7 @@ def ablation_cmd(
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
     from rapidds.experiments.ablation import (
+        check_scheduler_address,
         check_settings,
         dask_client,
         log_session,
@@ -94,6 +95,8 @@ def ablation_cmd(
     console = Console(soft_wrap=True)
     err = Console(stderr=True, soft_wrap=True)
     where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
+    if scheduler:
+        check_scheduler_address(scheduler)  # before the study's folder is made
     with study_store(out) as store:
         check_settings(study, store)  # before starting a cluster for nothing
         try:

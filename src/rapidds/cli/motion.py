@@ -250,7 +250,7 @@ def _sample_in_world(
             "durations": durations.tolist(), "spatial": costs.tolist(), "routes": routes,
             "values": result.values.tolist(), "trajectories": trajs.tolist(),
             "picture": None if out is None else str(out),
-        }))
+        }, allow_nan=False))
         return
     counts = {r: routes.count(r) for r in sorted(set(routes))}
     typer.echo(f"{n} samples of robot task {task}" + (f" beside human {', '.join(concurrent)}"
@@ -301,6 +301,15 @@ def sample_cmd(
         "--out", help="Write a picture (PNG) of the samples.")] = None,
 ) -> None:
     """Sample trajectories for one task, optionally steered away from people (SVDD-PM)."""
+    if n < 1:
+        fail(f"-n must be >= 1, got {n}")
+    if seed < 0:
+        fail(f"--seed must be >= 0, got {seed}")
+    for name, v in (("--gamma", gamma), ("--alpha", alpha)):
+        if not (math.isfinite(v) and v >= 0):
+            fail(f"{name} must be a finite number >= 0, got {v}")
+    if candidates < 1:
+        fail(f"--candidates must be >= 1, got {candidates}")
     if world is not None:
         tasks = [t for t in (concurrent or "").split(",") if t]
         _sample_in_world(world, policy_dir, task, n, seed, tasks, spatial, gamma, candidates,
@@ -314,22 +323,14 @@ def sample_cmd(
     from rapidds.motion.steering import (
         completion_index,
         proximity_cost,
+        require_finite,
         steer,
         value_function,
     )
 
-    if n < 1:
-        fail(f"-n must be >= 1, got {n}")
-    if seed < 0:
-        fail(f"--seed must be >= 0, got {seed}")
-    for name, v in (("--gamma", gamma), ("--alpha", alpha)):
-        if not (math.isfinite(v) and v >= 0):
-            fail(f"{name} must be a finite number >= 0, got {v}")
     for name, v in (("--beta", beta), ("--dt", dt), ("--tol", tol)):
         if v is not None and not (math.isfinite(v) and v > 0):
             fail(f"{name} must be a finite number > 0, got {v}")
-    if candidates < 1:
-        fail(f"--candidates must be >= 1, got {candidates}")
     try:
         policy = DiffusionPolicy.load(policy_dir, device=device)
         cfg = policy.config
@@ -356,7 +357,7 @@ def sample_cmd(
             passes = result.stats.network_passes
         else:
             with threads:
-                trajs = policy.sample(task, n, start=start_arr, generator=seed)
+                trajs = require_finite(policy.sample(task, n, start=start_arr, generator=seed))
             values = value_fn(trajs)
             passes = cfg.num_inference_steps
         if out is not None:
@@ -378,7 +379,7 @@ def sample_cmd(
             "candidates": candidates if people else 1, "network_passes": passes,
             "completion_index": completion.tolist(), "values": values.tolist(),
             "trajectories": trajs.tolist(), "picture": None if out is None else str(out),
-        }))
+        }, allow_nan=False))
         return
     from rich.console import Console
     from rich.table import Table

@@ -125,7 +125,7 @@ def execute(
     from rapidds.plots.gantt import save_gantt
     from rapidds.store import RunStore
 
-    store = RunStore(out / "run.sqlite") if out is not None else None
+    store = RunStore(out / "run.sqlite", lock_as="rapidds run") if out is not None else None
     run = AdaptiveRun(cfg, policy, store)
     rid = run.config.run_id
     if store is not None and run.next_cycle and not resume:
@@ -273,7 +273,7 @@ def demo_cmd(
         sub = out / level
         resume = False
         if (sub / "run.sqlite").exists():
-            with RunStore(sub / "run.sqlite") as st:
+            with RunStore.open_readonly(sub / "run.sqlite") as st:
                 resume = st.last_cycle(cfg.resolved(w).run_id) is not None
         runs[level] = execute(cfg, policy, sub, resume, False, con,
                               title=f"{human or w.teammate_names[0]}, adaptation: {level}")

@@ -171,18 +171,8 @@ TrialCallback = Callable[[dict[str, Any], int, int], None]
 def study_store(out: Path) -> Iterator[RunStore]:
     """``DIR/study.sqlite``, with ``DIR/.lock`` held so two studies never write one folder (the
     lock dies with its process, so a killed run never leaves it behind)."""
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / ".lock", "w") as lock:
-        try:
-            import fcntl
-
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except ImportError:  # pragma: no cover - not POSIX: no lock, as before this check
-            pass
-        except OSError:
-            raise RapiddsError(f"another rapidds ablation is writing {out}") from None
-        with RunStore(out / STORE_NAME) as store:
-            yield store
+    with RunStore(out / STORE_NAME, lock_as="rapidds ablation") as store:
+        yield store
 
 
 def check_settings(study: StudyConfig, store: RunStore) -> None:
@@ -279,6 +269,21 @@ faults); unset, a worker runs a trial as fast as a plain process. Workers of a -
 cluster are started by whoever runs it: give them the same environment."""
 
 
+def check_scheduler_address(address: str) -> str:
+    """``address`` when Dask can read it as a scheduler's (``tcp://host:8786``, ``host:8786``,
+    ``tls://...``); otherwise a RapiddsError naming what is wrong, before anything starts."""
+    from distributed.comm.addressing import get_address_host_port
+
+    try:
+        _, port = get_address_host_port(address)
+    except ValueError as exc:
+        raise RapiddsError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}); "
+                           "expected e.g. tcp://host:8786") from None
+    if not 0 < port < 65536:
+        raise RapiddsError(f"--scheduler {address!r}: port {port} is not in 1-65535")
+    return address
+
+
 @contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Client]:
     """A client of the Dask cluster at ``scheduler``, or of a local cluster of ``workers``
@@ -288,7 +293,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
 
     if scheduler:
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(check_scheduler_address(scheduler), timeout="20s")
         except (OSError, TimeoutError) as exc:
             raise RapiddsError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         with client:

@@ -95,7 +95,7 @@ def load_study(out: Path) -> StudyData:
     incomplete: list[str] = []
     cycles: int | None = None
     settings: dict[str, Any] | None = None
-    with RunStore(path) as store:
+    with RunStore.open_readonly(path) as store:
         by_run: dict[str, list[dict[str, Any]]] = {}
         for rec in store.records():
             by_run.setdefault(rec["run_id"], []).append(rec)

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from diffusers import DDIMScheduler
 
+from rapidds.errors import CheckpointError
 from rapidds.motion.policy import DiffusionPolicy, GeneratorLike, as_generator
 
 ValueFn = Callable[[np.ndarray], np.ndarray]
@@ -69,9 +70,20 @@ class SteerResult:
         return self.trajectories[k], float(self.values[k])
 
 
+def require_finite(trajectories: np.ndarray) -> np.ndarray:
+    """``trajectories`` as they are when every coordinate is finite, else CheckpointError. A
+    network whose samples hold NaN or inf has corrupt or diverged weights; scored anyway, a NaN
+    path would count as done at once (completion index 0) and be preferred."""
+    if not np.isfinite(trajectories).all():
+        raise CheckpointError("policy produced non-finite trajectories; the checkpoint is "
+                              "corrupt or diverged")
+    return trajectories
+
+
 def _score(value_fn: ValueFn, trajectories: np.ndarray) -> np.ndarray:
-    """V for (N, H, d) -> (N,) float64; NaN counts as +inf (never preferred)."""
-    n = trajectories.shape[0]
+    """V for (N, H, d) -> (N,) float64; NaN counts as +inf (never preferred). Every candidate,
+    final samples included, passes here: non-finite trajectories stop the steering."""
+    n = require_finite(trajectories).shape[0]
     out = np.asarray(value_fn(trajectories), dtype=np.float64)
     if out.shape != (n,):
         raise ValueError(f"value_fn must return shape ({n},) for {n} trajectories, got "

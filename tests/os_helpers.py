@@ -1,0 +1,54 @@
+"""Test helpers about processes: workers for tests/test_store.py (spawned, so importable by name)
+and the privilege drop that makes permission bits count for root (tests run as root here)."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import traceback
+from typing import Any
+
+_PR_CAPBSET_DROP = 24
+_CAP_DAC_OVERRIDE, _CAP_DAC_READ_SEARCH = 1, 2
+
+
+def obey_permissions() -> None:
+    """preexec_fn: root keeps its uid but loses the capabilities that bypass permission bits,
+    so the exec'd child is refused a chmod'ed folder or file like any other user."""
+    if os.geteuid() != 0:
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    for cap in (_CAP_DAC_OVERRIDE, _CAP_DAC_READ_SEARCH):
+        if libc.prctl(_PR_CAPBSET_DROP, cap, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP) refused")
+
+
+def can_obey_permissions() -> bool:
+    """Whether obey_permissions() works here (it needs CAP_SETPCAP when run as root)."""
+    import subprocess
+    import sys
+
+    try:
+        subprocess.run([sys.executable, "-c", ""], preexec_fn=obey_permissions, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return True
+
+
+def open_rounds(barrier: Any, paths: list[str], worker: int, config: dict[str, Any],
+                results: Any) -> None:
+    """Per round: wait for every worker, then open the (new) store at once, register the run
+    and store this worker's cycle. Reports (worker, round, error or None) per round."""
+    import numpy as np
+
+    from rapidds.store import RunStore
+
+    for k, path in enumerate(paths):
+        barrier.wait()
+        try:
+            with RunStore(path) as st:
+                st.create_run("r", config)
+                st.record_cycle("r", worker, {"worker": worker}, {"a": np.arange(3.0)})
+            results.put((worker, k, None))
+        except Exception:
+            results.put((worker, k, traceback.format_exc(limit=3)))
