@@ -15,3 +15,11 @@ class CheckpointError(RapiddsError):
 
 class StateError(RapiddsError):
     """Stored state (a run database, a saved model) is corrupt or inconsistent."""
+
+
+class StudyDesignError(RapiddsError):
+    """A user-study design is impossible (e.g. cannot be balanced) or its file is malformed."""
+
+
+class StudyDataError(RapiddsError):
+    """A study data table lacks columns, holds NaN, or is unbalanced for the analysis asked."""
