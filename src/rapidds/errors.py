@@ -39,3 +39,11 @@ def os_error_line(exc: OSError) -> str:
     if exc.filename2 is not None:
         where += f" -> {os.fsdecode(exc.filename2)}"
     return f"{where}: {what}"
+
+
+class StudyDesignError(RapiddsError):
+    """A user-study design is impossible (e.g. cannot be balanced) or its file is malformed."""
+
+
+class StudyDataError(RapiddsError):
+    """A study data table lacks columns, holds NaN, or is unbalanced for the analysis asked."""
