@@ -8,6 +8,7 @@ wrong and where.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -21,10 +22,28 @@ from rapidds.errors import ProblemError
 Agent = Literal["human", "robot"]
 AGENTS: tuple[Agent, Agent] = ("human", "robot")
 
+MAX_DURATION = 1e7
+"""Longest duration a problem may state, seconds (115 days): sums, squares and Monte-Carlo
+samples of durations stay far from overflow, and no real task cycle comes near it."""
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML with the 1.2 spelling of floats: ``1e308`` and ``1.5E3`` are numbers, not strings
+    (PyYAML follows YAML 1.1, which needs a dot and a signed exponent)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
 
 def _finite(value: float, what: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{what} must be a finite number, got {value}")
+    if abs(value) > MAX_DURATION:
+        raise ValueError(f"{what} must be at most {MAX_DURATION:g} s, got {value:g}")
     return value
 
 
@@ -294,7 +313,7 @@ def load_problem(path: str | Path) -> Problem:
     except (OSError, UnicodeDecodeError) as exc:
         raise ProblemError(f"{path}: cannot read: {exc}") from None
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_Loader)  # a SafeLoader: no object construction
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark is not None else ""

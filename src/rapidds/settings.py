@@ -7,13 +7,14 @@ Every user-facing configuration (a run, a study, a world's options) derives from
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from rapidds.errors import ConfigError
 
-__all__ = ["Settings", "first_error"]
+__all__ = ["Settings", "first_error", "memory_bytes", "require_memory"]
 
 
 def first_error(exc: ValidationError) -> str:
@@ -41,3 +42,20 @@ class Settings(BaseModel):
     def replace(self, **changes: Any) -> Any:
         """A validated copy with ``changes`` applied."""
         return type(self)(**{**self.model_dump(), **changes})
+
+
+def memory_bytes() -> int:
+    """Physical memory of this machine, bytes (0 where the platform does not say)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 0
+
+
+def require_memory(nbytes: float, what: str, share: float = 0.5) -> None:
+    """Refuse up front (ConfigError) a request whose working set would need more than ``share``
+    of the machine's memory, instead of letting it swap or be killed half-way."""
+    total = memory_bytes()
+    if total and nbytes > share * total:
+        raise ConfigError(f"{what} would need about {nbytes / 2**30:,.1f} GiB of memory; "
+                          f"this machine has {total / 2**30:,.1f} GiB")

@@ -153,6 +153,15 @@ def train_policy_cmd(
                f"{history.seconds:.1f} s, final loss {history.mean_loss(last=50):.4f})")
 
 
+def _check_batch(policy: Any, n: int, candidates: int) -> None:
+    """Refuse -n x --candidates rows whose network activations would not fit in memory."""
+    from rapidds.settings import require_memory
+
+    cfg = policy.config
+    require_memory(4 * 4 * max(cfg.down_dims) * n * candidates * cfg.horizon,
+                   "-n x --candidates trajectories per network pass")
+
+
 def _parse_path(spec: str, d: int, option: str = "--steer-cost") -> np.ndarray:
     """'x,y;x,y;...' -> (P, d) points (one person's path, or one pose)."""
     from rapidds.motion.config import ConfigError
@@ -217,6 +226,7 @@ def _sample_in_world(
     torch.set_num_threads(1)
     world = make_world(world_name)
     policy = load_policy(world, policy_dir)
+    _check_batch(policy, n, candidates)
     if task not in policy.task_names:
         fail(f"task '{task}' is not one of the policy's tasks {list(policy.task_names)}")
     spatial = (SpatialModel.load(spatial_file) if spatial_file is not None
@@ -275,8 +285,10 @@ def sample_cmd(
     spatial: Annotated[Path | None, typer.Option(
         help="With --world: a saved person's spatial model (default: the population prior).")
     ] = None,
-    n: Annotated[int, typer.Option("-n", "--n", help="Number of trajectories.")] = 8,
-    seed: Annotated[int, typer.Option(help="Sampling seed (same seed, same samples).")] = 0,
+    n: Annotated[int, typer.Option("-n", "--n", min=1, max=1_000_000,
+                                   help="Number of trajectories.")] = 8,
+    seed: Annotated[int, typer.Option(min=0, max=2**63 - 1,
+                                      help="Sampling seed (same seed, same samples).")] = 0,
     start: Annotated[str | None, typer.Option(
         help="Start pose 'x,y,...' for start-conditioned policies.")] = None,
     steer_cost: Annotated[list[str] | None, typer.Option(
@@ -285,7 +297,7 @@ def sample_cmd(
     gamma: Annotated[float, typer.Option(help="Weight of the spatial cost in V.")] = 1.75,
     beta: Annotated[float, typer.Option(
         help="Distance decay of the spatial cost exp(-beta * distance).")] = 1.0,
-    candidates: Annotated[int, typer.Option(
+    candidates: Annotated[int, typer.Option(min=1, max=4096,
         help="SVDD-PM candidates M per particle and step.")] = 8,
     alpha: Annotated[float, typer.Option(
         help="SVDD-PM temperature; 0 keeps the best candidate.")] = 0.0,
@@ -301,15 +313,9 @@ def sample_cmd(
         "--out", help="Write a picture (PNG) of the samples.")] = None,
 ) -> None:
     """Sample trajectories for one task, optionally steered away from people (SVDD-PM)."""
-    if n < 1:
-        fail(f"-n must be >= 1, got {n}")
-    if seed < 0:
-        fail(f"--seed must be >= 0, got {seed}")
     for name, v in (("--gamma", gamma), ("--alpha", alpha)):
         if not (math.isfinite(v) and v >= 0):
             fail(f"{name} must be a finite number >= 0, got {v}")
-    if candidates < 1:
-        fail(f"--candidates must be >= 1, got {candidates}")
     if world is not None:
         tasks = [t for t in (concurrent or "").split(",") if t]
         _sample_in_world(world, policy_dir, task, n, seed, tasks, spatial, gamma, candidates,
@@ -333,6 +339,7 @@ def sample_cmd(
             fail(f"{name} must be a finite number > 0, got {v}")
     try:
         policy = DiffusionPolicy.load(policy_dir, device=device)
+        _check_batch(policy, n, candidates)
         cfg = policy.config
         if start is not None and ";" in start:
             raise ConfigError(f"--start {start!r}: give one pose 'x,y,...'")

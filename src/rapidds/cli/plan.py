@@ -23,6 +23,7 @@ import typer
 from rapidds.cli import app, fail
 from rapidds.errors import RapiddsError
 from rapidds.scheduler.config import GAConfig
+from rapidds.settings import require_memory
 
 if TYPE_CHECKING:
     import numpy as np
@@ -188,12 +189,15 @@ def plan(
         ..., help="Problem YAML file, or the name of a bundled example (fetch, painting, ...)."
     ),
     seed: int | None = typer.Option(
-        None, help="Random seed for duration samples and the search.",
+        None, min=0, max=2**63 - 1, help="Random seed for duration samples and the search.",
         show_default="random, reported",
     ),
-    population: int = typer.Option(_GA.population, help="GA population size C."),
-    generations: int = typer.Option(_GA.generations, help="Maximum GA generations G."),
-    samples: int = typer.Option(_GA.samples, help="Monte-Carlo samples K of human durations."),
+    population: int = typer.Option(_GA.population, min=2, max=100_000,
+                                   help="GA population size C."),
+    generations: int = typer.Option(_GA.generations, min=1, max=1_000_000,
+                                    help="Maximum GA generations G."),
+    samples: int = typer.Option(_GA.samples, min=1, max=100_000,
+                                help="Monte-Carlo samples K of human durations."),
     gamma: float | None = typer.Option(
         None, help="Proximity weight.", show_default="the problem file's"
     ),
@@ -218,6 +222,13 @@ def plan(
 
     try:
         prob = load_problem(resolve_problem(problem)).with_objective(gamma, lam)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    try:
+        # a generation's Monte-Carlo timelines: C candidates x K samples x n tasks, a few arrays
+        require_memory(8 * 8 * population * samples * len(prob.tasks),
+                       "this search (--population x --samples)")
     except RapiddsError as exc:
         fail(str(exc))
         return

@@ -43,6 +43,7 @@ from rapidds.scheduler import (
     evaluate_population,
     solve_exact,
 )
+from rapidds.settings import require_memory
 from rapidds.store import RunStore
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.registry import make_world
@@ -122,6 +123,13 @@ class AdaptiveRun:
         if self.config.adapt == "oracle" and not isinstance(self.teammate, SimulatedTeammate):
             raise RapiddsError("--adapt oracle needs a simulated teammate (it plans with their "
                                "true model)")
+        c = self.config
+        n, h, d = len(self.world.task_ids), self.world.horizon, self.world.state_dim
+        # a generation's timelines (C x K x n, a few arrays) and one steering batch of every
+        # motion request of a generation (C x n requests x B x M rows, network activations)
+        require_memory(8 * 8 * c.population * c.samples * n
+                       + 4 * 256 * c.population * n * c.particles * c.candidates * h * d,
+                       "this search (--population, --samples, --particles, --candidates)")
         self.policy = policy or load_policy(self.world)
         self.store = store
         self.problem: Problem = self.world.problem().with_objective(

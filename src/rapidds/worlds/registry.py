@@ -78,10 +78,12 @@ def make_world(name: str, variant: str | None = None) -> World:
     if name not in entries:
         raise UnknownWorldError(f"unknown world '{name}'; available: {', '.join(entries)}")
     factory = _resolve(name, entries[name])
-    world = factory() if variant is None else factory(variant=variant)
+    world = factory()
     if not isinstance(world, World):
         raise UnknownWorldError(f"world '{name}' does not implement rapidds.worlds.base.World")
-    if variant is not None and variant not in world.variants:
+    if variant is None or variant == world.variant:
+        return world
+    if variant not in world.variants:
         raise UnknownWorldError(f"world '{name}' has no variant '{variant}'; "
                                 f"variants: {', '.join(world.variants)}")
-    return world
+    return factory(variant=variant)
