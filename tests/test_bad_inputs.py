@@ -25,6 +25,10 @@ CASES: list[tuple[str, str]] = [
     # plan
     ("plan fetch --samples 100000000", "Invalid value for '--samples'"),
     ("plan fetch --population 1", "Invalid value for '--population'"),
+    ("plan fetch --population 0", "Invalid value for '--population'"),
+    ("plan fetch --samples 0", "Invalid value for '--samples'"),
+    ("plan fetch --gamma nan", "--gamma must be a finite number >= 0"),
+    ("plan fetch --exact --time-limit 0", "--time-limit must be a number of seconds > 0"),
     ("plan fetch --population 100000 --samples 100000", "would need about"),
     ("plan fetch --seed -3", "Invalid value for '--seed'"),
     ("plan fetch --generations 0", "Invalid value for '--generations'"),

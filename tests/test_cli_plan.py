@@ -188,31 +188,6 @@ def test_text_output():
     assert "exact CP-SAT" in exact.stdout and "optimal" in exact.stdout
 
 
-@pytest.mark.parametrize(
-    ("args", "fragment"),
-    [
-        (["--population", "0"], "--population"),
-        (["--population", "1"], "--population"),
-        (["--generations", "0"], "--generations"),
-        (["--samples", "0"], "--samples"),
-        (["--seed", "-1"], "--seed"),
-        (["--gamma", "-1"], "--gamma"),
-        (["--gamma", "nan"], "--gamma"),
-        (["--lam", "inf"], "--lam"),
-        (["--sampling", "gaussian"], "--sampling"),
-        (["--exact", "--time-limit", "0"], "--time-limit"),
-        (["--time-limit", "-3"], "--time-limit"),
-    ],
-)
-def test_bad_option_values_exit_2_with_one_line(args, fragment):
-    result = invoke(str(FETCH), *args, "--json")
-    assert result.exit_code == 2
-    assert result.stdout == ""
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("rapidds: error: ") and fragment in lines[0]
-
-
 def test_unknown_problem_name_lists_bundled():
     result = invoke("no-such-example")
     assert result.exit_code == 2

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,39 +16,8 @@ import numpy as np
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
-
-
-@contextmanager
-def _loss_bar(enabled: bool, total: int) -> Iterator[Callable[[int, float], None] | None]:
-    """A rich progress bar with the running loss on stderr, or None when disabled."""
-    if not enabled:
-        yield None
-        return
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    with Progress(
-        TextColumn("training"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TimeRemainingColumn(),
-        console=Console(stderr=True), transient=True,
-    ) as bar:
-        task = bar.add_task("train", total=total, loss="-")
-        smooth: list[float] = []
-
-        def update(step: int, loss: float) -> None:
-            smooth.append(loss)
-            del smooth[:-50]
-            bar.update(task, completed=step, loss=f"{np.mean(smooth):.4f}")
-
-        yield update
 
 
 def _read_config_file(path: Path) -> dict[str, Any]:
@@ -143,8 +109,15 @@ def train_policy_cmd(
             fields["epochs"] = None
         cfg = DiffusionConfig.from_dict(fields)
         n_steps = total_steps(len(data), cfg)
-        with _loss_bar(sys.stderr.isatty(), n_steps) as progress:
-            policy, history = train_policy(data, cfg, progress=progress)
+        smooth: list[float] = []
+
+        with progress("training", n_steps) as update:
+            def on_step(step: int, loss: float) -> None:
+                smooth.append(loss)
+                del smooth[:-50]
+                update(step, f"loss {sum(smooth) / len(smooth):.4f}")
+
+            policy, history = train_policy(data, cfg, progress=on_step)
         where = policy.save(out)
     except RapiddsError as exc:
         fail(str(exc))

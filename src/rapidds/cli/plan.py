@@ -12,15 +12,13 @@ import json
 import math
 import secrets
 import shutil
-import sys
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, cast
 
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
 from rapidds.scheduler.config import GAConfig
 from rapidds.settings import require_memory
@@ -77,30 +75,6 @@ def _check_options(
         fail(f"--sampling must be one of {', '.join(SAMPLING_METHODS)}, got {sampling!r}")
     if not (math.isfinite(time_limit) and time_limit > 0):
         fail(f"--time-limit must be a number of seconds > 0, got {time_limit}")
-
-
-@contextmanager
-def _progress(enabled: bool, total: int) -> Iterator[Callable[[int, float], None] | None]:
-    """A rich progress bar on stderr for the GA generations, or None when disabled. It may end
-    short of ``total``: the search stops early when it stalls."""
-    if not enabled:
-        yield None
-        return
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-
-    with Progress(
-        TextColumn("generations"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("{task.fields[best]}"),
-        console=Console(stderr=True), transient=True,
-    ) as bar:
-        task = bar.add_task("ga", total=total, best="")
-
-        def update(generation: int, best_objective: float) -> None:
-            best = f"best {best_objective:.2f}" if math.isfinite(best_objective) else ""
-            bar.update(task, completed=generation, best=best)
-
-        yield update
 
 
 def _expected_timeline(
@@ -266,9 +240,11 @@ def plan(
         except ValueError as exc:
             fail(str(exc))
             return
-        with _progress(not as_json and sys.stderr.isatty(), generations) as progress:
+        with progress("generations", generations, quiet=as_json) as update:
             ga_result = GeneticScheduler(prob, motion, config).solve(
-                human_samples, human_mean, progress=progress
+                human_samples, human_mean,
+                progress=lambda g, best: update(g, f"best {best:.2f}" if math.isfinite(best)
+                                                else ""),
             )
         evaluation = ga_result.best
         extra = {

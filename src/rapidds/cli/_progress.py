@@ -1,0 +1,60 @@
+"""Progress of long work on stderr: a bar on a terminal, a log line every few seconds otherwise
+(CI, ``nohup``, a pipe), so long commands never sit silent for minutes."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+Update = Callable[[int, str], None]
+"""update(done, info): ``done`` units of ``total`` finished; ``info`` a short status."""
+
+LOG_EVERY_S = 5.0
+
+
+@contextmanager
+def progress(label: str, total: int, *, quiet: bool = False,
+             every: float = LOG_EVERY_S) -> Iterator[Update]:
+    """Report ``done / total`` of ``label``; silent when ``quiet`` (e.g. with ``--json``)."""
+    if quiet:
+        yield lambda done, info: None
+        return
+    if sys.stderr.isatty():
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        with Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
+                      TimeRemainingColumn(), console=Console(stderr=True),
+                      transient=True) as bar:
+            task = bar.add_task(label, total=total, info="")
+            yield lambda done, info: bar.update(task, completed=done, info=info)
+        return
+    t0 = last = time.monotonic()
+    state = {"done": 0, "info": ""}
+
+    def log(final: bool = False) -> None:
+        tail = f", {state['info']}" if state["info"] else ""
+        print(f"{label}: {state['done']}/{total}{tail} ({time.monotonic() - t0:.0f} s"
+              f"{', done' if final else ''})", file=sys.stderr, flush=True)
+
+    def update(done: int, info: str) -> None:
+        nonlocal last
+        state.update(done=done, info=info)
+        now = time.monotonic()
+        if now - last >= every:
+            last = now
+            log()
+
+    yield update
+    if time.monotonic() - t0 >= every:
+        log(final=True)
