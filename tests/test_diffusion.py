@@ -403,7 +403,6 @@ def test_cli_trains_and_samples(tmp_path, demos):
     (["train-policy", "--demos", "/nonexistent.npz", "--out", "x"], "does not exist"),
     (["sample", "--policy", "{ckpt}", "--task", "left"], "does not know task"),
     (["sample", "--policy", "{ckpt}", "--task", "up", "--steer-cost", "1,2,3"], "2 finite"),
-    (["sample", "--policy", "{ckpt}", "--task", "up", "-n", "0"], "-n must be"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(ckpt, args, message):
     result = _cli(*[a.replace("{ckpt}", str(ckpt)) for a in args])
