@@ -17,6 +17,7 @@ from rapidds.cli import _register, app
 from rapidds.errors import CheckpointError, RapiddsError
 from rapidds.motion.config import ConfigError, DiffusionConfig
 from rapidds.motion.demos import DemonstrationError, Demonstrations, two_route_demos
+from rapidds.motion.inference import FastUnet, mish
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.policy import CONFIG_FILE, WEIGHTS_FILE, DiffusionPolicy
 from rapidds.motion.train import check_compatible, total_steps, train_policy
@@ -140,6 +141,84 @@ def test_unet_output_depends_on_step_and_condition():
     t3, t40 = torch.tensor([3]), torch.tensor([40])
     assert not torch.allclose(net(x, t3, a), net(x, t3, b))
     assert not torch.allclose(net(x, t3, a), net(x, t40, a))
+
+
+# -- inference copy of the U-Net -------------------------------------------------------------
+def test_fast_mish_is_mish_everywhere():
+    x = torch.cat([torch.linspace(-200.0, 200.0, 40001), torch.randn(10000) * 3])
+    fast = mish(x)
+    assert torch.isfinite(fast).all()
+    assert torch.allclose(fast, torch.nn.functional.mish(x), rtol=1e-6, atol=2e-6)
+    assert torch.equal(x, torch.cat([torch.linspace(-200.0, 200.0, 40001), x[40001:]]))
+
+
+@pytest.mark.parametrize("horizon, d, dims, start, kernel", [
+    (16, 2, (16, 32), False, 5), (32, 7, (16, 32, 64), True, 3), (8, 1, (8,), False, 5),
+    (64, 2, (16, 32, 64), False, 5),
+])
+def test_fast_unet_computes_the_training_network(horizon, d, dims, start, kernel):
+    cfg = DiffusionConfig(horizon=horizon, state_dim=d, down_dims=dims, n_groups=8,
+                          task_names=("a", "b", "c"), start_conditioned=start,
+                          step_embed_dim=16, kernel_size=kernel)
+    torch.manual_seed(1)
+    net = TemporalUnet1d(cfg).eval()
+    with torch.no_grad():  # non-zero biases everywhere, so none of them can be dropped silently
+        for p in net.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    fast = FastUnet(net)
+    x, cond = torch.randn(6, horizon, d), torch.randn(6, cfg.cond_dim)
+    with torch.no_grad():
+        for t in (torch.randint(0, 100, (6,)), torch.full((6,), 37), torch.tensor(5)):
+            ref = net(x, t, cond)
+            assert torch.allclose(fast(x, t, cond), ref, rtol=1e-5, atol=1e-5)
+        one = fast(x[:1], torch.tensor([9]), cond[:1])
+        assert torch.allclose(one, net(x[:1], torch.tensor([9]), cond[:1]), atol=1e-5)
+    with pytest.raises(ValueError, match="cond"):
+        fast(x, torch.zeros(6, dtype=torch.long), torch.randn(6, cfg.cond_dim + 1))
+    with pytest.raises(TypeError, match="TemporalUnet1d"):
+        FastUnet(torch.nn.Linear(2, 2))
+
+
+def test_policy_denoiser_follows_the_weights(trained):
+    policy, _ = trained
+    copy = DiffusionPolicy.from_config(policy.config, policy.normalizer)
+    copy.model.load_state_dict(policy.model.state_dict())
+    x, t = torch.randn(4, 16, 2), torch.full((4,), 20)
+    cond = copy.condition("right", 4)
+    first = copy.denoiser()
+    assert isinstance(first, FastUnet) and copy.denoiser() is first  # built once, then reused
+    before = first(x, t, cond)
+    with torch.no_grad():  # an in-place change, as an optimiser step makes
+        next(copy.model.parameters()).mul_(1.5)
+    after = copy.denoiser()
+    assert after is not first and not torch.allclose(after(x, t, cond), before)
+    with torch.no_grad():
+        assert torch.allclose(after(x, t, cond), copy.model(x, t, cond), atol=1e-5)
+    copy.model.load_state_dict(policy.model.state_dict())  # copies in place: rebuilt again
+    assert torch.allclose(copy.denoiser()(x, t, cond), before)
+    copy.fast_inference = False
+    assert copy.denoiser() is copy.model
+
+
+def test_fast_sampling_matches_the_reference_network(trained):
+    policy, _ = trained
+    fast = policy.sample(["right", "up"] * 4, 8, generator=3)
+    policy.fast_inference = False
+    try:
+        ref = policy.sample(["right", "up"] * 4, 8, generator=3)
+    finally:
+        policy.fast_inference = True
+    assert np.allclose(fast, ref, atol=1e-4) and not np.array_equal(fast, ref)
+
+
+def test_sampling_steps_can_be_overridden(trained):
+    policy, _ = trained
+    assert len(policy.timesteps(3)) == 3 and len(policy.timesteps()) == 8
+    assert not np.allclose(policy.sample("right", 4, generator=1, num_steps=3),
+                           policy.sample("right", 4, generator=1))
+    for bad in (0, 51, 2.5, True):
+        with pytest.raises(ValueError, match="num_steps"):
+            policy.sample("right", 2, num_steps=bad)
 
 
 # -- demonstrations -------------------------------------------------------------------------

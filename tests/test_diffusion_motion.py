@@ -74,6 +74,23 @@ def test_bad_steering_config_rejected():
         SteeringConfig(particles=0)
     with pytest.raises(ValueError, match="alpha"):
         SteeringConfig(alpha=float("nan"))
+    with pytest.raises(ValueError, match="steps"):
+        SteeringConfig(steps=0)
+
+
+def test_steering_steps_reach_the_policy(world, motion, monkeypatch):
+    five = DiffusionMotion(motion.policy, world.completion_time, motion.spatial_cost, 1.75,
+                           SteeringConfig(particles=2, candidates=2, seed=3, steps=5))
+    rows: list[int] = []
+    net = motion.policy.denoiser()
+
+    def counting(x, t, cond):
+        rows.append(x.shape[0])
+        return net(x, t, cond)
+
+    monkeypatch.setattr(motion.policy, "denoiser", lambda: counting)
+    five.plan([("t1", frozenset())])
+    assert rows == [2] + [4] * 4  # x_T, then particles x candidates rows for 4 more steps
 
 
 @pytest.mark.slow

@@ -34,6 +34,7 @@ class RunConfig(Settings):
     seed: cycle c draws every random number from (seed, c).
     population, generations, samples, patience: genetic search (C, G, K, early stop).
     particles, candidates: steered samples per motion request (B) and SVDD candidates (M).
+    steps: reverse diffusion steps per motion (None: the policy's own).
     beta, rho: spatial distance decay (1 / workspace unit; None: the world's) and observation
         noise variance. grid_points: spatial grid points per axis (None: the world's).
     surrogate: evaluate spatial costs with the MLP surrogate (the paper) instead of exact grid
@@ -54,6 +55,7 @@ class RunConfig(Settings):
     patience: Annotated[int, Field(ge=0)] = 8
     particles: Annotated[int, Field(ge=1, le=4096)] = 4
     candidates: Annotated[int, Field(ge=1, le=4096)] = 8
+    steps: Annotated[int, Field(ge=1, le=1000)] | None = None
     beta: Annotated[float, Field(gt=0)] | None = None
     rho: Annotated[float, Field(gt=0)] = 0.05
     grid_points: Annotated[int, Field(ge=2, le=512)] | None = None

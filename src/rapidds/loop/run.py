@@ -215,7 +215,7 @@ class AdaptiveRun:
             self.policy, self.world.completion_time,
             workspace_cost(self.world, self._spatial()), gamma,
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
-                           seed=int(rng.integers(2**31))),
+                           seed=int(rng.integers(2**31)), steps=cfg.steps),
         )
         ga_seed = int(rng.integers(2**31))
         lam = 0.0 if exact else cfg.lam_at(c)

@@ -35,16 +35,22 @@ class SteeringConfig:
         softmax(-V / alpha).
     seed: base seed; call k of a DiffusionMotion uses seed + k, so a deterministic scheduler
         gives deterministic motions.
+    steps: reverse diffusion steps S per sample; None uses the policy's
+        ``num_inference_steps``. A request costs particles * (1 + candidates * (S - 1))
+        network rows, so halving S halves the cost (docs/benchmarks.md, "Motion", has V per S).
     """
 
     particles: int = 4
     candidates: int = 8
     alpha: float = 0.0
     seed: int = 0
+    steps: int | None = None
 
     def __post_init__(self) -> None:
-        for name in ("particles", "candidates"):
+        for name in ("particles", "candidates", "steps"):
             v = getattr(self, name)
+            if name == "steps" and v is None:
+                continue
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if not (math.isfinite(self.alpha) and self.alpha >= 0):
@@ -105,6 +111,7 @@ class DiffusionMotion:
             num_candidates=cfg.candidates,
             alpha=cfg.alpha,
             generator=cfg.seed + self.calls,
+            num_steps=cfg.steps,
         )
         self.calls += 1
         self.rows += len(tasks) * cfg.candidates

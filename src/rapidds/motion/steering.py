@@ -105,10 +105,11 @@ def _select(values: np.ndarray, alpha: float, generator: torch.Generator | None)
     return torch.multinomial(probs, 1, generator=generator).squeeze(1).numpy()
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
           value_fn: ValueFn, *, num_candidates: int = 8, alpha: float = 0.0,
-          start: np.ndarray | None = None, generator: GeneratorLike = None) -> SteerResult:
+          start: np.ndarray | None = None, generator: GeneratorLike = None,
+          num_steps: int | None = None) -> SteerResult:
     """Sample ``n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
 
     task: one task name or one per particle; start: (d,) or (B, d) for start-conditioned
@@ -117,6 +118,8 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
     sampling: same seed, same trajectories as :meth:`DiffusionPolicy.sample`).
     alpha: 0 keeps the best candidate (the SVDD authors' choice); alpha > 0 draws from
     softmax(-V / alpha), V in value_fn's units. generator: seed or CPU generator.
+    num_steps: reverse steps S (default: the policy's ``num_inference_steps``); a step costs M
+    network passes, so fewer steps are proportionally cheaper.
     """
     b, m = n_particles, num_candidates
     if isinstance(b, bool) or not isinstance(b, int) or b < 1:
@@ -135,7 +138,7 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
     policy.model.eval()
     cond = policy.condition(task, b, start)                    # (B, c)
     cond_rep = cond.repeat_interleave(m, dim=0)                # (B*M, c), particle-major
-    timesteps = policy.timesteps()
+    timesteps = policy.timesteps(num_steps)
     stats = SteerStats(b, m, len(timesteps))
 
     def network(x: torch.Tensor, t: int, c: torch.Tensor) -> torch.Tensor:

@@ -17,6 +17,15 @@ from torch import Tensor, nn
 from rapidds.motion.config import DiffusionConfig
 
 
+def check_inputs(x: Tensor, cond: Tensor, state_dim: int, cond_dim: int) -> None:
+    """ValueError unless x is (B, H, state_dim) and cond (B, cond_dim)."""
+    if x.ndim != 3 or x.shape[-1] != state_dim:
+        raise ValueError(f"expected x of shape (B, H, {state_dim}), got {tuple(x.shape)}")
+    if cond.shape != (x.shape[0], cond_dim):
+        raise ValueError(f"expected cond of shape ({x.shape[0]}, {cond_dim}), got "
+                         f"{tuple(cond.shape)}")
+
+
 class SinusoidalStepEmbedding(nn.Module):
     """Diffusion step t (B,) -> (B, dim) sin/cos features at geometric frequencies."""
 
@@ -111,11 +120,7 @@ class TemporalUnet1d(nn.Module):
         )
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor) -> Tensor:
-        if x.ndim != 3 or x.shape[-1] != self.state_dim:
-            raise ValueError(f"expected x of shape (B, H, {self.state_dim}), got {tuple(x.shape)}")
-        if cond.shape != (x.shape[0], self.cond_dim):
-            raise ValueError(f"expected cond of shape ({x.shape[0]}, {self.cond_dim}), got "
-                             f"{tuple(cond.shape)}")
+        check_inputs(x, cond, self.state_dim, self.cond_dim)
         if t.ndim == 0:
             t = t.expand(x.shape[0])
         film = torch.cat([self.step_encoder(t), cond.to(x.dtype)], dim=-1)
