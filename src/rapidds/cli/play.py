@@ -19,6 +19,7 @@ from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 
 if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CycleResult
+    from rapidds.web.session import PlaySession
 
 _D = RunConfig.model_fields
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,39}")
@@ -68,21 +69,53 @@ def play_cmd(
                     seed=seed, population=population, generations=generations, samples=samples,
                     particles=particles, candidates=candidates)
 
-    from rapidds.cli.run import gantt_path, set_threads, write_pictures
-    from rapidds.loop.run import load_policy
-    from rapidds.web.player import BrowserPlayer
     from rapidds.web.server import listen, serve
-    from rapidds.web.session import STORE_NAME, PlaySession
-    from rapidds.worlds.fetch.world import FetchWorld
-    from rapidds.worlds.registry import make_world
+    from rapidds.web.session import STORE_NAME
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
                         format="rapidds play: %(levelname)s: %(message)s")
-    set_threads(threads)
-    w = make_world(world)
-    assert isinstance(w, FetchWorld)
-    loaded = load_policy(w, policy)
+    sock = listen(host, port)  # first: a taken port is said before seconds of loading
+    with contextlib.closing(sock):
+        session = _session(cfg, out, policy, player, hz, speed, resume, threads)
+        try:
+            session.open()
+            bound = sock.getsockname()
+            shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
+            url = f"http://{shown}:{bound[1]}/"
 
+            def ready() -> None:
+                typer.echo(f"rapidds play: open {url} (run {session.run_id}, cycle "
+                           f"{session.stored + 1} of {cycles}; Ctrl-C stops, finished cycles "
+                           f"are kept in {out / STORE_NAME})")
+                if host not in ("127.0.0.1", "localhost", "::1"):
+                    typer.echo(f"rapidds play: listening on {host}: other machines can reach "
+                               "it", err=True)
+                sys.stdout.flush()
+
+            # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop
+            with contextlib.suppress(KeyboardInterrupt):
+                serve(session, sock, hz=hz, on_ready=ready)
+        finally:
+            session.stop()
+    typer.echo(f"stopped: {session.stored} of {cycles} cycles of {session.run_id} stored in "
+               f"{out / STORE_NAME}" + ("" if session.stored >= cycles else
+                                        "; continue with --resume"))
+
+
+def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: int, speed: float,
+             resume: bool, threads: int) -> PlaySession:
+    """The person's run: the fetch world, the policy, the player; Gantt charts and the run's
+    pictures drawn when the game stops, as ``rapidds run`` draws them."""
+    from rapidds.cli.run import gantt_path, set_threads, write_pictures
+    from rapidds.loop.run import load_policy
+    from rapidds.web.player import BrowserPlayer
+    from rapidds.web.session import PlaySession
+    from rapidds.worlds.fetch.world import FetchWorld
+    from rapidds.worlds.registry import make_world
+
+    set_threads(threads)
+    world = make_world("fetch")
+    assert isinstance(world, FetchWorld)
     played: list[CycleResult] = []
 
     def on_cycle(run: AdaptiveRun, res: CycleResult) -> None:
@@ -102,31 +135,6 @@ def play_cmd(
         if run.next_cycle:
             write_pictures(run, out)
 
-    session = PlaySession(cfg, out, world=w, policy=loaded,
-                          player=BrowserPlayer(w, player, hz=hz, speed=speed), resume=resume,
-                          on_cycle=on_cycle, on_stop=on_stop)
-    sock = listen(host, port)
-    try:
-        session.open()
-        bound = sock.getsockname()
-        shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
-        url = f"http://{shown}:{bound[1]}/"
-
-        def ready() -> None:
-            typer.echo(f"rapidds play: open {url} (run {session.run_id}, cycle "
-                       f"{session.stored + 1} of {cycles}; Ctrl-C stops, finished cycles are "
-                       f"kept in {out / STORE_NAME})")
-            if host not in ("127.0.0.1", "localhost", "::1"):
-                typer.echo(f"rapidds play: listening on {host}: other machines can reach it",
-                           err=True)
-            sys.stdout.flush()
-
-        # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop
-        with contextlib.suppress(KeyboardInterrupt):
-            serve(session, sock, hz=hz, on_ready=ready)
-    finally:
-        sock.close()
-        session.stop()
-    typer.echo(f"stopped: {session.stored} of {cycles} cycles of {session.run_id} stored in "
-               f"{out / STORE_NAME}" + ("" if session.stored >= cycles else
-                                        "; continue with --resume"))
+    return PlaySession(cfg, out, world=world, policy=load_policy(world, policy),
+                       player=BrowserPlayer(world, player, hz=hz, speed=speed), resume=resume,
+                       on_cycle=on_cycle, on_stop=on_stop)

@@ -126,14 +126,15 @@ class PlaySession:
             from rapidds.loop.run import AdaptiveRun
 
             store = RunStore(self.out / STORE_NAME)
-            run = AdaptiveRun(self.config, self.policy, store, self.world, teammate=self.player)
-            if run.next_cycle and not self.resume:
+            last = store.last_cycle(self.run_id)  # checked before the run is registered
+            if last is not None and not self.resume:
                 raise RapiddsError(
-                    f"{self.out} already holds run '{self.run_id}' ({run.next_cycle} cycles); "
+                    f"{self.out} already holds run '{self.run_id}' ({last + 1} cycles); "
                     "pass --resume to continue it or choose another --out")
-            if self.resume and not run.next_cycle:
+            if self.resume and last is None:
                 raise RapiddsError(f"{self.out} holds no cycle of run '{self.run_id}' to "
                                    "resume; start it without --resume")
+            run = AdaptiveRun(self.config, self.policy, store, self.world, teammate=self.player)
             if run.finished:
                 raise RapiddsError(f"run '{self.run_id}' in {self.out} is finished "
                                    f"({run.config.cycles} cycles)")
