@@ -17,11 +17,13 @@ from rapidds.loop.config import RunConfig
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import MAX_MESSAGE_BYTES, Gate, Refused
-from rapidds.web.server import create_app
+from rapidds.web.server import allowed_hosts, create_app
 from rapidds.web.session import PlaySession
 from rapidds.worlds.fetch.world import FetchWorld
 
 SEARCH = dict(population=8, generations=4, samples=8, patience=2, particles=2, candidates=4)
+BASE = "http://127.0.0.1:8765"
+WS = "ws://127.0.0.1:8765/ws"
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,7 @@ def client(tmp_path_factory: pytest.TempPathFactory, fetch_world: FetchWorld,
                           player=BrowserPlayer(fetch_world, "web"))
     session.open()
     try:
-        with TestClient(create_app(session)) as c:
+        with TestClient(create_app(session), base_url=BASE) as c:
             yield c
     finally:
         session.stop()
@@ -57,7 +59,7 @@ def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
 
 
 def test_a_page_gets_the_scene_the_plan_and_the_live_state(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         welcome = _until(ws, "welcome")
         assert welcome["run_id"] == "fetch-web-full-s0" and welcome["hz"] == 60
         assert len(welcome["scene"]["walls"]) == 4
@@ -81,7 +83,7 @@ def test_bad_messages_are_refused_and_logged_and_the_game_goes_on(
         json.dumps({"type": "start", "seq": 7, "cycle": 1}),  # not the cycle on screen
     ]
     with caplog.at_level(logging.WARNING, logger="rapidds.web"), \
-            client.websocket_connect("/ws") as ws:
+            client.websocket_connect(WS) as ws:
         _until(ws, "welcome")
         for raw in bad:
             ws.send_text(raw)
@@ -104,15 +106,15 @@ def test_bad_messages_are_refused_and_logged_and_the_game_goes_on(
     refusals = [r for r in caplog.records if "refused a message" in r.getMessage()]
     assert len(refusals) == len(bad) + 4
     # leaving mid-cycle puts the cycle back to its start for the next page
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         assert _until(ws, "phase")["phase"] == "ready"
         assert _until(ws, "state")["t"] == 0
 
 
 def test_one_player_per_run_and_same_origin_only(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as first:
+    with client.websocket_connect(WS) as first:
         _until(first, "welcome")
-        with client.websocket_connect("/ws") as second:
+        with client.websocket_connect(WS) as second:
             msg = json.loads(second.receive_text())
             assert msg["type"] == "refused" and "another browser" in msg["reason"]
             with pytest.raises(WebSocketDisconnect) as closed:
@@ -120,9 +122,22 @@ def test_one_player_per_run_and_same_origin_only(client: TestClient) -> None:
             assert closed.value.code == 4009
         _until(first, "state")  # the first one plays on
     with pytest.raises(WebSocketDisconnect) as refused, client.websocket_connect(
-            "/ws", headers={"origin": "http://evil.example"}) as ws:
+            WS, headers={"origin": "http://evil.example"}) as ws:
         ws.receive_text()
     assert refused.value.code == 1008
+
+
+def test_another_host_name_is_refused(client: TestClient) -> None:
+    """A page of another site that rebinds its name to 127.0.0.1 sends its own Host (and a
+    matching Origin): neither the page nor the socket answers it."""
+    evil = {"host": "evil.example:8765", "origin": "http://evil.example:8765"}
+    assert client.get("/", headers=evil).status_code == 400
+    with pytest.raises(WebSocketDisconnect), client.websocket_connect(WS, headers=evil) as ws:
+        ws.receive_text()
+    assert allowed_hosts("127.0.0.1") == ["127.0.0.1", "::1", "localhost"]
+    assert allowed_hosts("::1") == ["127.0.0.1", "::1", "localhost"]
+    assert allowed_hosts("192.168.1.7") == ["127.0.0.1", "192.168.1.7", "::1", "localhost"]
+    assert allowed_hosts("0.0.0.0") == ["*"]
 
 
 def test_the_gate_limits_the_message_rate() -> None:

@@ -11,7 +11,8 @@ control messages and then only the newest state (older ones are dropped, not que
 that a state where the cycle turns (started, the person's part done, over) is always sent.
 
 Safety: one player per run (a second page is told so and closed); a WebSocket from another
-origin (a page of another site trying to drive the game) is refused; every message passes
+origin (a page of another site trying to drive the game) is refused, and so is a request for
+another host name than the server's (DNS rebinding); every message passes
 :class:`rapidds.web.protocol.Gate` (refused ones are logged and answered, never raised);
 uvicorn closes the socket on a frame over 4 KiB. Nothing the client sends names a file.
 """
@@ -25,28 +26,59 @@ import logging
 import socket
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from importlib.resources import files
-from typing import Any
+from typing import Any, Protocol
 from urllib.parse import urlsplit
 
 from fastapi import FastAPI, WebSocket
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.websockets import WebSocketState
 
 from rapidds.errors import RapiddsError
+from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import Gate, Move, Refused, Start, Target
-from rapidds.web.session import PlaySession
 
-__all__ = ["Hub", "create_app", "listen", "serve"]
+__all__ = ["LOOPBACK", "GameSession", "Hub", "allowed_hosts", "create_app", "listen", "serve"]
 
 log = logging.getLogger("rapidds.web")
 
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
 WS_MAX_BYTES = 4096  # uvicorn closes the socket on a larger frame (the gate refuses > 256 B)
 _LOGGED_REFUSALS = 20  # per connection; then every 100th, so a flood cannot flood the log
 _BUSY = ("another browser is already playing this run; close it (or its tab) and reload this "
          "page")
+
+
+class GameSession(Protocol):
+    """What the server shows of a run: :class:`rapidds.web.session.PlaySession` is one; a study
+    harness that runs its own loop around a :class:`BrowserPlayer` can bring its own."""
+
+    player: BrowserPlayer
+    summary: dict[str, Any] | None
+    summary_version: int
+    stored: int
+    error: str | None
+
+    @property
+    def phase(self) -> str:
+        """"waiting", "ready", "playing", "over", "done" or "error"."""
+        ...
+
+    def info(self) -> dict[str, Any]:
+        """The welcome message's content: run id, cycles, player, hz, the scene."""
+        ...
+
+
+def allowed_hosts(host: str) -> list[str]:
+    """Host names the server answers to: the loopback names and the address it listens on, so
+    a page of another site cannot reach a local server by DNS rebinding; any name when it
+    listens on every interface (the user opened it with --host)."""
+    if host in ("", "0.0.0.0", "::"):
+        return ["*"]
+    return sorted({*LOOPBACK, host.lower().strip("[]")})
 
 
 def _dumps(obj: Any) -> str:
@@ -89,7 +121,7 @@ class _Connection:
 class Hub:
     """The tick loop and the (at most one) connected player of ``session``."""
 
-    def __init__(self, session: PlaySession, hz: int = 60):
+    def __init__(self, session: GameSession, hz: int = 60):
         self.session, self.player, self.hz = session, session.player, hz
         self.conn: _Connection | None = None
         self.ticks = 0
@@ -212,8 +244,10 @@ def _static(name: str) -> str:
     return (files("rapidds.web") / "static" / name).read_text(encoding="utf-8")
 
 
-def create_app(session: PlaySession, hz: int = 60) -> FastAPI:
-    """The ASGI app of ``session``: the page, its assets and the player's WebSocket."""
+def create_app(session: GameSession, hz: int = 60,
+               hosts: Sequence[str] = LOOPBACK) -> FastAPI:
+    """The ASGI app of ``session``: the page, its assets and the player's WebSocket; requests
+    for another host name than ``hosts`` are refused (400)."""
     hub = Hub(session, hz)
 
     @contextlib.asynccontextmanager
@@ -227,6 +261,7 @@ def create_app(session: PlaySession, hz: int = 60) -> FastAPI:
                 await task
 
     app = FastAPI(lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(hosts))
     app.state.hub = hub
     headers = {"Cache-Control": "no-store", "X-Content-Type-Options": "nosniff",
                "Content-Security-Policy": "default-src 'self'; connect-src 'self'; "
@@ -260,12 +295,13 @@ def listen(host: str, port: int) -> socket.socket:
     return sock
 
 
-def serve(session: PlaySession, sock: socket.socket, *, hz: int = 60,
+def serve(session: GameSession, sock: socket.socket, *, hz: int = 60,
           on_ready: Callable[[], None] | None = None) -> None:
     """Serve ``session`` on ``sock`` until Ctrl-C (SIGINT) or SIGTERM."""
     import uvicorn
 
-    config = uvicorn.Config(create_app(session, hz), log_level="warning", lifespan="on",
+    hosts = allowed_hosts(str(sock.getsockname()[0]))
+    config = uvicorn.Config(create_app(session, hz, hosts), log_level="warning", lifespan="on",
                             ws_max_size=WS_MAX_BYTES, timeout_graceful_shutdown=3,
                             access_log=False)
     server = uvicorn.Server(config)

@@ -128,16 +128,6 @@ function drawMap() {
     c.beginPath(); c.arc(x, y, r, 0, 2 * Math.PI); c.fill(); c.stroke(); c.setLineDash([]);
     label(agent === "human" ? "your home" : "robot home", x, y + r + 13, c.strokeStyle, 11);
   }
-  // the way to the current target
-  if (st && st.cur && st.started) {
-    const t = st.tasks[st.cur];
-    if (t === "active" || t === "carried") {
-      const goal = t === "active" ? sc.objects[st.cur] : sc.homes.human;
-      const [a, b] = toPx(...st.h), [d, e] = toPx(...goal);
-      c.strokeStyle = "rgba(232,145,12,.55)"; c.lineWidth = 2; c.setLineDash([2, 6]);
-      c.beginPath(); c.moveTo(a, b); c.lineTo(d, e); c.stroke(); c.setLineDash([]);
-    }
-  }
   if (st && st.target) {
     const [x, y] = toPx(...st.target);
     c.strokeStyle = COLORS.human; c.lineWidth = 2;
@@ -148,6 +138,8 @@ function drawMap() {
   // agents
   const rp = st ? st.r : sc.homes.robot, hp = st ? st.h : sc.homes.human;
   drawAgent(rp, COLORS.robot, "R", true);
+  const why = st && st.started && !st.over ? robotWaits() : null;
+  if (why) { const [x, y] = toPx(...rp); label(why, x, y - 20, COLORS.robot, 11); }
   drawAgent(hp, COLORS.human, "you", false);
   if (st) {
     for (const [task, status] of Object.entries(st.tasks)) {
@@ -157,6 +149,16 @@ function drawMap() {
       objectGlyph(x + 11, y - 13, task, plan.owner[task], "carried", 0);
     }
   }
+}
+
+function robotWaits() {
+  // what the robot is waiting for, if it is standing still before its next task
+  const st = R.state, plan = R.plan, next = st.rcur;
+  if (!next || !["locked", "queued"].includes(st.tasks[next])) return null;
+  const seq = plan.sequences.robot, k = seq.indexOf(next);
+  const open = [...seq.slice(0, k).filter((x) => x.startsWith("wait:")).map((x) => x.slice(5)),
+    ...plan.preceding[next]].filter((t) => st.tasks[t] !== "done");
+  return open.length ? `waits for ${[...new Set(open)].join(", ")}` : null;
 }
 
 function drawHeat() {
