@@ -17,7 +17,7 @@ from play_bot import RouteBot
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
 from rapidds.loop.model import HumanModel, prior_model
-from rapidds.loop.run import CyclePlan
+from rapidds.loop.run import AdaptiveRun, CyclePlan, LiveTeammate
 from rapidds.motion.interface import MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.schedule import Schedule
@@ -217,3 +217,29 @@ def test_a_person_who_leaves_mid_cycle_plays_it_again(fetch_world: FetchWorld) -
     assert player.phase == "ready" and player.cycle == 4
     again = player.snapshot()
     assert again is not None and again["t"] == 0 and again["h"] == [2.2, 7.0]
+
+
+def test_the_loop_shows_a_live_teammate_the_plan_before_asking(
+        fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+    """``run.step()`` works with a person: the plan is shown, then what they did is asked for."""
+    calls: list[tuple[str, int]] = []
+    person = fetch_world.teammate("fast-middle")
+
+    class Told:
+        name = "told"
+
+        def show(self, plan: CyclePlan) -> None:
+            calls.append(("show", plan.cycle))
+
+        def execute(self, cycle: int, tasks: Any, rng: np.random.Generator) -> dict:
+            calls.append(("execute", cycle))
+            return person.execute(cycle, tasks, rng)
+
+    assert isinstance(Told(), LiveTeammate) and not isinstance(person, LiveTeammate)
+    run = AdaptiveRun(RunConfig(human="told", cycles=2, **SEARCH), fetch_policy,
+                      world=fetch_world, teammate=Told())
+    run.step()
+    assert calls == [("show", 0), ("execute", 0)]
+    plan = run.plan()
+    run.execute(plan, observed=person.execute(1, plan.best.schedule.tasks("human"), plan.rng))
+    assert calls == [("show", 0), ("execute", 0)]  # observations given: nobody is asked

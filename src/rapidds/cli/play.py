@@ -94,7 +94,7 @@ def play_cmd(
 
             # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop
             with contextlib.suppress(KeyboardInterrupt):
-                serve(session, sock, hz=hz, on_ready=ready)
+                serve(session, sock, on_ready=ready)
         finally:
             session.stop()
     typer.echo(f"stopped: {session.stored} of {cycles} cycles of {session.run_id} stored in "

@@ -121,8 +121,9 @@ class _Connection:
 class Hub:
     """The tick loop and the (at most one) connected player of ``session``."""
 
-    def __init__(self, session: GameSession, hz: int = 60):
-        self.session, self.player, self.hz = session, session.player, hz
+    def __init__(self, session: GameSession):
+        self.session, self.player = session, session.player
+        self.hz = session.player.hz  # the game's tick is the server's tick: game time = real time
         self.conn: _Connection | None = None
         self.ticks = 0
         self.late = 0  # ticks that ran more than one period late
@@ -244,11 +245,10 @@ def _static(name: str) -> str:
     return (files("rapidds.web") / "static" / name).read_text(encoding="utf-8")
 
 
-def create_app(session: GameSession, hz: int = 60,
-               hosts: Sequence[str] = LOOPBACK) -> FastAPI:
+def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI:
     """The ASGI app of ``session``: the page, its assets and the player's WebSocket; requests
     for another host name than ``hosts`` are refused (400)."""
-    hub = Hub(session, hz)
+    hub = Hub(session)
 
     @contextlib.asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
@@ -295,13 +295,13 @@ def listen(host: str, port: int) -> socket.socket:
     return sock
 
 
-def serve(session: GameSession, sock: socket.socket, *, hz: int = 60,
+def serve(session: GameSession, sock: socket.socket, *,
           on_ready: Callable[[], None] | None = None) -> None:
     """Serve ``session`` on ``sock`` until Ctrl-C (SIGINT) or SIGTERM."""
     import uvicorn
 
     hosts = allowed_hosts(str(sock.getsockname()[0]))
-    config = uvicorn.Config(create_app(session, hz, hosts), log_level="warning", lifespan="on",
+    config = uvicorn.Config(create_app(session, hosts), log_level="warning", lifespan="on",
                             ws_max_size=WS_MAX_BYTES, timeout_graceful_shutdown=3,
                             access_log=False)
     server = uvicorn.Server(config)

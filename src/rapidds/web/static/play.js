@@ -76,7 +76,7 @@ map.addEventListener("pointerdown", (e) => {
   send({ type: "target", x: +x.toFixed(3), y: +y.toFixed(3) });
 });
 $("start").addEventListener("click", () => start());
-$("heat").addEventListener("change", () => drawMap());
+$("heat").addEventListener("change", () => { showHeatLegend(); drawMap(); });
 function canStart() { return R.phase === "ready" && R.plan && R.state && !R.state.started; }
 function start() { if (canStart()) send({ type: "start", cycle: R.plan.cycle }); }
 
@@ -182,14 +182,6 @@ function drawHeat() {
   const [a, b] = toPx(lo[0] - cx / 2, hi[1] + cy / 2), [d, e] = toPx(hi[0] + cx / 2, lo[1] - cy / 2);
   mctx.imageSmoothingEnabled = true;
   mctx.drawImage(heatImage, a, b, d - a, e - b);
-  const c = mctx, text = `learned spatial cost of your ${tasks.join(", ")} (cycle ${R.summary.cycle + 1})`;
-  c.font = "600 11px system-ui, sans-serif"; c.textAlign = "left"; c.textBaseline = "middle";
-  const w = c.measureText(text).width + 40;
-  c.fillStyle = "rgba(255,255,255,.9)"; roundRect(c, 8, 8, w, 22, 5); c.fill();
-  const grad = c.createLinearGradient(14, 0, 36, 0);
-  grad.addColorStop(0, "rgba(230,200,60,.1)"); grad.addColorStop(1, "rgba(230,50,20,.9)");
-  c.fillStyle = grad; c.fillRect(14, 14, 22, 10);
-  c.fillStyle = "#7c2d12"; c.fillText(text, 42, 19.5);
 }
 
 function drawPath(path, color, alpha, width, dash) {
@@ -389,8 +381,15 @@ function render() {
   banner.textContent = R.phase === "ready" ? `Press Enter to start cycle ${plan.cycle + 1}` : big;
 }
 
+function showHeatLegend() {
+  const s = R.summary, on = $("heat").checked && s && s.human.length;
+  $("heat-legend").classList.toggle("hidden", !on);
+  if (on) $("heat-legend").textContent = `On the map: the spatial cost the robot has learned of your ${s.human.join(" and ")} after cycle ${s.cycle + 1}: red where it expects you, so where its paths cost most.`;
+}
+
 function showSummary() {
   const s = R.summary;
+  showHeatLegend();
   $("summary-title").textContent = `Cycle ${s.cycle + 1} of ${s.cycles}: how it went`;
   $("s-makespan").textContent = `${s.makespan.toFixed(1)} s`;
   $("s-expected").textContent = `planned ${s.expected_makespan.toFixed(1)} s`;
