@@ -113,7 +113,7 @@ def browser() -> Iterator[Any]:
 
 def _page(browser: Any, url: str) -> Any:
     # bypass_csp: the page forbids eval, which Playwright's wait_for_function uses
-    page = browser.new_page(viewport={"width": 1040, "height": 830}, bypass_csp=True)
+    page = browser.new_page(viewport={"width": 1040, "height": 820}, bypass_csp=True)
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.errors = errors

@@ -376,6 +376,8 @@ function render() {
   btn.disabled = R.phase !== "ready";
   btn.textContent = R.phase === "ready" ? `Start cycle ${plan.cycle + 1} ▶` : "The robot is planning…";
   $("summary").classList.toggle("hidden", !R.summary || playing);
+  // between cycles the summary takes the status card's place (the banner says what to do)
+  $("status").classList.toggle("hidden", !!R.summary && ["ready", "waiting", "over"].includes(R.phase));
   const banner = $("banner");
   banner.classList.toggle("hidden", !["ready", "waiting", "over", "done", "refused", "disconnected", "error"].includes(R.phase));
   banner.textContent = R.phase === "ready" ? `Press Enter to start cycle ${plan.cycle + 1}` : big;
