@@ -139,10 +139,13 @@ class Hub:
             delay = deadline - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
-            elif delay < -period:
-                self.late += 1
+            else:
+                if delay < -period:
+                    self.late += 1
                 if delay < -0.25:  # far behind (a stall): drop the backlog, keep real time
                     deadline = loop.time()
+                # catching up: still let the senders run, so every tick's state goes out
+                await asyncio.sleep(0)
             self.tick()
 
     def tick(self) -> None:
