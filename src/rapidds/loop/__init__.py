@@ -13,17 +13,18 @@ if TYPE_CHECKING:
     from rapidds.loop.config import ADAPT_LEVELS, RunConfig
     from rapidds.loop.deploy import Deployment, deploy
     from rapidds.loop.model import HumanModel, prior_model
-    from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult, load_policy
+    from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult, LiveTeammate, load_policy
 
 _WHERE = {
     "ADAPT_LEVELS": "config", "RunConfig": "config",
     "Deployment": "deploy", "deploy": "deploy",
     "HumanModel": "model", "prior_model": "model",
     "AdaptiveRun": "run", "CyclePlan": "run", "CycleResult": "run", "load_policy": "run",
+    "LiveTeammate": "run",
 }
 __all__ = [
     "ADAPT_LEVELS", "AdaptiveRun", "CyclePlan", "CycleResult", "Deployment", "HumanModel",
-    "RunConfig", "deploy", "load_policy", "prior_model",
+    "LiveTeammate", "RunConfig", "deploy", "load_policy", "prior_model",
 ]
 
 

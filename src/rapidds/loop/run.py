@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -48,7 +48,14 @@ from rapidds.store import RunStore
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.registry import make_world
 
-__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "load_policy", "timeline_of"]
+__all__ = [
+    "AdaptiveRun",
+    "CyclePlan",
+    "CycleResult",
+    "LiveTeammate",
+    "load_policy",
+    "timeline_of",
+]
 
 LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) models updated
     "full": (True, True),
@@ -95,6 +102,18 @@ class CyclePlan:
     search: dict[str, Any]
     rng: np.random.Generator = field(repr=False)
     seconds: float = 0.0
+
+
+@runtime_checkable
+class LiveTeammate(Teammate, Protocol):
+    """A teammate who has to see the plan before doing their part: a person at a screen (the
+    browser game's player), a person told by an experimenter. :meth:`AdaptiveRun.execute` shows
+    them the plan right before asking what they did, so ``run.step()`` works with them too."""
+
+    def show(self, plan: CyclePlan) -> None:
+        """Present ``plan`` (its schedule, the robot's motions); called once per cycle, in the
+        thread that then calls :meth:`~rapidds.worlds.base.Teammate.execute`."""
+        ...
 
 
 @dataclass
@@ -245,6 +264,8 @@ class AdaptiveRun:
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
+        if observed is None and isinstance(self.teammate, LiveTeammate):
+            self.teammate.show(plan)
         human = (dict(observed) if observed is not None
                  else self.teammate.execute(plan.cycle, tasks, plan.rng))
         dep = deploy(self.world, self.problem, plan.best.schedule, plan.best.motions, human,

@@ -1,0 +1,140 @@
+"""``rapidds play``: the fetch game in a browser, with rapidds learning the person who plays.
+
+fastapi, uvicorn and torch are imported inside the command, so ``rapidds --help`` stays light.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from rapidds.cli import app, fail
+from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+
+if TYPE_CHECKING:
+    from rapidds.loop.run import AdaptiveRun, CycleResult
+    from rapidds.web.session import PlaySession
+
+_D = RunConfig.model_fields
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,39}")
+
+
+@app.command("play")
+def play_cmd(
+    world: str = typer.Argument("fetch", help="World to play (the browser game is fetch)."),
+    adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: "
+                              f"{', '.join(a for a in ADAPT_LEVELS if a != 'oracle')}."),
+    cycles: int = typer.Option(10, help="Cycles to play."),
+    port: int = typer.Option(8765, min=0, max=65535, help="Port (0: any free one)."),
+    host: str = typer.Option("127.0.0.1", help="Address to listen on; anything but a loopback "
+                             "address lets other machines play."),
+    out: Path = typer.Option(Path("runs/play"), help="Folder for run.sqlite and the pictures."),
+    resume: bool = typer.Option(False, help="Continue the run stored in --out with its learned "
+                                "models."),
+    player: str = typer.Option("player", help="Name of the person playing (the run's human; "
+                               "the run id is fetch-NAME-ADAPT-sSEED)."),
+    seed: int = typer.Option(_D["seed"].default, help="Seed."),
+    gamma: float | None = typer.Option(None, help="Proximity weight.",
+                                       show_default="the world's"),
+    lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
+                                     "cycles.", show_default="the world's"),
+    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
+                                       "bundled one)."),
+    population: int = typer.Option(_D["population"].default, help="GA population C."),
+    generations: int = typer.Option(_D["generations"].default, help="GA generations G."),
+    samples: int = typer.Option(_D["samples"].default, help="Monte-Carlo duration samples K."),
+    particles: int = typer.Option(_D["particles"].default, help="Steered samples per motion "
+                                  "request."),
+    candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
+    speed: float = typer.Option(4.5, min=0.5, max=10.0, help="The avatar's speed, m/s."),
+    hz: int = typer.Option(60, min=10, max=240, help="Game ticks (state updates) per second."),
+    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    verbose: bool = typer.Option(False, help="Log every connection and refused message."),
+) -> None:
+    """Play the fetch game in a browser: rapidds plans the robot, learns your timing and your
+    routes, and re-plans every cycle. Prints the address to open."""
+    if world != "fetch":
+        fail(f"the browser game plays the fetch world, not {world!r}")
+    if adapt == "oracle":
+        fail("--adapt oracle plans with a simulated teammate's true model; a person has none")
+    if not _NAME.fullmatch(player):
+        fail(f"--player {player!r}: use 1-40 letters, digits, '.', '_' or '-'")
+    cfg = RunConfig(world=world, human=player, adapt=adapt, cycles=cycles, gamma=gamma, lam=lam,
+                    seed=seed, population=population, generations=generations, samples=samples,
+                    particles=particles, candidates=candidates)
+
+    from rapidds.web.server import listen, serve
+    from rapidds.web.session import STORE_NAME
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
+                        format="rapidds play: %(levelname)s: %(message)s")
+    sock = listen(host, port)  # first: a taken port is said before seconds of loading
+    with contextlib.closing(sock):
+        session = _session(cfg, out, policy, player, hz, speed, resume, threads)
+        try:
+            session.open()
+            bound = sock.getsockname()
+            shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
+            url = f"http://{shown}:{bound[1]}/"
+
+            def ready() -> None:
+                typer.echo(f"rapidds play: open {url} (run {session.run_id}, cycle "
+                           f"{session.stored + 1} of {cycles}; Ctrl-C stops, finished cycles "
+                           f"are kept in {out / STORE_NAME})")
+                if host not in ("127.0.0.1", "localhost", "::1"):
+                    typer.echo(f"rapidds play: listening on {host}: other machines can reach "
+                               "it", err=True)
+                sys.stdout.flush()
+
+            # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop
+            with contextlib.suppress(KeyboardInterrupt):
+                serve(session, sock, on_ready=ready)
+        finally:
+            session.stop()
+    typer.echo(f"stopped: {session.stored} of {cycles} cycles of {session.run_id} stored in "
+               f"{out / STORE_NAME}" + ("" if session.stored >= cycles else
+                                        "; continue with --resume"))
+
+
+def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: int, speed: float,
+             resume: bool, threads: int) -> PlaySession:
+    """The person's run: the fetch world, the policy, the player; Gantt charts and the run's
+    pictures drawn when the game stops, as ``rapidds run`` draws them."""
+    from rapidds.cli.run import gantt_path, set_threads, write_pictures
+    from rapidds.loop.run import load_policy
+    from rapidds.web.player import BrowserPlayer
+    from rapidds.web.session import PlaySession
+    from rapidds.worlds.fetch.world import FetchWorld
+    from rapidds.worlds.registry import make_world
+
+    set_threads(threads)
+    world = make_world("fetch")
+    assert isinstance(world, FetchWorld)
+    played: list[CycleResult] = []
+
+    def on_cycle(run: AdaptiveRun, res: CycleResult) -> None:
+        played.append(res)  # drawn when the game stops: matplotlib would delay the next plan
+        rec = res.record["realised"]
+        typer.echo(f"cycle {res.record['cycle']}: makespan {rec['makespan']:.2f} s, closest "
+                   f"approach {rec['min_separation']:.2f} m, cost {rec['cost']:.2f}")
+
+    def on_stop(run: AdaptiveRun) -> None:
+        from rapidds.plots.gantt import save_gantt
+
+        rid = run.config.run_id
+        for res in played:
+            c = res.record["cycle"]
+            save_gantt(res.deployment.timeline, gantt_path(out, rid, c),
+                       title=f"{rid} cycle {c} (realised)")
+        if run.next_cycle:
+            write_pictures(run, out)
+
+    return PlaySession(cfg, out, world=world, policy=load_policy(world, policy),
+                       player=BrowserPlayer(world, player, hz=hz, speed=speed), resume=resume,
+                       on_cycle=on_cycle, on_stop=on_stop)

@@ -1,0 +1,202 @@
+"""The person in the browser as a :class:`~rapidds.worlds.base.Teammate` of the adaptive loop.
+
+A :class:`BrowserPlayer` sits between two threads:
+
+* the loop's thread (``AdaptiveRun.step()``, the study harness, :mod:`rapidds.web.session`)
+  calls :meth:`~BrowserPlayer.show` with each cycle's plan (the loop does it, through
+  :class:`rapidds.loop.run.LiveTeammate`) and then :meth:`~BrowserPlayer.execute`, which blocks
+  until the person has done their tasks and returns what they did;
+* the screen's thread (the server's event loop) calls :meth:`~BrowserPlayer.start`,
+  :meth:`~BrowserPlayer.steer` and :meth:`~BrowserPlayer.tick` and reads
+  :meth:`~BrowserPlayer.snapshot`.
+
+``execute`` returns as soon as the person's last task is done, while the robot may still be
+finishing its own: the loop can learn, store the cycle and plan the next one while the robot
+finishes and the summary shows. The live game goes on meanwhile; its timeline is the one the loop
+rebuilds from the returned durations, so nothing the loop stores depends on the rest.
+
+A plan shown while the previous cycle is still on screen waits until that cycle is over. When
+the person leaves mid-cycle (closes the tab), :meth:`~BrowserPlayer.restart` puts the cycle back
+to its start, so a reconnecting browser plays it again: at most the cycle in progress is lost.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from rapidds.errors import RapiddsError
+from rapidds.web.game import HUMAN_SPEED, FetchGame
+from rapidds.worlds.base import HumanExecution
+from rapidds.worlds.fetch.world import FetchWorld
+
+if TYPE_CHECKING:
+    from rapidds.loop.run import CyclePlan
+
+__all__ = ["BrowserPlayer", "Phase", "PlayerGone"]
+
+Phase = Literal["waiting", "ready", "playing", "over"]
+
+
+class PlayerGone(RapiddsError):
+    """The game was closed before the person finished the cycle (the server is stopping)."""
+
+
+class _Shown:
+    """A plan made playable: its game and what the page draws of it."""
+
+    def __init__(self, player: BrowserPlayer, plan: CyclePlan):
+        best = plan.best
+        self.plan = plan
+        self.game = player.new_game(plan)
+        idx = player.problem.index
+        expected = {t: (float(best.expected_start[idx[t]]), float(best.expected_finish[idx[t]]))
+                    for t in player.problem.ids} if len(best.expected_start) else {}
+        routes = {j: player.world.motion_label(j, np.asarray(p.trajectory))
+                  for j, p in best.motions.items() if p.trajectory is not None}
+        self.view = self.game.plan_view(expected, routes, best.makespan_mean)
+        self.reported = False
+
+
+class BrowserPlayer:
+    """A person playing the fetch game in a browser: the loop's teammate (``name`` is what the
+    run records as its human) and the holder of the live game the server ticks.
+
+    hz: game ticks per second. speed: the avatar's speed, m/s.
+    """
+
+    def __init__(self, world: FetchWorld, name: str = "player", *, hz: int = 60,
+                 speed: float = HUMAN_SPEED):
+        self.world = world
+        self.problem = world.problem()
+        self._name = name
+        self.hz, self.speed = hz, speed
+        self._lock = threading.Lock()
+        self._shown: _Shown | None = None
+        self._next: _Shown | None = None
+        self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
+        self._closed = threading.Event()
+        self.plan_version = 0  # bumped whenever another plan comes on screen
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    def new_game(self, plan: CyclePlan) -> FetchGame:
+        return FetchGame(self.world, self.problem, plan.best.schedule, plan.best.motions,
+                         cycle=plan.cycle, hz=self.hz, speed=self.speed)
+
+    # -- the loop's side ----------------------------------------------------------------------
+    def show(self, plan: CyclePlan) -> None:
+        """Put ``plan`` on screen, or queue it until the cycle on screen is over."""
+        shown = _Shown(self, plan)
+        with self._lock:
+            cur = self._shown
+            if cur is None or cur.game.over or not cur.game.started:
+                self._put_on_screen(shown)
+            else:
+                self._next = shown
+
+    def execute(self, cycle: int, tasks: Sequence[str],
+                rng: np.random.Generator) -> dict[str, HumanExecution]:
+        """Block until the person has done ``tasks`` of cycle ``cycle``; what they did.
+        Raises :class:`PlayerGone` when :meth:`close` is called first."""
+        while True:
+            if self._closed.is_set():
+                raise PlayerGone("the game was closed before the cycle was played")
+            try:
+                c, obs = self._observed.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if c != cycle:
+                continue  # a cycle that was restarted after it had been reported: stale
+            if set(obs) != set(tasks):
+                raise RuntimeError(f"cycle {cycle}: played tasks {sorted(obs)}, the plan gave "
+                                   f"the person {sorted(tasks)}")
+            return obs
+
+    def close(self) -> None:
+        """Wake a blocked :meth:`execute` with :class:`PlayerGone` (the server is stopping)."""
+        self._closed.set()
+
+    # -- the screen's side --------------------------------------------------------------------
+    def _put_on_screen(self, shown: _Shown) -> None:
+        self._shown, self._next = shown, None
+        self.plan_version += 1
+
+    @property
+    def phase(self) -> Phase:
+        with self._lock:
+            return self._phase()
+
+    def _phase(self) -> Phase:
+        if self._shown is None:
+            return "waiting"
+        g = self._shown.game
+        if not g.started:
+            return "ready"
+        return "over" if g.over else "playing"
+
+    @property
+    def cycle(self) -> int | None:
+        """The cycle on screen."""
+        with self._lock:
+            return None if self._shown is None else self._shown.game.cycle
+
+    def plan_view(self) -> dict[str, Any] | None:
+        with self._lock:
+            return None if self._shown is None else self._shown.view
+
+    def start(self, cycle: int) -> bool:
+        """Start the clock of cycle ``cycle``; False unless it is on screen and not started."""
+        with self._lock:
+            if self._phase() != "ready" or self._shown is None \
+                    or self._shown.game.cycle != cycle:
+                return False
+            self._shown.game.start()
+            self._report()
+            return True
+
+    def steer(self, move: tuple[int, int] | None = None,
+              target: tuple[float, float] | None = None) -> None:
+        with self._lock:
+            if self._shown is not None:
+                self._shown.game.steer(move, target)
+
+    def tick(self) -> dict[str, Any] | None:
+        """Advance the game one tick; the state to send (None before any plan)."""
+        with self._lock:
+            if self._shown is None:
+                return None
+            if self._shown.game.over and self._next is not None:
+                # one tick late, so the page has had the finished cycle's last state
+                self._put_on_screen(self._next)
+            game = self._shown.game
+            game.step()
+            self._report()
+            return game.state()
+
+    def snapshot(self) -> dict[str, Any] | None:
+        with self._lock:
+            return None if self._shown is None else self._shown.game.state()
+
+    def restart(self) -> bool:
+        """The person left: put a cycle in progress back to its start (not one whose tasks the
+        loop already has). True when a cycle was restarted."""
+        with self._lock:
+            s = self._shown
+            if s is None or not s.game.started or s.reported:
+                return False
+            s.game = self.new_game(s.plan)
+            self.plan_version += 1
+            return True
+
+    def _report(self) -> None:
+        s = self._shown
+        if s is not None and not s.reported and s.game.human_done:
+            s.reported = True
+            self._observed.put((s.game.cycle, s.game.observations()))

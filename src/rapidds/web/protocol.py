@@ -1,0 +1,122 @@
+"""What the browser may send, and the gate every message passes.
+
+Every message is one JSON object with a ``type``, a sequence number ``seq`` (strictly increasing
+per connection, so a replayed or reordered message is refused) and a small, typed payload:
+
+* ``{"type": "move", "seq": n, "dx": -1|0|1, "dy": -1|0|1}``: the held arrow/WASD keys (y up);
+* ``{"type": "target", "seq": n, "x": float, "y": float}``: walk to a point (click or tap), in
+  metres inside the map;
+* ``{"type": "start", "seq": n, "cycle": c}``: start cycle ``c`` (refused unless it is the
+  cycle on screen and not started: a replayed start cannot start another cycle).
+
+Anything else (not JSON, an unknown type or field, a value out of range, more than
+:data:`MAX_MESSAGE_BYTES`, a sequence number not above the last one, more than
+:data:`MAX_RATE` messages in a second) is refused with a reason; the connection stays open and
+the server never raises on it. Nothing from the client names a file, a run or a setting.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+__all__ = [
+    "MAX_MESSAGE_BYTES",
+    "MAX_RATE",
+    "ClientMessage",
+    "Gate",
+    "Move",
+    "Refused",
+    "Start",
+    "Target",
+]
+
+MAX_MESSAGE_BYTES = 256
+MAX_RATE = 240  # messages per second: key changes and clicks, far above what a person makes
+_MAP = 1000.0  # coordinates are checked against the world's bounds by the game; this only
+# keeps absurd numbers out before that
+
+_Seq = Annotated[int, Field(ge=0, lt=2**53)]
+_Unit = Annotated[int, Field(ge=-1, le=1)]  # strict: true and 1.0 are refused
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
+    seq: _Seq
+
+
+class Move(_Message):
+    type: Literal["move"]
+    dx: _Unit
+    dy: _Unit
+
+
+class Target(_Message):
+    type: Literal["target"]
+    x: Annotated[float, Field(ge=-_MAP, le=_MAP)]
+    y: Annotated[float, Field(ge=-_MAP, le=_MAP)]
+
+
+class Start(_Message):
+    type: Literal["start"]
+    cycle: Annotated[int, Field(ge=0, lt=2**31)]
+
+
+ClientMessage = Annotated[Move | Target | Start, Field(discriminator="type")]
+_ADAPTER: TypeAdapter[Move | Target | Start] = TypeAdapter(ClientMessage)
+
+
+class Refused(Exception):
+    """A message the gate refused; ``str(self)`` says why (sent back and logged)."""
+
+
+def _reason(exc: ValidationError) -> str:
+    err = exc.errors()[0]
+    loc = ".".join(str(x) for x in err["loc"]) or "message"
+    return f"{loc}: {err['msg']}"
+
+
+class Gate:
+    """Validates one connection's messages in order (see the module docstring)."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.last_seq = -1
+        self.accepted = 0
+        self.refused = 0
+        self._clock = clock
+        self._window_start = self._clock()
+        self._window_count = 0
+
+    def check(self, raw: str | bytes) -> Move | Target | Start:
+        """The validated message, or :class:`Refused` with the reason."""
+        try:
+            msg = self._check(raw)
+        except Refused:
+            self.refused += 1
+            raise
+        self.accepted += 1
+        return msg
+
+    def _check(self, raw: str | bytes) -> Move | Target | Start:
+        now = self._clock()
+        if now - self._window_start >= 1.0:
+            self._window_start, self._window_count = now, 0
+        self._window_count += 1
+        if self._window_count > MAX_RATE:
+            raise Refused(f"more than {MAX_RATE} messages in a second")
+        if isinstance(raw, bytes):
+            raise Refused("binary messages are not accepted; send JSON text")
+        if len(raw.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
+            raise Refused(f"message longer than {MAX_MESSAGE_BYTES} bytes")
+        try:
+            msg = _ADAPTER.validate_json(raw)
+        except ValidationError as exc:
+            raise Refused(_reason(exc)) from None
+        if msg.seq <= self.last_seq:
+            raise Refused(f"seq {msg.seq} is not above the last accepted {self.last_seq}: "
+                          "replayed or out of order")
+        self.last_seq = msg.seq
+        return msg

@@ -1,0 +1,72 @@
+"""A small bot that plays the fetch game like a person with arrow keys: for the task the plan
+gives it, it walks the world's human route (home -> via points -> object -> back) by holding the
+keys towards the next waypoint, and waits at home while its next task is locked.
+
+It reads only what the page gets (the live state message) and answers with held directions,
+so the same bot drives the game in-process (``player.steer``) and in a browser (key presses).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rapidds.worlds.fetch.world import FetchWorld
+
+KEYS = {(1, 0): "ArrowRight", (-1, 0): "ArrowLeft", (0, 1): "ArrowUp", (0, -1): "ArrowDown"}
+
+
+class RouteBot:
+    """modes: task -> route mode the bot takes ("middle" or "outside" for t2 and t3).
+    tol: metres per axis within which the bot stops pressing that axis; reach: metres at which a
+    waypoint counts as passed."""
+
+    def __init__(self, world: FetchWorld, modes: dict[str, str] | None = None,
+                 tol: float = 0.08, reach: float = 0.3):
+        self.world, self.modes = world, dict(modes or {})
+        self.tol, self.reach = tol, reach
+        self._leg: tuple[int, str, str] | None = None
+        self._waypoints: list[np.ndarray] = []
+
+    def _route(self, task: str, leg: str) -> list[np.ndarray]:
+        modes = self.world.modes(task)
+        mode = self.modes.get(task, modes[0])
+        route = self.world.route("human", task, mode if mode in modes else modes[0])
+        pts = [np.asarray(p, dtype=float) for p in route.points]
+        return pts[1:route.goal + 1] if leg == "out" else pts[route.goal + 1:]
+
+    def move(self, state: dict[str, Any]) -> tuple[int, int]:
+        """The direction to hold now, (dx, dy) in {-1, 0, 1} (y up)."""
+        cur = state.get("cur")
+        if not state.get("started") or state.get("human_done") or cur is None:
+            return (0, 0)
+        status = state["tasks"][cur]
+        if status not in ("active", "carried"):
+            return (0, 0)  # locked or not started yet: wait where we are (at home)
+        leg = "out" if status == "active" else "back"
+        key = (state["cycle"], cur, leg)
+        if key != self._leg:
+            self._leg, self._waypoints = key, self._route(cur, leg)
+        pos = np.asarray(state["h"], dtype=float)
+        while self._waypoints and np.linalg.norm(self._waypoints[0] - pos) < self.reach:
+            self._waypoints.pop(0)
+        if not self._waypoints:
+            # the last waypoint (object or home) is passed but not yet counted: step onto it
+            goal = (self.world.object_position(cur) if leg == "out"
+                    else self.world.home("human"))
+            self._waypoints = [goal]
+        d = self._waypoints[0] - pos
+        return (int(np.sign(d[0])) if abs(d[0]) > self.tol else 0,
+                int(np.sign(d[1])) if abs(d[1]) > self.tol else 0)
+
+
+def keys_for(move: tuple[int, int]) -> set[str]:
+    """The arrow keys that hold ``move``."""
+    dx, dy = move
+    out = set()
+    if dx:
+        out.add(KEYS[dx, 0])
+    if dy:
+        out.add(KEYS[0, dy])
+    return out

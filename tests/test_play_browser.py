@@ -1,0 +1,246 @@
+"""``rapidds play`` end to end: the server as a subprocess, a real headless Chromium (Debian's,
+through Playwright's ``executable_path``; never ``playwright install``) and a bot that presses the
+arrow keys to walk the plan's routes. Two cycles are played and stored with the person's
+durations and paths, the second planned with what the first taught; a second browser is turned
+away; the server is killed mid-cycle and ``--resume`` continues with the learned models; Ctrl-C
+stops it cleanly.
+
+``RAPIDDS_SCREENSHOTS=1`` also writes docs/play-midcycle.png and docs/play-summary.png.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from play_bot import RouteBot, keys_for
+
+from rapidds.store import RunStore
+from rapidds.worlds.fetch.world import FetchWorld
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _chromium() -> str | None:
+    for cand in (os.environ.get("RAPIDDS_CHROMIUM"), shutil.which("chromium"),
+                 shutil.which("chromium-browser"), "/usr/bin/chromium"):
+        if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
+            return cand
+    return None
+
+
+CHROMIUM = _chromium()
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(CHROMIUM is None, reason="no Chromium found: install Debian's with "
+                       "'apt-get install chromium' (or set RAPIDDS_CHROMIUM); never "
+                       "'playwright install'"),
+]
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+SEARCH = ["--population", "8", "--generations", "4", "--samples", "8", "--particles", "2",
+          "--candidates", "4"]
+SHOTS = os.environ.get("RAPIDDS_SCREENSHOTS") == "1"
+RUN_ID = "fetch-player-full-s1"
+
+
+class Server:
+    """``rapidds play`` in a subprocess on a free port; ``url`` once it listens."""
+
+    def __init__(self, out: Path, *extra: str):
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "src"),
+                                                          env.get("PYTHONPATH")]))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from rapidds.cli import main; main()", "play", "fetch",
+             "--port", "0", "--out", str(out), "--cycles", "3", "--seed", "1", *SEARCH, *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.err: list[str] = []
+        threading.Thread(target=self._pump, args=(self.proc.stdout, self.lines.put),
+                         daemon=True).start()
+        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err.append),
+                         daemon=True).start()
+        self.out_lines: list[str] = []
+        self.url = ""
+        end = time.monotonic() + 120
+        while not self.url:
+            try:
+                line = self.lines.get(timeout=max(0.1, end - time.monotonic()))
+            except queue.Empty:
+                self.proc.kill()
+                raise AssertionError("rapidds play printed no address: "
+                                     + "".join(self.err)[-2000:]) from None
+            self.out_lines.append(line)
+            if "open http://" in line:
+                self.url = line.split("open ", 1)[1].split()[0]
+
+    @staticmethod
+    def _pump(stream: Any, put: Any) -> None:
+        for line in stream:
+            put(line)
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 60) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        rc = self.proc.wait(timeout)
+        while not self.lines.empty():
+            self.out_lines.append(self.lines.get())
+        return rc
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield b
+        b.close()
+
+
+def _page(browser: Any, url: str) -> Any:
+    # bypass_csp: the page forbids eval, which Playwright's wait_for_function uses
+    page = browser.new_page(viewport={"width": 1040, "height": 820}, bypass_csp=True)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.errors = errors
+    page.goto(url)
+    return page
+
+
+def _play(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = None,
+          midcycle_shot: Path | None = None) -> tuple[dict, dict]:
+    """Start ``cycle`` and walk it with the arrow keys until it is over (or until game time
+    ``stop_at``); the plan the page showed and its last state of the cycle."""
+    page.wait_for_function(
+        f"window.rapidds.phase === 'ready' && window.rapidds.plan.cycle === {cycle}",
+        timeout=90_000)
+    plan = page.evaluate("window.rapidds.plan")
+    page.keyboard.press("Enter")
+    held: set[str] = set()
+    last: dict[str, Any] = {}
+    end = time.monotonic() + 90
+    while time.monotonic() < end:
+        st = page.evaluate("window.rapidds.state")
+        if st["cycle"] == cycle:
+            last = st
+            if st["over"] or (stop_at is not None and st["t"] >= stop_at):
+                break
+            if midcycle_shot is not None and st["t"] >= 3.0:
+                page.screenshot(path=str(midcycle_shot))
+                midcycle_shot = None
+        want = keys_for(bot.move(st)) if st["cycle"] == cycle else set()
+        for k in held - want:
+            page.keyboard.up(k)
+        for k in want - held:
+            page.keyboard.down(k)
+        held = want
+        time.sleep(0.015)
+    for k in held:
+        page.keyboard.up(k)
+    assert last.get("over") or stop_at is not None, f"cycle {cycle} did not finish: {last}"
+    return plan, last
+
+
+def _human(seq: list[str]) -> list[str]:
+    return [t for t in seq if not t.startswith("wait:")]
+
+
+def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
+        browser: Any, tmp_path: Path, fetch_world: FetchWorld) -> None:
+    out = tmp_path / "play"
+    bot = RouteBot(fetch_world, {"t2": "middle", "t3": "outside"})
+    server = Server(out)
+    try:
+        page = _page(browser, server.url)
+        plan0, end0 = _play(page, bot, 0)
+        # a second browser for the same run is turned away, politely
+        other = _page(browser, server.url)
+        other.wait_for_function("window.rapidds.refused !== null", timeout=20_000)
+        assert "played elsewhere" in other.inner_text("#instruction")
+        other.close()
+        plan1, end1 = _play(page, bot, 1, midcycle_shot=(ROOT / "docs" / "play-midcycle.png"
+                                                         if SHOTS else None))
+        page.wait_for_function("window.rapidds.summary && window.rapidds.summary.cycle === 1",
+                               timeout=30_000)
+        summary = page.evaluate("window.rapidds.summary")
+        assert [p["cycle"] for p in summary["curve"]] == [0, 1]
+        assert "s" in page.inner_text("#s-makespan")
+        if SHOTS:
+            page.check("#heat")
+            page.wait_for_function("window.rapidds.phase === 'ready'", timeout=60_000)
+            time.sleep(0.3)
+            page.screenshot(path=str(ROOT / "docs" / "play-summary.png"))
+            page.uncheck("#heat")
+        # the third cycle is under way when the server is killed: it is lost, nothing else
+        _play(page, bot, 2, stop_at=1.5)
+        server.proc.kill()
+        server.proc.wait(30)
+        assert page.errors == []
+        page.close()
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+
+    with RunStore(out / "run.sqlite") as store:
+        recs = store.records(RUN_ID)
+        assert [r["cycle"] for r in recs] == [0, 1]
+        for rec, plan, end in ((recs[0], plan0, end0), (recs[1], plan1, end1)):
+            assert rec["human"] == plan["sequences"]["human"]
+            human = _human(rec["human"])
+            assert human, "the bot needs tasks to play"
+            arrays = store.arrays(RUN_ID, rec["cycle"])
+            for t in human:
+                s, f = end["times"][t]  # what the page saw, live
+                assert rec["observed"][t] == pytest.approx(f - s, abs=2e-3)
+                path = arrays[f"human/{t}"]
+                n = math.ceil(rec["observed"][t] / fetch_world.dt - 1e-9) + 1
+                assert path.shape == (n, 2)  # sampled at dt from start to end
+                assert np.linalg.norm(path[-1] - fetch_world.home("human")) <= 0.5
+                assert np.linalg.norm(path - fetch_world.object_position(t), axis=1).min() \
+                    <= 0.5 + 4.5 * fetch_world.dt
+                if t in ("t2", "t3"):
+                    assert fetch_world.route_mode(t, path) == bot.modes[t]
+    # the second plan was made with the learned belief, not the prior
+    learned = recs[0]["belief"]["mean_durations"]
+    prior = {t: fetch_world.problem().task(t).human_mean for t in learned}
+    for t in _human(plan1["sequences"]["human"]):
+        s, f = plan1["expected"][t]
+        assert f - s == pytest.approx(learned[t], abs=2e-3)
+    assert any(abs(learned[t] - prior[t]) > 0.3 for t in recs[0]["observed"])
+
+    # resume: the lost cycle is planned again from the stored model, and played
+    server = Server(out, "--resume")
+    try:
+        assert "cycle 3 of 3" in server.out_lines[-1]
+        page = _page(browser, server.url)
+        plan2, _ = _play(page, bot, 2)
+        learned1 = recs[1]["belief"]["mean_durations"]
+        for t in _human(plan2["sequences"]["human"]):
+            s, f = plan2["expected"][t]
+            assert f - s == pytest.approx(learned1[t], abs=2e-3)
+        page.wait_for_function("window.rapidds.phase === 'done'", timeout=60_000)
+        assert "All cycles played" in page.inner_text("#instruction")
+        assert page.errors == []
+        page.close()
+        assert server.stop(signal.SIGINT) == 0  # Ctrl-C
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+    assert any("stopped: 3 of 3 cycles" in line for line in server.out_lines), server.out_lines
+    with RunStore(out / "run.sqlite") as store:
+        assert [r["cycle"] for r in store.records(RUN_ID)] == [0, 1, 2]
+    assert (out / f"{RUN_ID}-cost.png").is_file() and (out / f"{RUN_ID}-map.png").is_file()
