@@ -218,3 +218,27 @@ def test_cli_sample_steered(tmp_path, policy):
     assert np.array_equal(trajs, same.trajectories)  # the CLI runs exactly the library's SVDD
     assert np.allclose(report["values"], same.values)
     assert (tmp_path / "steered.png").stat().st_size > 1000
+
+
+def test_a_temperature_per_particle_matches_the_uniform_ones(policy):
+    value = value_function([proximity_cost(np.array([[0.5, 0.5]]), BETA)], GAMMA, tol=0.1)
+    greedy = steer(policy, "up", 4, value, num_candidates=4, alpha=0.0, generator=3)
+    same = steer(policy, "up", 4, value, num_candidates=4, alpha=[0.0] * 4, generator=3)
+    np.testing.assert_array_equal(greedy.trajectories, same.trajectories)
+    soft = steer(policy, "up", 4, value, num_candidates=4, alpha=0.7, generator=3)
+    same = steer(policy, "up", 4, value, num_candidates=4, alpha=np.full(4, 0.7), generator=3)
+    np.testing.assert_array_equal(soft.trajectories, same.trajectories)
+    with pytest.raises(ValueError, match="one per particle"):
+        steer(policy, "up", 4, value, alpha=[0.0, 1.0], generator=3)
+    with pytest.raises(ValueError, match="alpha"):
+        steer(policy, "up", 2, value, alpha=[0.0, -1.0], generator=3)
+
+
+def test_particle_temperatures_keep_greedy_particles_first():
+    from rapidds.motion.steering import particle_temperatures
+
+    assert particle_temperatures(1, 0.5).tolist() == [0.0]  # one particle stays greedy
+    assert particle_temperatures(2, 0.5).tolist() == [0.0, 1.0]
+    assert particle_temperatures(4, 0.5).tolist() == [0.0, 0.0, 1.0, 0.5]
+    assert particle_temperatures(4, 0.0).tolist() == [0.0] * 4  # the authors' SVDD-PM
+    assert particle_temperatures(4, 1.0).tolist()[0] == 0.0  # at least one greedy particle

@@ -16,7 +16,7 @@ import numpy as np
 
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import steer
+from rapidds.motion.steering import particle_temperatures, steer
 from rapidds.problem import Problem
 
 SpatialCost = Callable[[Iterable[str], np.ndarray], np.ndarray]
@@ -32,7 +32,12 @@ class SteeringConfig:
     particles: B, steered samples per request; the best one is kept.
     candidates: M, draws from the reverse kernel per particle and step (1 = unsteered).
     alpha: 0 keeps the best candidate per step (the SVDD authors' choice); > 0 samples from
-        softmax(-V / alpha).
+        softmax(-V / alpha) for every particle.
+    soft_share: with alpha = 0, the share of each request's particles that are drawn with a
+        temperature instead (:func:`~rapidds.motion.steering.particle_temperatures`; 0 = the
+        authors' greedy SVDD-PM for all). Greedy particles refine within a motion mode,
+        tempered ones keep the modes the noisiest steps would drop; the best by final V is kept
+        (docs/design-notes.md, "Steering").
     seed: base seed; call k of a DiffusionMotion uses seed + k, so a deterministic scheduler
         gives deterministic motions.
     steps: reverse diffusion steps S per sample; None uses the policy's
@@ -43,6 +48,7 @@ class SteeringConfig:
     particles: int = 4
     candidates: int = 8
     alpha: float = 0.0
+    soft_share: float = 0.5
     seed: int = 0
     steps: int | None = None
 
@@ -55,6 +61,14 @@ class SteeringConfig:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if not (math.isfinite(self.alpha) and self.alpha >= 0):
             raise ValueError(f"alpha must be a finite number >= 0, got {self.alpha}")
+        if not (math.isfinite(self.soft_share) and 0 <= self.soft_share <= 1):
+            raise ValueError(f"soft_share must be in [0, 1], got {self.soft_share}")
+
+    def temperatures(self) -> np.ndarray:
+        """(particles,) SVDD temperature of each particle of a request."""
+        if self.alpha > 0:
+            return np.full(self.particles, self.alpha)
+        return particle_temperatures(self.particles, self.soft_share)
 
 
 class DiffusionMotion:
@@ -109,7 +123,7 @@ class DiffusionMotion:
             len(tasks),
             lambda xi: self._values(requests, xi, b),
             num_candidates=cfg.candidates,
-            alpha=cfg.alpha,
+            alpha=np.tile(cfg.temperatures(), len(requests)),
             generator=cfg.seed + self.calls,
             num_steps=cfg.steps,
         )

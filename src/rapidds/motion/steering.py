@@ -91,23 +91,46 @@ def _score(value_fn: ValueFn, trajectories: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(out), np.inf, out)
 
 
-def _select(values: np.ndarray, alpha: float, generator: torch.Generator | None) -> np.ndarray:
-    """Index of the kept candidate per particle from values (B, M): argmin for alpha = 0, else
-    a draw from softmax(-V / alpha)."""
-    if alpha == 0:
-        return np.argmin(values, axis=1)  # all-inf rows pick candidate 0
-    logits = -values / alpha
-    finite = np.isfinite(logits)
-    # Rows where every candidate is infinitely bad: choose uniformly.
-    logits = np.where(finite.any(axis=1, keepdims=True), logits, 0.0)
-    logits = logits - logits.max(axis=1, keepdims=True)
-    probs = torch.as_tensor(np.exp(logits), dtype=torch.float64)
-    return torch.multinomial(probs, 1, generator=generator).squeeze(1).numpy()
+def _select(values: np.ndarray, alpha: np.ndarray, generator: torch.Generator | None
+            ) -> np.ndarray:
+    """Index of the kept candidate per particle from values (B, M): argmin where the particle's
+    alpha (B,) is 0, else a draw from softmax(-V / alpha)."""
+    pick = np.argmin(values, axis=1)  # all-inf rows pick candidate 0
+    soft = alpha > 0
+    if soft.any():
+        logits = -values[soft] / alpha[soft, None]
+        finite = np.isfinite(logits)
+        # Rows where every candidate is infinitely bad: choose uniformly.
+        logits = np.where(finite.any(axis=1, keepdims=True), logits, 0.0)
+        logits = logits - logits.max(axis=1, keepdims=True)
+        probs = torch.as_tensor(np.exp(logits), dtype=torch.float64)
+        pick[soft] = torch.multinomial(probs, 1, generator=generator).squeeze(1).numpy()
+    return pick
+
+
+def particle_temperatures(n_particles: int, soft_share: float) -> np.ndarray:
+    """Per-particle SVDD temperatures: the first particles greedy (alpha = 0), the last
+    ``round(soft_share * n)`` (at most n - 1) drawn from softmax(-V / alpha), alpha spread from
+    1.0 down to 0.5 (in V's units, seconds for the paper's V).
+
+    Why a mixture: greedy selection commits to a motion mode at the first, noisiest steps, where
+    the value of every blurred estimate x0_hat is dominated by whichever term is informative
+    there (the spatial cost; the completion time is the same penalty for every estimate that
+    does not yet complete the task), so it can settle on a mode whose final V is worse. Tempered
+    particles keep both modes alive; the caller keeps the particle with the lowest final V, so
+    greedy refinement within a mode and the choice between modes both count.
+    """
+    n_soft = min(n_particles - 1, round(soft_share * n_particles)) if n_particles > 1 else 0
+    alpha = np.zeros(n_particles)
+    if n_soft > 0:
+        alpha[n_particles - n_soft:] = np.linspace(1.0, 0.5, n_soft)
+    return alpha
 
 
 @torch.inference_mode()
 def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
-          value_fn: ValueFn, *, num_candidates: int = 8, alpha: float = 0.0,
+          value_fn: ValueFn, *, num_candidates: int = 8,
+          alpha: float | Sequence[float] | np.ndarray = 0.0,
           start: np.ndarray | None = None, generator: GeneratorLike = None,
           num_steps: int | None = None) -> SteerResult:
     """Sample ``n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
@@ -117,7 +140,8 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
     num_candidates: M >= 1 draws from the reverse kernel per particle and step (M = 1 is plain
     sampling: same seed, same trajectories as :meth:`DiffusionPolicy.sample`).
     alpha: 0 keeps the best candidate (the SVDD authors' choice); alpha > 0 draws from
-    softmax(-V / alpha), V in value_fn's units. generator: seed or CPU generator.
+    softmax(-V / alpha), V in value_fn's units; one value for all particles or one per
+    particle (see :func:`particle_temperatures`). generator: seed or CPU generator.
     num_steps: reverse steps S (default: the policy's ``num_inference_steps``); a step costs M
     network passes, so fewer steps are proportionally cheaper.
     """
@@ -126,8 +150,12 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
         raise ValueError(f"n_particles must be a positive integer, got {b!r}")
     if isinstance(m, bool) or not isinstance(m, int) or m < 1:
         raise ValueError(f"num_candidates must be a positive integer, got {m!r}")
-    if not (math.isfinite(alpha) and alpha >= 0):
-        raise ValueError(f"alpha must be a finite number >= 0, got {alpha}")
+    alphas = np.asarray(alpha, dtype=np.float64).reshape(-1)
+    if alphas.size == 1:
+        alphas = np.full(b, alphas[0])
+    if alphas.shape != (b,) or not (np.isfinite(alphas).all() and (alphas >= 0).all()):
+        raise ValueError(f"alpha must be finite numbers >= 0, one or one per particle "
+                         f"({b}), got {alpha}")
     if (m > 1 and isinstance(policy.noise_scheduler, DDIMScheduler)
             and policy.config.ddim_eta == 0):
         raise ValueError("SVDD steering needs a stochastic reverse kernel: this policy samples "
@@ -162,7 +190,7 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
         v = _score(value_fn, policy.to_world(x0_hat)).reshape(b, m)
         stats.value_calls += 1
         stats.value_rows += b * m
-        pick = _select(v, alpha, gen)
+        pick = _select(v, alphas, gen)
         keep = rows + torch.as_tensor(pick, device=x.device)
         x = cand[keep]
         if cand_eps is not None:
