@@ -251,18 +251,32 @@ def test_trajectories_that_cannot_be_executed_never_complete(world: PaintingWorl
     into_table[dip - 1:dip + 2, 1] += 0.35                   # shoulder leans in: tool under 0
     bad.append(into_table)
     assert (world.kinematics.tool(into_table)[:, 2] < -0.01).any()
-    bad.append(np.repeat(world.robot_rest()[None], world.horizon, axis=0))  # never leaves
-    bad.append(world.robot_trajectory("mix_r"))              # the other tray
+    assert not world.executable(np.stack(bad)).any()
     t = world.completion_time("mix_l", np.stack(bad))
-    np.testing.assert_array_equal(t, world.penalty)
+    # not executable: the penalty and H * dt more, even though the goals were all visited
+    np.testing.assert_allclose(t, world.penalty + world.horizon * world.dt)
     assert world.penalty == 2 * world.horizon * world.dt
-    assert not world.executable(np.stack(bad[:3])).any()
+
+
+def test_the_penalty_grows_with_how_far_a_trajectory_stays_short(world: PaintingWorld) -> None:
+    rest = np.repeat(world.robot_rest()[None], world.horizon, axis=0)  # never leaves
+    other_tray = world.robot_trajectory("mix_r")   # dips into the wrong tray, visits the bowl
+    backwards = world.robot_trajectory("mix_l")[::-1]  # bowl first, then the tray
+    t = world.completion_time("mix_l", np.stack([rest, other_tray, backwards]))
+    assert (t > world.penalty).all()
+    tool = world.kinematics.tool(world.robot_rest())
+    (lo1, hi1), (lo2, hi2) = world.goal_boxes("mix_l")
+    gap1 = np.linalg.norm(np.maximum(lo1 - tool, 0) + np.maximum(tool - hi1, 0))
+    gap2 = np.linalg.norm(np.maximum(lo2 - tool, 0) + np.maximum(tool - hi2, 0))
+    # resting: short by the distance to the tray, to the bowl, and back (0 from rest)
+    assert t[0] == pytest.approx(world.penalty + 100.0 * (gap1 + gap2))
+    assert t[2] < t[1] < t[0]  # the nearer to done, the smaller the penalty
 
 
 def test_goals_must_be_visited_in_order(world: PaintingWorld) -> None:
     good = world.robot_trajectory("mix_l")
     # bowl first, then tray: play the motion backwards
-    assert world.completion_time("mix_l", good[::-1][None])[0] == world.penalty
+    assert world.completion_time("mix_l", good[::-1][None])[0] > world.penalty
     # brush: stroke start then stroke end
     brush = world.robot_trajectory("brush")
     t = world.completion_time("brush", brush[None])[0]

@@ -17,11 +17,11 @@ hand), so a left-handed person is exactly the mirror image of a right-handed one
     0.70 +------------------------------------------+   table edge, robot side
          |                   [R]                    |   R: robot base (0, 0.58)
          |                   (B)                    |   B: mixing bowl (0, 0.24)
-         |     [ L ]                      [ R ]     |   trays, centres (-/+0.34, 0.05)
+         |     [ L ]                      [ R ]     |   trays, centres (-/+0.38, 0.05)
          |     [tray]                     [tray]    |
-         |  (rack)          [vise]          (rack)  |   vise (0, -0.10), racks (-/+0.36, -0.12)
+         |  (rack)          [vise]          (rack)  |   vise (0, -0.10), racks (-/+0.40, -0.12)
    -0.35 +------------------------------------------+   table edge, person side
-                   o  hands at rest  o                  hands (-/+0.20, -0.27)
+                   o  hands at rest  o                  hands (-/+0.16, -0.29)
                person, shoulders (-/+0.19, -0.55, 0.30)
        -0.75                 0                  0.75  x
 
@@ -102,8 +102,8 @@ class CellLayout:
     vise_handle: Box = Box((0.0, -0.19, 0.04), (0.012, 0.04, 0.012))
     workpiece: Box = Box((0.0, -0.10, 0.115), (0.06, 0.015, 0.035))
     bowl: Box = Box((0.0, 0.24, 0.03), (0.07, 0.07, 0.03))
-    left_tray: Box = Box((-0.34, 0.05, 0.02), (0.07, 0.11, 0.02))
-    left_rack: Box = Box((-0.36, -0.12, 0.02), (0.05, 0.04, 0.02))
+    left_tray: Box = Box((-0.38, 0.05, 0.02), (0.07, 0.11, 0.02))
+    left_rack: Box = Box((-0.40, -0.12, 0.02), (0.05, 0.04, 0.02))
     left_shoulder: tuple[float, float, float] = (-0.19, -0.55, 0.30)
     upper_arm: float = 0.30
     forearm: float = 0.28
