@@ -64,6 +64,6 @@ def test_every_schedule_shape_is_enumerated() -> None:
     world = PaintingWorld(prior_people=4)
     free = enumerate_schedules(world.problem())
     fixed = enumerate_schedules(PaintingWorld(variant="constrained", prior_people=4).problem())
-    assert len(free) == 2 * len(fixed) == 144
+    assert len(free) == 2 * len(fixed) == 252
     assert len(set(free)) == len(free)
     assert all(s.robot.index("mix_r") < s.robot.index("mix_l") for s in fixed)

@@ -10,9 +10,9 @@ With those motions every schedule of the job is scored by the library's Algorith
 prior's duration samples + gamma * sum of S) and the best is what a planner that searched the
 whole space would pick. The space is small enough to enumerate: who brushes, the mix order, and
 every place a wait can go (the robot before either mix, for Prep Vise or Secure Piece to end;
-the person before Secure Piece, for either or both mixes to end). A behaviour holds when the
-best schedule has it; its margin is how much worse (objective seconds) the best schedule
-without it is.
+the person before Prep Vise or Secure Piece, for either or both mixes to end). A behaviour
+holds when the best schedule has it; its margin is how much worse (objective seconds) the best
+schedule without it is.
 
 S values are :class:`~rapidds.human.spatial.SpatialModel` costs (grid interpolation, the loop's
 default) of the arm's 12 points over the whole trajectory.
@@ -21,6 +21,7 @@ default) of the arm's 12 points over the whole trajectory.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -37,12 +38,16 @@ from rapidds.worlds.painting.world import PaintingWorld
 
 __all__ = [
     "Behaviour",
+    "BehaviourSpec",
     "Calibration",
     "NominalMotion",
+    "PlanSummary",
+    "behaviours",
     "calibrate",
     "enumerate_schedules",
     "prior_model",
     "spatial_config",
+    "summarize",
 ]
 
 _HUMAN_SPATIAL = ("prep_vise", "secure_piece")
@@ -106,7 +111,8 @@ class NominalMotion:
 def enumerate_schedules(problem: Problem) -> list[Schedule]:
     """Every schedule of the painting job worth planning: who brushes, the mix order (Mix R
     first in the constrained variant), the robot waiting before either mix for Prep Vise or
-    Secure Piece to end, the person waiting before Secure Piece for either or both mixes."""
+    Secure Piece to end, the person waiting before Prep Vise for the first or both mixes and
+    before Secure Piece for either or both (for mixes not already waited for)."""
     orders = [("mix_r", "mix_l")] if ("mix_r", "mix_l") in problem.precedence else \
         [("mix_l", "mix_r"), ("mix_r", "mix_l")]
     robot_waits: tuple[tuple[str, ...], ...] = ((), ("prep_vise",), ("secure_piece",))
@@ -116,8 +122,11 @@ def enumerate_schedules(problem: Problem) -> list[Schedule]:
         robot: list[Item] = [*(Wait(t) for t in w1), m1, *(Wait(t) for t in w2), m2]
         if brusher == "robot":
             robot.append("brush")
-        for hw in ((), (m1,), (m2,), (m1, m2)):
-            human: list[Item] = ["prep_vise", *(Wait(t) for t in hw), "secure_piece"]
+        for pre, hw in itertools.product(((), (m1,), (m1, m2)), ((), (m1,), (m2,), (m1, m2))):
+            if set(pre) & set(hw):
+                continue  # waiting twice for one mix changes nothing
+            human: list[Item] = [*(Wait(t) for t in pre), "prep_vise", *(Wait(t) for t in hw),
+                                 "secure_piece"]
             if brusher == "human":
                 human.append("brush")
             out.append(Schedule(tuple(human), tuple(robot)))
@@ -167,14 +176,6 @@ class Calibration:
         return "\n".join(rows)
 
 
-def _describe(ev: Evaluation, modes: Callable[[str, MotionPlan], str]) -> str:
-    robot = " ".join(str(x) for x in ev.schedule.robot)
-    human = " ".join(str(x) for x in ev.schedule.human)
-    during = ", ".join(f"{t} {modes(t, p)}" for t, p in ev.motions.items()
-                       if t in _MIXES and "secure_piece" in ev.overlaps.get(t, ()))
-    return f"robot [{robot}] person [{human}]; during Secure Piece: {during or 'no mix'}"
-
-
 def calibrate(world: PaintingWorld | None = None, *, cycles: int = 6, seed: int = 1,
               teammate: str = "left-fast", prior: SpatialModel | None = None,
               samples: int = 64) -> Calibration:
@@ -183,8 +184,8 @@ def calibrate(world: PaintingWorld | None = None, *, cycles: int = 6, seed: int 
     ``prior``: the world's :func:`prior_model`, when already built. ``samples``: prior duration
     samples the makespan is averaged over (seeded)."""
     w = world or PaintingWorld()
-    unconstrained = PaintingWorld(**{**_fields(w), "variant": "unconstrained"})
-    constrained = PaintingWorld(**{**_fields(w), "variant": "constrained"})
+    unconstrained = dataclasses.replace(w, variant="unconstrained")
+    constrained = dataclasses.replace(w, variant="constrained")
     prior = prior_model(w) if prior is None else prior
     learned = copy.deepcopy(prior)
     person = w.teammate(teammate)
@@ -215,78 +216,103 @@ def calibrate(world: PaintingWorld | None = None, *, cycles: int = 6, seed: int 
     draws = temporal.sample(samples, np.random.default_rng(seed))
     mean = temporal.mean()
 
-    def best_plans(world: PaintingWorld, gamma: float, belief: str,
-                   ) -> tuple[list[Evaluation], NominalMotion]:
+    worlds = {"unconstrained": unconstrained, "constrained": constrained}
+    for spec in behaviours(near, far):
+        world, gamma = worlds[spec.variant], spec.gamma
         prob = world.problem().with_objective(gamma=gamma, lam=0.0)
-        motion = NominalMotion(world, beliefs[belief], gamma)
-        cache = TrajectoryCache(motion)
-        evs = evaluate_population(prob, enumerate_schedules(prob), draws, mean, cache,
-                                  motion.nominal_durations(prob), gamma, 0.0)
-        return sorted((e for e in evs if e.feasible), key=lambda e: e.objective), motion
-
-    def check(name: str, setting: str, world: PaintingWorld, gamma: float, belief: str,
-              has: Callable[[Evaluation, NominalMotion], bool]) -> None:
-        evs, motion = best_plans(world, gamma, belief)
-
-        def mode(task: str, plan: MotionPlan) -> str:
-            return motion.choose(task, plan.concurrent)[0]
-
-        yes = [e for e in evs if has(e, motion)]
-        no = [e for e in evs if not has(e, motion)]
-        holds = bool(yes) and (not no or yes[0].objective < no[0].objective)
-        margin = (no[0].objective if no else np.inf) - (yes[0].objective if yes else np.inf)
-        if not yes:
-            margin = -np.inf
-        out.behaviours.append(Behaviour(name, setting, belief, holds, float(margin),
-                                        _describe(evs[0], mode)))
-
-    def during(ev: Evaluation, motion: NominalMotion) -> dict[str, str]:
-        return {t: motion.choose(t, p.concurrent)[0] for t, p in ev.motions.items()
-                if t in _MIXES and "secure_piece" in ev.overlaps.get(t, ())}
-
-    def first(ev: Evaluation) -> str:
-        return next(str(x) for x in ev.schedule.robot if str(x) in _MIXES)
-
-    def no_waits(ev: Evaluation) -> bool:
-        """Nobody idles on the expected timeline: the person starts Secure Piece when Prep Vise
-        ends, the robot starts its first mix at once and its second when the first ends (wait
-        tokens that cost nothing do not count)."""
-        idx = problem.index
-        s, f = ev.expected_start, ev.expected_finish
-        m1 = first(ev)
-        m2 = next(t for t in _MIXES if t != m1)
-        return bool(s[idx["secure_piece"]] <= f[idx["prep_vise"]] + 1e-9
-                    and s[idx[m1]] <= 1e-9 and s[idx[m2]] <= f[idx[m1]] + 1e-9)
-
-    u, c = unconstrained, constrained
-    # 1. unconstrained, gamma 12
-    check("a mix runs during Secure Piece, direct", "unconstrained g12", u, 12, "prior",
-          lambda e, m: list(during(e, m).values()) == ["direct"])
-    check(f"{near} first, {far} direct during Secure Piece", "unconstrained g12", u, 12,
-          "learned", lambda e, m: first(e) == near and during(e, m) == {far: "direct"})
-    # 2. constrained, gamma 12
-    check("Mix L direct during Secure Piece", "constrained g12", c, 12, "prior",
-          lambda e, m: during(e, m).get("mix_l") == "direct")
-    if near == "mix_l":
-        check("Mix L avoidant during Secure Piece, no wait", "constrained g12", c, 12,
-              "learned", lambda e, m: during(e, m).get("mix_l") == "avoidant" and no_waits(e))
-    else:
-        check("Mix L direct during Secure Piece", "constrained g12", c, 12, "learned",
-              lambda e, m: during(e, m).get("mix_l") == "direct")
-    # 3. unconstrained, gamma 25
-    check("a mix runs during Secure Piece, avoidant", "unconstrained g25", u, 25, "prior",
-          lambda e, m: list(during(e, m).values()) == ["avoidant"])
-    check(f"{near} first, {far} direct during Secure Piece", "unconstrained g25", u, 25,
-          "learned", lambda e, m: first(e) == near and during(e, m) == {far: "direct"})
-    # 4. unconstrained, gamma 85
-    check("no mix during Secure Piece (a wait)", "unconstrained g85", u, 85, "prior",
-          lambda e, m: not during(e, m))
-    check(f"no wait, {near} first, {far} during Secure Piece", "unconstrained g85", u, 85,
-          "learned", lambda e, m: no_waits(e) and first(e) == near and set(during(e, m)) == {far})
+        motion = NominalMotion(world, beliefs[spec.belief], gamma)
+        evs = evaluate_population(prob, enumerate_schedules(prob), draws, mean,
+                                  TrajectoryCache(motion), motion.nominal_durations(prob),
+                                  gamma, 0.0)
+        ranked = sorted((e for e in evs if e.feasible), key=lambda e: e.objective)
+        summaries = [summarize(prob, e, lambda t, p, m=motion: m.choose(t, p.concurrent)[0])
+                     for e in ranked]
+        yes = [e.objective for e, sm in zip(ranked, summaries, strict=True) if spec.test(sm)]
+        no = [e.objective for e, sm in zip(ranked, summaries, strict=True) if not spec.test(sm)]
+        holds = bool(yes) and (not no or yes[0] < no[0])
+        margin = -np.inf if not yes else (no[0] if no else np.inf) - yes[0]
+        out.behaviours.append(Behaviour(spec.name, spec.setting, spec.belief, holds,
+                                        float(margin), str(summaries[0])))
     return out
 
 
-def _fields(world: PaintingWorld) -> dict[str, object]:
-    return {name: getattr(world, name) for name in (
-        "dt", "horizon", "rest_radius", "gamma", "lam", "beta", "grid", "prior_people",
-        "prior_samples", "prior_seed", "layout")}
+@dataclass(frozen=True)
+class PlanSummary:
+    """What a painting plan does, as the paper's behaviours speak of it: the robot's first
+    mix, the motion mode of every mix that runs during Secure Piece, and whether anyone idles
+    on the expected timeline (the person between Prep Vise and Secure Piece, the robot before
+    or between its mixes; wait tokens that cost nothing do not count)."""
+
+    robot: tuple[str, ...]
+    human: tuple[str, ...]
+    first: str
+    during: dict[str, str]
+    idle: bool
+
+    def __str__(self) -> str:
+        during = ", ".join(f"{t} {m}" for t, m in self.during.items()) or "no mix"
+        return (f"robot [{' '.join(self.robot)}] person [{' '.join(self.human)}]; during "
+                f"Secure Piece: {during}")
+
+
+def summarize(problem: Problem, ev: Evaluation, mode: Callable[[str, MotionPlan], str],
+              ) -> PlanSummary:
+    """The :class:`PlanSummary` of an evaluated plan; ``mode(task, plan)`` names a motion's
+    mode ("direct" or "avoidant"), e.g. :meth:`PaintingWorld.motion_label` of its trajectory."""
+    idx = problem.index
+    first = next(str(x) for x in ev.schedule.robot if str(x) in _MIXES)
+    second = next(t for t in _MIXES if t != first)
+    s, f = ev.expected_start, ev.expected_finish
+    idle = not (s[idx["secure_piece"]] <= f[idx["prep_vise"]] + 1e-9
+                and s[idx[first]] <= 1e-9 and s[idx[second]] <= f[idx[first]] + 1e-9)
+    during = {t: mode(t, p) for t, p in ev.motions.items()
+              if t in _MIXES and "secure_piece" in ev.overlaps.get(t, ())}
+    return PlanSummary(tuple(str(x) for x in ev.schedule.robot),
+                       tuple(str(x) for x in ev.schedule.human), first, during, idle)
+
+
+@dataclass(frozen=True)
+class BehaviourSpec:
+    """One of the paper's behaviours: the setting it is claimed in and the test of a plan."""
+
+    name: str
+    variant: str
+    gamma: float
+    belief: str
+    test: Callable[[PlanSummary], bool]
+
+    @property
+    def setting(self) -> str:
+        return f"{self.variant} g{self.gamma:g}"
+
+
+def behaviours(near: str = "mix_l", far: str = "mix_r") -> list[BehaviourSpec]:
+    """The paper's four behaviours as tests of the plan made before learning ("prior") and
+    after ("learned") for a person whose hand works near ``near``'s tray."""
+    specs = [
+        BehaviourSpec("a mix runs during Secure Piece, direct", "unconstrained", 12, "prior",
+                      lambda p: list(p.during.values()) == ["direct"]),
+        BehaviourSpec(f"{near} first, {far} direct during Secure Piece", "unconstrained", 12,
+                      "learned", lambda p: p.first == near and p.during == {far: "direct"}),
+        BehaviourSpec("Mix L direct during Secure Piece", "constrained", 12, "prior",
+                      lambda p: p.during.get("mix_l") == "direct"),
+    ]
+    if near == "mix_l":
+        specs.append(BehaviourSpec(
+            "Mix L avoidant during Secure Piece, no wait", "constrained", 12, "learned",
+            lambda p: p.during.get("mix_l") == "avoidant" and not p.idle))
+    else:  # Mix L is the far mix of a right-handed person: it stays direct
+        specs.append(BehaviourSpec("Mix L direct during Secure Piece", "constrained", 12,
+                                   "learned", lambda p: p.during.get("mix_l") == "direct"))
+    specs += [
+        BehaviourSpec("a mix runs during Secure Piece, avoidant", "unconstrained", 25, "prior",
+                      lambda p: list(p.during.values()) == ["avoidant"]),
+        BehaviourSpec(f"{near} first, {far} direct during Secure Piece", "unconstrained", 25,
+                      "learned", lambda p: p.first == near and p.during == {far: "direct"}),
+        BehaviourSpec("no mix during Secure Piece (a wait)", "unconstrained", 85, "prior",
+                      lambda p: not p.during),
+        BehaviourSpec(f"no wait, {near} first, {far} during Secure Piece", "unconstrained", 85,
+                      "learned", lambda p: not p.idle and p.first == near
+                      and set(p.during) == {far}),
+    ]
+    return specs
