@@ -409,3 +409,69 @@ def test_nan_trajectories_are_rejected(pop):
         model.trajectory_cost(np.zeros((5, 2)))
     with pytest.raises(ValueError, match="at least one"):
         SpatialCostModel.from_population(cfg, [])
+
+
+# ------------------------------------------------- several body points per path: (T, K, d)
+def body_paths(rng, t: int = 12, k: int = 3, d: int = 3) -> np.ndarray:
+    """(T, K, d): K body points, each wandering on its own, far apart from one another."""
+    offsets = np.arange(k)[:, None] * np.array([2.0] + [0.0] * (d - 1))
+    return offsets[None] + np.cumsum(rng.normal(0.0, 0.2, (t, k, d)), axis=0)
+
+
+@pytest.mark.parametrize("polyline", [True, False])
+def test_body_point_cost_is_the_max_over_the_body_points(polyline):
+    rng = np.random.default_rng(3)
+    path = body_paths(rng)
+    pts = rng.uniform(-1.0, 5.0, (200, 3))
+    each = np.stack([point_cost(pts, path[:, k], 1.5, polyline=polyline)
+                     for k in range(path.shape[1])])
+    np.testing.assert_allclose(point_cost(pts, path, 1.5, polyline=polyline), each.max(axis=0),
+                               rtol=1e-14)
+    # one body point as (T, 1, d) is bit for bit the (T, d) path
+    np.testing.assert_array_equal(point_cost(pts, path[:, :1], 1.5, polyline=polyline),
+                                  point_cost(pts, path[:, 0], 1.5, polyline=polyline))
+
+
+def test_body_point_paths_are_not_joined_to_each_other():
+    # Two hands standing still 4 units apart: the point between them is 2 units from both; a
+    # segment from the end of one hand's path to the start of the other's would pass through it.
+    path = np.array([[[0.0, 0.0], [4.0, 0.0]]] * 5)          # (T=5, K=2, d=2)
+    cost = point_cost([[2.0, 0.0], [0.0, 1.0]], path, 1.0)
+    np.testing.assert_allclose(cost, [math.exp(-2.0), math.exp(-1.0)], rtol=1e-14)
+
+
+def test_models_learn_from_body_point_paths():
+    rng = np.random.default_rng(5)
+    cfg = SpatialConfig(bounds=((-1.0, 6.0), (-2.0, 2.0), (-2.0, 2.0)), grid_points=6, beta=1.2)
+    people = [body_paths(rng, t=8 + m) for m in range(4)]
+    model = SpatialCostModel.from_population(cfg, people)
+    grid = model.grid_points
+    want = np.mean([point_cost(grid, p, 1.2) for p in people], axis=0)
+    np.testing.assert_allclose(model.mean, want, rtol=1e-14)
+    # one observation: the conjugate update with the body-point cost
+    seen = body_paths(rng)
+    var0, mean0 = model.var, model.mean
+    model.observe(seen)
+    new_var = 1.0 / (1.0 / var0 + 1.0 / cfg.rho)
+    np.testing.assert_allclose(model.var, new_var, rtol=1e-14)
+    np.testing.assert_allclose(model.mean, new_var * (mean0 / var0 + point_cost(grid, seen, 1.2)
+                                                      / cfg.rho), rtol=1e-14)
+    # the per-task wrapper takes them too
+    both = SpatialModel.from_population(cfg, {"a": people, "b": people[:2]})
+    both.observe("a", seen)
+    assert both["a"].n_obs == 1 and both["b"].n_obs == 0
+    np.testing.assert_allclose(both["a"].mean, model.mean, rtol=1e-14)
+
+
+def test_bad_body_point_paths_are_rejected():
+    cfg = SpatialConfig(bounds=((0.0, 1.0), (0.0, 1.0)), grid_points=4)
+    with pytest.raises(ValueError, match="coordinates per point"):
+        point_cost([[0.0, 0.0]], np.zeros((5, 2, 3)), 1.0)
+    with pytest.raises(ValueError, match="non-empty"):
+        point_cost([[0.0, 0.0]], np.zeros((5, 0, 2)), 1.0)
+    with pytest.raises(ValueError, match="non-empty"):
+        SpatialCostModel.from_population(cfg, [np.zeros((5, 3, 2, 2))])
+    bad = np.zeros((5, 2, 2))
+    bad[2, 1, 0] = np.inf
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        SpatialCostModel.from_population(cfg, [bad])

@@ -273,6 +273,24 @@ def _check_points(a: ArrayLike, what: str, d: int | None = None) -> np.ndarray:
     return arr
 
 
+def _check_path(a: ArrayLike, what: str, d: int) -> np.ndarray:
+    """A validated human path, (T, d) (one body point) or (T, K, d) (K body points, each a
+    polyline over the same T samples), as float64 in the same layout."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim == 3:
+        if 0 in arr.shape:
+            raise ValueError(f"{what} must be a non-empty (T, K, d) array, got shape {arr.shape}")
+        if arr.shape[2] != d:
+            raise ValueError(f"{what} has {arr.shape[2]} coordinates per point, the model has {d}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{what} contains NaN or infinite coordinates")
+        return arr
+    if arr.ndim != 2:
+        raise ValueError(f"{what} must be a non-empty (T, d) or (T, K, d) array, got shape "
+                         f"{arr.shape}")
+    return _check_points(arr, what, d)
+
+
 def point_cost(
     points: ArrayLike, human_traj: ArrayLike, beta: float, *, polyline: bool = True
 ) -> np.ndarray:
@@ -280,27 +298,34 @@ def point_cost(
 
     Args:
         points: (V, d) robot points x.
-        human_traj: (T, d) human path xi_h, T >= 1 samples in time order.
+        human_traj: (T, d) human path xi_h, T >= 1 samples in time order; or (T, K, d), K body
+            points (hands, elbows, ...) each followed over the same T samples: the cost is then
+            the max over the K paths, i.e. set by the body point nearest to x.
         beta: distance decay, > 0.
-        polyline: True takes the path as the piecewise-linear route through the samples (the
+        polyline: True takes each path as the piecewise-linear route through its samples (the
             person is between two samples between time steps); False takes the samples alone,
             as Eq. 7 is printed, which leaves dips between samples spaced wider than ~1/beta.
 
     Returns:
         (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
         exp(-beta * distance to the nearest path point or segment), computed in chunks of points
-        so the (chunk, T, d) temporaries stay near 8 MiB.
+        so the (chunk, S, d) temporaries stay near 8 MiB (S segments of all K paths together).
     """
     if not _is_real(beta) or not math.isfinite(beta) or beta <= 0:
         raise ValueError(f"beta must be a finite number > 0, got {beta!r}")
     pts = _check_points(points, "points")
-    traj = _check_points(human_traj, "human_traj", pts.shape[1])
-    if polyline and len(traj) > 1:
-        start, seg = traj[:-1], np.diff(traj, axis=0)  # (S, d)
+    traj = _check_path(human_traj, "human_traj", pts.shape[1])
+    paths = traj[None] if traj.ndim == 2 else traj.transpose(1, 0, 2)   # (K, T, d)
+    if polyline and paths.shape[1] > 1:
+        # The segments of every body point's path, and only those: no segment joins the end of
+        # one body point's path to the start of the next.
+        start = paths[:, :-1].reshape(-1, pts.shape[1])
+        seg = np.diff(paths, axis=1).reshape(-1, pts.shape[1])  # (S, d)
         seg_len2 = np.einsum("sd,sd->s", seg, seg)
         inv = np.divide(1.0, seg_len2, out=np.zeros_like(seg_len2), where=seg_len2 > 0)
     else:
-        start, seg, inv = traj, np.zeros_like(traj), np.zeros(len(traj))
+        start = paths.reshape(-1, pts.shape[1])
+        seg, inv = np.zeros_like(start), np.zeros(len(start))
     s, d = start.shape
     step = max(1, _POINT_COST_ELEMS // (s * d))
     nearest = np.empty(len(pts))
@@ -427,7 +452,8 @@ class SpatialCostModel:
     def from_population(
         cls, config: SpatialConfig, trajectories: Sequence[ArrayLike]
     ) -> SpatialCostModel:
-        """Prior from M >= 1 other people's paths of this task (each (T_m, d)).
+        """Prior from M >= 1 other people's paths of this task (each (T_m, d), or (T_m, K, d)
+        for K body points; see :func:`point_cost`).
 
         Mean: Eq. 9, the average over people of their point costs. Variance: ``config.prior_var``
         or, when None, the per-point population variance floored at ``config.min_prior_var``.
@@ -436,7 +462,7 @@ class SpatialCostModel:
             raise ValueError("from_population needs at least one population trajectory")
         grid = config.grid()
         costs = np.stack([
-            point_cost(grid, _check_points(t, f"population trajectory {m}", config.dim),
+            point_cost(grid, _check_path(t, f"population trajectory {m}", config.dim),
                        config.beta, polyline=config.polyline)
             for m, t in enumerate(trajectories)
         ])
@@ -474,12 +500,13 @@ class SpatialCostModel:
         return self._stale
 
     def observe(self, traj: ArrayLike) -> None:
-        """Conjugate update with one observed path (T, d) of this person (Eqs. 10-11).
+        """Conjugate update with one observed path (T, d) or (T, K, d) of this person
+        (Eqs. 10-11).
 
         At every grid point s_obs = point_cost(x, traj);
         1/var' = 1/var + 1/rho and mean' = var' (mean/var + s_obs/rho). Marks the MLP stale.
         """
-        obs = point_cost(self._grid, _check_points(traj, "trajectory", self.config.dim),
+        obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
                          self.config.beta, polyline=self.config.polyline)
         rho = self.config.rho
         new_var = 1.0 / (1.0 / self._var + 1.0 / rho)
@@ -728,7 +755,8 @@ class SpatialModel:
     def from_population(
         cls, config: SpatialConfig, trajectories: Mapping[str, Sequence[ArrayLike]]
     ) -> SpatialModel:
-        """Prior models from population paths: task id -> list of (T, d) arrays (Eq. 9)."""
+        """Prior models from population paths: task id -> list of (T, d) or (T, K, d) arrays
+        (Eq. 9)."""
         return cls(config, {tid: SpatialCostModel.from_population(config, trajs)
                             for tid, trajs in trajectories.items()})
 
@@ -754,7 +782,7 @@ class SpatialModel:
         return len(self._models)
 
     def observe(self, task_id: str, traj: ArrayLike) -> None:
-        """Update task ``task_id`` with one observed path (T, d) of this person."""
+        """Update task ``task_id`` with one observed path (T, d) or (T, K, d) of this person."""
         self[task_id].observe(traj)
 
     def refit(self, tasks: Iterable[str] | None = None) -> dict[str, FitReport]:

@@ -24,6 +24,7 @@ __all__ = ["BUILTIN", "UnknownWorldError", "make_world", "register", "world_name
 
 BUILTIN: dict[str, str] = {
     "fetch": "rapidds.worlds.fetch:FetchWorld",
+    "painting": "rapidds.worlds.painting:PaintingWorld",
 }
 
 ENV_VAR = "RAPIDDS_WORLDS"

@@ -1,0 +1,496 @@
+"""The collaborative-painting world, the paper's robot case ("Collaborative Painting"): a Franka
+Emika Panda and a person at one table (scene: :mod:`rapidds.worlds.painting.scene`).
+
+Tasks: ``prep_vise`` (open the vise) then ``secure_piece`` (clamp the workpiece), the person's
+only; ``mix_l`` and ``mix_r`` (paint from the left / right tray into the bowl), the robot's
+only; ``brush`` (paint the piece), either agent's, after the piece is secured and both paints
+are mixed. The ``constrained`` variant adds Mix R before Mix L.
+
+Robot trajectories are (H, 7) joint vectors (the fingers stay fixed), row k at time k * dt;
+``robot_points`` maps them to 12 points along the arm (forward kinematics), where the spatial
+model, in the 3-D workspace, scores them. People are 4 body points (hands and elbows).
+
+Completion time d_j^r: the first row k (reported as k * dt) at which the tool tip is back
+within ``rest_radius`` of its rest position after visiting the task's goals in order (mix: the
+paint in its tray, then the bowl; brush: one end of the workpiece's top, then the other). A
+trajectory that never does so takes ``penalty`` = 2 * H * dt plus ``SHORTFALL_RATE`` (100 s per
+metre) times how far it stays short (the distance still to go to each goal it misses, from the
+rows after the earlier goals); one that cannot be executed takes H * dt more: leaving a joint's
+range, a joint faster than 1.1 times its speed limit between rows, or any arm point (a sphere
+of its link's radius) touching the table top or a fixed object; only the tool tip may enter the
+trays, the bowl and the workpiece. The graded penalty matters for steering: early in the
+reverse process every candidate's clean estimate misses the goals, and with one flat penalty
+the spatial term alone would pick among them, which always favours the avoidant mode.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rapidds.problem import Objective, Problem, Task
+from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.worlds.painting.scene import LAYOUT, Box, CellLayout
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from rapidds.worlds.painting.kinematics import ArmKinematics
+    from rapidds.worlds.painting.motions import Motion
+    from rapidds.worlds.painting.teammates import PaintingTeammate
+
+__all__ = [
+    "PRECEDENCE",
+    "TASK_IDS",
+    "VARIANTS",
+    "PaintingWorld",
+]
+
+TASK_IDS: tuple[str, ...] = ("prep_vise", "secure_piece", "mix_l", "mix_r", "brush")
+VARIANTS: tuple[str, ...] = ("unconstrained", "constrained")
+PRECEDENCE: tuple[tuple[str, str], ...] = (
+    ("prep_vise", "secure_piece"),
+    ("secure_piece", "brush"),
+    ("mix_l", "brush"),
+    ("mix_r", "brush"),
+)
+_DESCRIPTIONS = {
+    "prep_vise": "open the vise",
+    "secure_piece": "clamp the workpiece in the vise",
+    "mix_l": "transfer paint from the left tray to the bowl",
+    "mix_r": "transfer paint from the right tray to the bowl",
+    "brush": "brush the mixed paint onto the piece",
+}
+_ALLOWED = {"prep_vise": ("human",), "secure_piece": ("human",), "mix_l": ("robot",),
+            "mix_r": ("robot",), "brush": ("human", "robot")}
+_ROBOT_TASKS = ("mix_l", "mix_r", "brush")
+_SPEED_MARGIN = 1.1   # a row-to-row joint speed above this times the limit cannot be executed
+_GOAL_INSET = 0.015   # m, goal footprints are the containers' inner areas shrunk by this
+SHORTFALL_RATE = 100.0  # s per metre a trajectory that never completes stays short of doing so
+
+# Diffusion policy of this world. The fetch network ([16, 32, 64]) is too small for 7-D joint
+# trajectories: trained 6000 steps it completed 7 % of its mix samples (the tool ended 10 cm from
+# rest); [24, 48, 96] completes over 90 % after 3000 steps (docs/benchmarks.md, "Painting
+# policy").
+POLICY_DEFAULTS: dict[str, object] = {
+    "down_dims": [24, 48, 96],
+    "num_inference_steps": 10,
+    "steps": 5000,
+    "batch_size": 64,
+    "lr": 2e-3,
+}
+
+
+@dataclass(frozen=True, eq=False)
+class PaintingWorld:
+    """The painting cell (module docstring).
+
+    variant: "unconstrained" (mix order free) or "constrained" (Mix R before Mix L).
+    dt: seconds per trajectory row; horizon: H, a multiple of 8, long enough for the slowest
+    demonstration. rest_radius: metres within which the tool is back at rest. gamma, lam: the
+    objective's default weights (the paper's painting runs use gamma 12, 25 and 85; lambda 10
+    explores the one shared task, Brush; see docs/design-notes.md, "The painting cell").
+    beta: spatial decay, 1/m. grid: spatial grid points per axis. prior_people,
+    prior_samples, prior_seed: the population the priors come from. layout: the cell.
+    """
+
+    variant: str = "unconstrained"
+    dt: float = 0.15
+    horizon: int = 64
+    rest_radius: float = 0.03
+    gamma: float = 12.0
+    lam: float = 10.0
+    beta: float = 14.0
+    grid: int = 22
+    prior_people: int = 40
+    prior_samples: int = 1
+    prior_seed: int = 0
+    layout: CellLayout = field(default=LAYOUT, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown painting variant {self.variant!r}; variants are "
+                             f"{', '.join(VARIANTS)}")
+        for name in ("dt", "rest_radius", "beta"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"PaintingWorld.{name} must be a finite number > 0, got {v!r}")
+        for name in ("gamma", "lam"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"PaintingWorld.{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.horizon, int) or self.horizon <= 0 or self.horizon % 8:
+            raise ValueError(f"PaintingWorld.horizon must be a positive multiple of 8, "
+                             f"got {self.horizon!r}")
+        if not isinstance(self.grid, int) or self.grid < 2:
+            raise ValueError(f"PaintingWorld.grid must be an integer >= 2, got {self.grid!r}")
+        if self.prior_people < 2 or self.prior_samples < 1:
+            raise ValueError("PaintingWorld needs prior_people >= 2 and prior_samples >= 1")
+
+    # -- the World protocol ---------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return "painting"
+
+    @property
+    def variants(self) -> tuple[str, ...]:
+        return VARIANTS
+
+    @property
+    def task_ids(self) -> tuple[str, ...]:
+        return TASK_IDS
+
+    @property
+    def state_dim(self) -> int:
+        return 7
+
+    @property
+    def workspace_dim(self) -> int:
+        return 3
+
+    @property
+    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The table's working volume: where arm and hands can come close. Higher arm points
+        are clamped onto the top face by the spatial model, where people are > 0.4 m away."""
+        return np.array([-0.7, -0.65, -0.05]), np.array([0.7, 0.7, 0.65])
+
+    @property
+    def spatial_beta(self) -> float:
+        return self.beta
+
+    @property
+    def spatial_grid(self) -> int:
+        return self.grid
+
+    @property
+    def teammate_names(self) -> tuple[str, ...]:
+        from rapidds.worlds.painting.teammates import ARCHETYPES
+
+        return tuple(ARCHETYPES)
+
+    @property
+    def policy_defaults(self) -> dict[str, object]:
+        return dict(POLICY_DEFAULTS)
+
+    @property
+    def views(self) -> dict[str, tuple[int, int]]:
+        return {"top": (0, 1), "side": (1, 2)}
+
+    @property
+    def penalty(self) -> float:
+        """Completion time of a trajectory that never completes its task: 2 * H * dt."""
+        return 2.0 * self.horizon * self.dt
+
+    def problem(self) -> Problem:
+        return self._problem
+
+    @cached_property
+    def _problem(self) -> Problem:
+        prior = self.prior()
+        tasks = []
+        for task in TASK_IDS:
+            allowed = _ALLOWED[task]
+            mean = std = robot = None
+            if "human" in allowed:
+                d = np.asarray(prior.durations[task], dtype=float)
+                mean, std = round(float(d.mean()), 2), round(float(d.std(ddof=1)), 2)
+            if "robot" in allowed:
+                robot = float(self.completion_time(task, self.robot_trajectory(task)[None])[0])
+            tasks.append(Task(id=task, allowed=frozenset(allowed), human_mean=mean,
+                              human_std=std, robot_duration=robot,
+                              description=_DESCRIPTIONS[task]))
+        precedence = PRECEDENCE + ((("mix_r", "mix_l"),) if self.variant == "constrained" else ())
+        name = "painting" if self.variant == "unconstrained" else f"painting-{self.variant}"
+        return Problem(name, tuple(tasks), precedence, Objective(self.gamma, self.lam))
+
+    def prior(self) -> PopulationPrior:
+        return self._prior
+
+    @cached_property
+    def _prior(self) -> PopulationPrior:
+        from rapidds.worlds.painting.teammates import population, population_statistics
+
+        rng = np.random.default_rng(self.prior_seed)
+        people = population(self.prior_people, rng, dt=self.dt, layout=self.layout)
+        durations, paths = population_statistics(people, self.prior_samples, rng)
+        return PopulationPrior(durations, paths)
+
+    def teammate(self, name: str) -> PaintingTeammate:
+        from rapidds.worlds.painting.teammates import archetype
+
+        return archetype(name, dt=self.dt, layout=self.layout)
+
+    def robot_points(self, traj: np.ndarray) -> np.ndarray:
+        """(..., H, 7) joint trajectories -> (..., H, 12, 3) points along the arm."""
+        return self.kinematics.points(traj)
+
+    def robot_rest(self) -> np.ndarray:
+        from rapidds.worlds.painting.motions import rest_pose
+
+        return rest_pose(self.layout).copy()
+
+    def human_rest(self) -> np.ndarray:
+        from rapidds.worlds.painting.teammates import rest_points
+
+        return rest_points(self.layout)
+
+    def completion_time(self, task: str, traj: np.ndarray) -> np.ndarray:
+        """(...,) seconds for (..., H, 7) robot trajectories (module docstring). One that never
+        completes ``task`` gets ``penalty`` plus ``SHORTFALL_RATE`` seconds per metre it stays
+        short (module docstring), and ``horizon * dt`` more when it cannot be executed."""
+        goals = self._goals(task)
+        q = np.asarray(traj, dtype=float)
+        if q.ndim < 2 or q.shape[-1] != 7:
+            raise ValueError(f"painting trajectories must have shape (..., H, 7), got {q.shape}")
+        lead, h = q.shape[:-2], q.shape[-2]
+        flat = q.reshape(-1, h, 7)
+        pts = self.kinematics.points(flat)                                  # (N, H, P, 3)
+        tool = pts[:, :, -1]
+        reached = np.ones((flat.shape[0], h), dtype=bool)
+        short = np.zeros(flat.shape[0])
+        rest = np.maximum(np.linalg.norm(tool - self._rest_tool, axis=-1) - self.rest_radius, 0.0)
+        for gap in [_box_gap(tool, lo, hi) for lo, hi in goals] + [rest]:
+            # distance still to go to this goal, from the rows after the earlier goals were met
+            # (from any row when they never were)
+            after = reached | ~reached.any(axis=1, keepdims=True)
+            short += np.where(after, gap, np.inf).min(axis=1)
+            reached = np.logical_or.accumulate((gap <= 0.0) & reached, axis=1)
+        done = reached.any(axis=1)
+        k = np.argmax(reached, axis=1)
+        t = np.where(done, np.round(k * self.dt, 9), self.penalty + SHORTFALL_RATE * short)
+        bad = ~self.executable(flat, pts)
+        t = np.where(bad, self.penalty + self.horizon * self.dt + SHORTFALL_RATE * short, t)
+        return t.reshape(lead).astype(float)
+
+    def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
+        """``n_per_mode`` demonstrations of each mode ("direct", "avoidant") of each robot task
+        (mix_l, mix_r, brush), in (task, mode) order.
+
+        Noise, as in fetch: every waypoint between rest and rest is jittered in joint space
+        (N(0, 0.03^2) rad; 0.004 rad at the dips and stroke ends, so goals stay reached), the
+        pace by a factor N(1, 0.04) clipped to [0.92, 1.08] and the pauses by U(0.8, 1.2). A draw
+        that is not executable or misses its task is redrawn, so every row is collision-free
+        and completes its task.
+        """
+        from rapidds.worlds.painting.motions import MODES, nominal_motion
+
+        if n_per_mode < 1:
+            raise ValueError(f"n_per_mode must be >= 1, got {n_per_mode}")
+        trajs, index, modes = [], [], []
+        for i, task in enumerate(_ROBOT_TASKS):
+            for mode in MODES:
+                motion = nominal_motion(task, mode, self.layout)
+                for _ in range(n_per_mode):
+                    trajs.append(self._noisy(task, motion, rng))
+                    index.append(i)
+                    modes.append(mode)
+        return RobotDemos(np.stack(trajs), np.array(index, dtype=np.int64), _ROBOT_TASKS,
+                          np.array(modes))
+
+    def bundled_policy(self) -> Path | None:
+        path = Path(__file__).resolve().parent / "policy"
+        return path if (path / "config.json").is_file() else None
+
+    def motion_label(self, task: str, traj: np.ndarray) -> str:
+        """"direct" or "avoidant": the mode whose nominal tool path lies closer to this
+        trajectory's (mean distance from each tool position to the nearest point of the
+        nominal path, both ways). For reports, not for planning."""
+        from rapidds.worlds.painting.motions import MODES
+
+        self._goals(task)
+        tool = self.kinematics.tool(np.asarray(traj, dtype=float).reshape(-1, 7))
+        best, label = math.inf, MODES[0]
+        for mode in MODES:
+            ref = self._nominal_tool[task, mode]
+            gap = np.linalg.norm(tool[:, None] - ref[None], axis=-1)
+            score = gap.min(axis=1).mean() + gap.min(axis=0).mean()
+            if score < best:
+                best, label = score, mode
+        return label
+
+    def draw(self, ax: Axes, view: str = "top") -> None:
+        """Table, trays, bowl, vise, racks, robot base and the person at rest, seen from
+        ``view`` ("top": x right, y away from the person; "side": y, z from the person's
+        left)."""
+        from matplotlib.patches import Circle, Rectangle
+
+        if view not in self.views:
+            raise ValueError(f"unknown view {view!r}; views are {', '.join(self.views)}")
+        h, v = self.views[view]
+        lay = self.layout
+        colours = {"table": "0.85", "vise": "0.35", "vise_handle": "0.2", "workpiece": "tan",
+                   "bowl": "0.95", "left_tray": "tab:blue", "right_tray": "tab:orange",
+                   "left_rack": "0.55", "right_rack": "0.55"}
+        boxes: dict[str, Box] = {"table": lay.table, **lay.obstacles()}
+        for name, box in boxes.items():
+            lo, hi = box.lo, box.hi
+            ax.add_patch(Rectangle((lo[h], lo[v]), hi[h] - lo[h], hi[v] - lo[v],
+                                   facecolor=colours[name], edgecolor="0.1", lw=0.6,
+                                   zorder=1 if name == "table" else 2))
+        base = np.array(lay.robot_base)
+        ax.add_patch(Circle((base[h], base[v] + (0.0 if view == "top" else 0.05)), 0.07,
+                            facecolor="0.3", edgecolor="k", zorder=3))
+        ax.annotate("robot", (base[h], base[v]), xytext=(6, 6), textcoords="offset points",
+                    fontsize=8)
+        body = self.human_rest()
+        shoulders = np.array([lay.left_shoulder, lay.right_shoulder])
+        for k, side in enumerate(("left", "right")):
+            arm = np.array([shoulders[k], body[2 + k], body[k]])
+            ax.plot(arm[:, h], arm[:, v], "-o", color="tab:red", ms=3, lw=2, zorder=4,
+                    label="person at rest" if side == "left" else None)
+        ax.set_aspect("equal")
+        names = "xyz"
+        ax.set_xlabel(f"{names[h]} (m)")
+        ax.set_ylabel(f"{names[v]} (m)")
+
+    # -- geometry and motions -------------------------------------------------------------------
+    @property
+    def kinematics(self) -> ArmKinematics:
+        """The arm's forward kinematics (loads the MuJoCo scene on first use)."""
+        from rapidds.worlds.painting.kinematics import arm_kinematics
+
+        return arm_kinematics(self.layout)
+
+    @cached_property
+    def _nominal_tool(self) -> dict[tuple[str, str], np.ndarray]:
+        """(task, mode) -> (H, 3) tool path of the noise-free motion."""
+        return {(t, m): self.kinematics.tool(self.robot_trajectory(t, m))
+                for t in _ROBOT_TASKS for m in self.modes(t)}
+
+    @cached_property
+    def _rest_tool(self) -> np.ndarray:
+        return self.kinematics.tool(self.robot_rest())
+
+    def modes(self, task: str) -> tuple[str, ...]:
+        """Motion modes of a robot task, the default (fastest) first."""
+        from rapidds.worlds.painting.motions import MODES
+
+        if task not in _ROBOT_TASKS:
+            raise ValueError(f"{task!r} is not a robot task of the painting world; robot tasks "
+                             f"are {', '.join(_ROBOT_TASKS)}")
+        return MODES
+
+    def motion(self, task: str, mode: str | None = None) -> Motion:
+        """The nominal motion of ``task`` in ``mode`` (default: direct)."""
+        from rapidds.worlds.painting.motions import nominal_motion
+
+        return nominal_motion(task, mode or self.modes(task)[0], self.layout)
+
+    def robot_trajectory(self, task: str, mode: str | None = None) -> np.ndarray:
+        """(H, 7) the robot's noise-free trajectory of ``task`` in ``mode`` (default direct)."""
+        return self.motion(task, mode).sample(self.dt, self.horizon)
+
+    def goal_boxes(self, task: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(lo, hi) boxes the tool tip must visit in order to do ``task``."""
+        return [(lo.copy(), hi.copy()) for lo, hi in self._goals(task)]
+
+    def executable(self, traj: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
+        """(N,) bool for (N, H, 7) trajectories: within joint ranges, no joint faster than
+        1.1 times its limit between rows, and no arm point touching the table or an object.
+        ``points``: their (N, H, P, 3) arm points, when already computed."""
+        kin = self.kinematics
+        q = np.asarray(traj, dtype=float)
+        in_range = ((q >= kin.lower) & (q <= kin.upper)).all(axis=(-1, -2))
+        speed = np.abs(np.diff(q, axis=-2)) / self.dt
+        slow = (speed <= _SPEED_MARGIN * kin.velocity).all(axis=(-1, -2))
+        pts = kin.points(q) if points is None else points
+        return in_range & slow & ~self.collides(pts)
+
+    def collides(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool for arm points (N, H, P, 3): a point's sphere (its link radius) touches
+        the table top (z = 0) or an object; the tool tip may enter trays, bowl and piece."""
+        from rapidds.worlds.painting.kinematics import POINT_RADII, TOOL
+
+        p = np.asarray(points, dtype=float)
+        n = p.shape[0]
+        flat = p.reshape(n, -1, 3)
+        radius = np.broadcast_to(POINT_RADII, p.shape[1:-1]).reshape(-1)
+        tool = np.zeros(p.shape[1:-1], dtype=bool)
+        tool[..., TOOL] = True
+        tool = tool.reshape(-1)
+        hit = ((flat[..., 2] - radius) < 0.0).any(axis=1)
+        lows, highs, open_to_tool = self._obstacle_arrays
+        # Only points low enough to reach an object need the box test.
+        near = flat[..., 2] - radius < highs[:, 2].max()
+        rows, cols = np.nonzero(near)
+        if rows.size:
+            c = flat[rows, cols]                                              # (M, 3)
+            r = radius[cols]
+            gap = np.maximum(lows[None] - c[:, None], 0.0) + np.maximum(c[:, None] - highs[None],
+                                                                        0.0)  # (M, B, 3)
+            touch = (gap * gap).sum(axis=-1) <= (r * r)[:, None]
+            touch &= ~(tool[cols][:, None] & open_to_tool[None])
+            hit[np.unique(rows[touch.any(axis=1)])] = True
+        return hit
+
+    # -- internals ------------------------------------------------------------------------------
+    @cached_property
+    def _obstacle_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        obstacles = self.layout.obstacles()
+        lows = np.array([b.lo for b in obstacles.values()])
+        highs = np.array([b.hi for b in obstacles.values()])
+        tool_ok = np.array([name in ("workpiece", "bowl", "left_tray", "right_tray")
+                            for name in obstacles])
+        return lows, highs, tool_ok
+
+    def _goals(self, task: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        return self._goal_table[self._check_robot_task(task)]
+
+    @cached_property
+    def _goal_table(self) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+        from rapidds.worlds.painting.motions import DIP, STROKE_HALF
+
+        lay = self.layout
+
+        def paint(box: Box) -> tuple[np.ndarray, np.ndarray]:
+            """The tool in the container's paint: inside its rim, below the rim by half a dip."""
+            lo = box.lo + np.array([_GOAL_INSET, _GOAL_INSET, 0.0])
+            hi = box.hi - np.array([_GOAL_INSET, _GOAL_INSET, DIP / 2])
+            return lo, hi
+
+        piece = lay.workpiece
+        top = piece.hi[2]
+        ends = []
+        for sign in (-1.0, 1.0):
+            c = np.array([piece.center[0] + sign * STROKE_HALF, piece.center[1], top + 0.005])
+            half = np.array([0.012, 0.012, 0.01])
+            ends.append((c - half, c + half))
+        return {"mix_l": [paint(lay.left_tray), paint(lay.bowl)],
+                "mix_r": [paint(lay.right_tray), paint(lay.bowl)],
+                "brush": ends}
+
+    def _check_robot_task(self, task: str) -> str:
+        if task not in _ROBOT_TASKS:
+            if task in TASK_IDS:
+                raise ValueError(f"{task!r} is the person's task; the robot's are "
+                                 f"{', '.join(_ROBOT_TASKS)}")
+            raise ValueError(f"unknown painting task {task!r}; tasks are {', '.join(TASK_IDS)}")
+        return task
+
+    def _noisy(self, task: str, motion: Motion, rng: np.random.Generator,
+               tries: int = 100) -> np.ndarray:
+        goal_rows = motion.stop.copy()
+        goal_rows[[0, -1]] = False
+        for _ in range(tries):
+            wp = motion.waypoints.copy()
+            sd = np.where(goal_rows, 0.004, 0.03)[:, None]
+            jitter = rng.normal(0.0, 1.0, size=wp.shape) * sd
+            jitter[[0, -1]] = 0.0
+            speed = float(np.clip(rng.normal(1.0, 0.04), 0.92, 1.08))
+            pause = float(rng.uniform(0.8, 1.2))
+            traj = motion.sample(self.dt, self.horizon, speed, wp + jitter, pause)
+            if self.completion_time(task, traj[None])[0] < self.penalty and \
+                    motion.duration(speed) < (self.horizon - 2) * self.dt:
+                return traj
+        return motion.sample(self.dt, self.horizon)  # nominal: tested to be valid
+
+
+def _box_gap(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Distance (...,) of points (..., 3) to the box [lo, hi]; 0 inside."""
+    out = np.maximum(lo - points, 0.0) + np.maximum(points - hi, 0.0)
+    return np.linalg.norm(out, axis=-1)
