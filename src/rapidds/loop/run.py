@@ -12,6 +12,7 @@ cycle draws its random numbers from (seed, cycle) and the stored state holds eve
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -321,9 +322,9 @@ class AdaptiveRun:
                                  float(dep.timeline.finish[0, idx[t]])] for t in self.problem.ids},
             },
             "observed": {t: ex.duration for t, ex in dep.human.items()},
-            "belief": {"mean_durations": dict(zip(self.problem.ids,
-                                                  self.model.temporal.mean().tolist(),
-                                                  strict=True))},
+            "belief": {"mean_durations": {  # of the tasks the person may do
+                t: m for t, m in zip(self.problem.ids, self.model.temporal.mean().tolist(),
+                                     strict=True) if math.isfinite(m)}},
             "search": plan.search,
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
