@@ -39,6 +39,9 @@ class RunConfig(Settings):
         noise variance. grid_points: spatial grid points per axis (None: the world's).
     surrogate: evaluate spatial costs with the MLP surrogate (the paper) instead of exact grid
         interpolation; costs a refit per cycle.
+    reuse_motions: answer a motion request from the plan steered for it in an earlier cycle
+        while the spatial models it was steered against are unchanged (:mod:`.carry`); False
+        empties the memory every cycle as Algorithm 1 does.
     """
 
     world: str = "fetch"
@@ -60,6 +63,7 @@ class RunConfig(Settings):
     rho: Annotated[float, Field(gt=0)] = 0.05
     grid_points: Annotated[int, Field(ge=2, le=512)] | None = None
     surrogate: bool = False
+    reuse_motions: bool = True
 
     def resolved(self, world: World) -> RunConfig:
         """Every None replaced by the world's value: what is stored, so a resumed run cannot

@@ -13,7 +13,9 @@ import numpy as np
 from rapidds.errors import RapiddsError, StateError
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
+from rapidds.loop.carry import Stamped, decode_plans, encode_plans
 from rapidds.loop.config import RunConfig
+from rapidds.motion.interface import MotionKey
 from rapidds.scheduler import AllocationHistory
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
 
@@ -29,16 +31,19 @@ __all__ = [
 
 @dataclass
 class HumanModel:
-    """What the planner believes about the person; serialised after every cycle."""
+    """What the planner believes about the person, with the past allocations and the steered
+    motions carried to the next cycle (:mod:`rapidds.loop.carry`); serialised after every
+    cycle."""
 
     temporal: TemporalModel
     spatial: SpatialModel
     history: AllocationHistory = field(default_factory=AllocationHistory)
+    motions: dict[MotionKey, Stamped] = field(default_factory=dict)
 
     def to_bytes(self) -> bytes:
         doc = {"temporal": self.temporal.to_dict(), "spatial": self.spatial.to_dict(),
-               "history": self.history.to_dict()}
-        return zlib.compress(json.dumps(doc).encode())
+               "history": self.history.to_dict(), "motions": encode_plans(self.motions)}
+        return zlib.compress(json.dumps(doc, allow_nan=False).encode())
 
     @classmethod
     def from_bytes(cls, data: bytes) -> HumanModel:
@@ -46,7 +51,8 @@ class HumanModel:
             doc = json.loads(zlib.decompress(data))
             return cls(TemporalModel.from_dict(doc["temporal"]),
                        SpatialModel.from_dict(doc["spatial"]),
-                       AllocationHistory.from_dict(doc["history"]))
+                       AllocationHistory.from_dict(doc["history"]),
+                       decode_plans(doc.get("motions", [])))
         except (zlib.error, ValueError, TypeError, KeyError) as exc:
             raise StateError(f"stored human model is corrupt ({exc})") from None
 

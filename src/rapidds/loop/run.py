@@ -23,6 +23,7 @@ import numpy as np
 
 from rapidds.errors import CheckpointError, RapiddsError, StateError
 from rapidds.human.spatial import SpatialModel
+from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment, deploy
 from rapidds.loop.model import (
@@ -33,7 +34,7 @@ from rapidds.loop.model import (
     workspace_cost,
 )
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
-from rapidds.motion.interface import TrajectoryCache
+from rapidds.motion.interface import MotionKey, MotionModel, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule, Timeline
@@ -95,6 +96,7 @@ class CyclePlan:
 
     ``rng`` is the cycle's random stream after planning; execution continues from it, so a
     simulated cycle draws the same numbers whether it is run in one call or step by step.
+    ``motions`` are the steered plans to carry into the next cycle once this one is recorded.
     """
 
     cycle: int
@@ -103,6 +105,7 @@ class CyclePlan:
     search: dict[str, Any]
     rng: np.random.Generator = field(repr=False)
     seconds: float = 0.0
+    motions: dict[MotionKey, Stamped] = field(default_factory=dict, repr=False)
 
 
 @runtime_checkable
@@ -209,7 +212,7 @@ class AdaptiveRun:
         return self._oracle_spatial
 
     def _plan_exact(
-        self, motion: DiffusionMotion, samples: np.ndarray, mean: np.ndarray
+        self, motion: MotionModel, samples: np.ndarray, mean: np.ndarray
     ) -> tuple[Evaluation, dict[str, Any]]:
         """CP-SAT on the prior mean durations, scored like every other plan."""
         exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
@@ -231,23 +234,26 @@ class AdaptiveRun:
         samples, mean = self._durations(rng)
         exact = cfg.adapt == "exact"
         gamma = 0.0 if exact else self.problem.objective.gamma  # the CP-SAT user ignores proximity
-        motion = DiffusionMotion(
+        spatial = self._spatial()
+        motion: MotionModel = DiffusionMotion(
             self.policy, self.world.completion_time,
-            workspace_cost(self.world, self._spatial()), gamma,
+            workspace_cost(self.world, spatial), gamma,
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
         )
+        carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
+                                 spatial_stamps(spatial))
         ga_seed = int(rng.integers(2**31))
         lam = 0.0 if exact else cfg.lam_at(c)
         if exact:
-            best, search = self._plan_exact(motion, samples, mean)
+            best, search = self._plan_exact(carried, samples, mean)
         else:
             # The GA's runner-up polishes off: every new (j, C_j) they reach is a steering
             # call, and they made a fetch trial ~50 % dearer (5.5 s against 3.6 s in the full
             # study) for a 4-task job the GA already solves. The order search off too: on this
             # job it changed no plan and no motion request in 32 cycles, and off keeps the
             # plans of the committed study (docs/reproduction.md).
-            ga = GeneticScheduler(self.problem.with_objective(lam=lam), motion, GAConfig(
+            ga = GeneticScheduler(self.problem.with_objective(lam=lam), carried, GAConfig(
                 population=cfg.population, generations=cfg.generations, samples=cfg.samples,
                 patience=cfg.patience, polish_allocations=1, order_search_nodes=0,
                 seed=ga_seed))
@@ -255,7 +261,9 @@ class AdaptiveRun:
             best = result.best
             search = {"generations": result.generations_run, "evaluations": result.evaluations,
                       "motion_requests": result.cache_misses}
-        return CyclePlan(c, best, lam, search, rng, time.perf_counter() - t0)
+        search["motions_reused"] = carried.reused
+        return CyclePlan(c, best, lam, search, rng, time.perf_counter() - t0,
+                         carried.carried if cfg.reuse_motions else {})
 
     # -- execute ------------------------------------------------------------------------------
     def execute(self, plan: CyclePlan,
@@ -289,6 +297,7 @@ class AdaptiveRun:
         if learn_space:
             self.model.spatial.refit(deployment.human)
         self.model.history.record(plan.best.schedule)
+        self.model.motions = plan.motions
         self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
 
     # -- record -------------------------------------------------------------------------------

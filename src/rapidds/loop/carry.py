@@ -1,0 +1,100 @@
+"""Steered motions carried from one cycle to the next while their value function is unchanged.
+
+Algorithm 1 empties the memory M of steered motions at the start of every cycle. The value a
+motion request (j, C_j) is steered against, V(xi) = d_j(xi) + gamma max_{i in C_j} S_i(xi),
+changes between cycles only through the spatial models S_i of the tasks in C_j (the world, the
+policy and gamma are fixed for a run). So a plan steered in an earlier cycle is still a sample of
+the very same steering problem as long as none of those models moved, and steering again would
+only draw another one. :class:`CarriedMotions` answers such requests from the carried plans and
+steers the rest; every plan is stamped with a fingerprint of the S_i it was steered against.
+
+Without learning (levels none, temporal, oracle, exact) nothing moves, and after the first cycle
+only overlap sets never met before are steered; with spatial learning, the requests that involve
+a task the person did in the last cycle are steered again. The carried plans are part of the
+stored state, so a resumed run plans exactly as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from rapidds.errors import StateError
+from rapidds.human.spatial import SpatialModel
+from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
+from rapidds.problem import Problem
+
+__all__ = ["CarriedMotions", "decode_plans", "encode_plans", "spatial_stamps"]
+
+Stamped = tuple[MotionPlan, dict[str, str]]
+"""A plan and the fingerprints of the spatial models of its concurrent tasks."""
+
+
+def spatial_stamps(spatial: SpatialModel) -> dict[str, str]:
+    """task -> fingerprint of what S_task evaluates (the posterior mean, or the MLP weights when
+    the surrogate evaluates it)."""
+    out = {}
+    for task in spatial.tasks:
+        model = spatial[task]
+        h = hashlib.sha1(np.ascontiguousarray(model.mean).tobytes())
+        if model.config.use_surrogate:
+            sur = model.to_dict()["surrogate"]
+            h.update(repr(sur and sur["state"]).encode())
+        out[task] = h.hexdigest()[:16]
+    return out
+
+
+class CarriedMotions:
+    """A :class:`~rapidds.motion.interface.MotionModel` that reuses carried plans whose
+    concurrent tasks' spatial models are unchanged and steers every other request with
+    ``inner``. ``carried`` is updated in place with every plan steered here."""
+
+    def __init__(self, inner: MotionModel, carried: dict[MotionKey, Stamped],
+                 stamps: Mapping[str, str]):
+        self.inner = inner
+        self.carried = carried
+        self.stamps = dict(stamps)
+        self.reused = 0
+
+    def _valid(self, key: MotionKey) -> bool:
+        got = self.carried.get(key)
+        return got is not None and all(got[1].get(t) == self.stamps.get(t) for t in key[1])
+
+    def nominal_durations(self, problem: Problem) -> np.ndarray:
+        return self.inner.nominal_durations(problem)
+
+    def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
+        fresh = [k for k in requests if not self._valid(k)]
+        for key, plan in zip(fresh, self.inner.plan(fresh) if fresh else [], strict=True):
+            self.carried[key] = (plan, {t: self.stamps[t] for t in key[1]})
+        self.reused += len(requests) - len(fresh)
+        return [self.carried[k][0] for k in requests]
+
+
+def encode_plans(carried: Mapping[MotionKey, Stamped]) -> list[dict[str, Any]]:
+    """JSON-safe list (floats as repr-exact Python floats)."""
+    out = []
+    for (task, concurrent), (plan, stamps) in carried.items():
+        out.append({"task": task, "concurrent": sorted(concurrent), "duration": plan.duration,
+                    "spatial": plan.spatial_cost, "stamps": stamps,
+                    "trajectory": None if plan.trajectory is None else plan.trajectory.tolist()})
+    return out
+
+
+def decode_plans(items: Sequence[Mapping[str, Any]]) -> dict[MotionKey, Stamped]:
+    """Inverse of :func:`encode_plans`; StateError on malformed entries."""
+    out: dict[MotionKey, Stamped] = {}
+    try:
+        for d in items:
+            key = (str(d["task"]), frozenset(str(t) for t in d["concurrent"]))
+            traj = None if d["trajectory"] is None else np.asarray(d["trajectory"], dtype=float)
+            if traj is not None and (traj.ndim != 2 or not np.isfinite(traj).all()):
+                raise ValueError(f"trajectory of {key[0]} is not a finite (H, d) array")
+            plan = MotionPlan(key[0], key[1], float(d["duration"]), float(d["spatial"]), traj)
+            out[key] = (plan, {str(k): str(v) for k, v in dict(d["stamps"]).items()})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StateError(f"stored motions are corrupt ({exc})") from None
+    return out

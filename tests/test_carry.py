@@ -1,0 +1,66 @@
+"""Steered motions carried across cycles: reused exactly while the spatial models they were
+steered against are unchanged, steered again as soon as one of them moves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
+from rapidds.loop.carry import CarriedMotions, spatial_stamps
+from rapidds.loop.model import prior_model, workspace_cost
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+
+
+@pytest.fixture()
+def belief(fetch_world):
+    return prior_model(fetch_world, RunConfig().resolved(fetch_world)).spatial
+
+
+def _motion(world, policy, spatial):
+    return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 1.75,
+                           SteeringConfig(particles=2, candidates=2, seed=0))
+
+
+def test_unchanged_models_reuse_and_a_moved_model_steers_again(fetch_world, fetch_policy, belief):
+    keys = [("t3", frozenset({"t2"})), ("t1", frozenset({"t0"})), ("t0", frozenset())]
+    carried: dict = {}
+    first = CarriedMotions(_motion(fetch_world, fetch_policy, belief), carried,
+                           spatial_stamps(belief))
+    plans = first.plan(keys)
+    assert first.inner.calls == 1 and first.reused == 0 and set(carried) == set(keys)
+
+    again = CarriedMotions(_motion(fetch_world, fetch_policy, belief), carried,
+                           spatial_stamps(belief))
+    assert again.plan(keys) == plans and again.inner.calls == 0 and again.reused == 3
+
+    belief.observe("t2", fetch_world.teammate("fast-middle").perform("t2",
+                                                                    np.random.default_rng(0))[1])
+    moved = CarriedMotions(_motion(fetch_world, fetch_policy, belief), carried,
+                           spatial_stamps(belief))
+    replanned = moved.plan(keys)
+    assert moved.inner.calls == 1 and moved.reused == 2  # only the request beside t2 is new
+    assert replanned[1:] == plans[1:] and replanned[0] is not plans[0]
+
+
+def test_runs_without_spatial_learning_steer_only_new_requests_after_cycle_0(fetch_policy, small):
+    run = AdaptiveRun(RunConfig(human="slow-middle", adapt="none", cycles=4, seed=2, **small),
+                      fetch_policy)
+    recs = run.run()
+    assert recs[0]["search"]["motions_reused"] == 0
+    assert sum(r["search"]["motions_reused"] for r in recs[1:]) > 0
+    fresh = AdaptiveRun(RunConfig(human="slow-middle", adapt="none", cycles=4, seed=2,
+                                  reuse_motions=False, **small), fetch_policy).run()
+    assert all(r["search"]["motions_reused"] == 0 for r in fresh)
+    assert recs[0] == {**fresh[0], "seconds": recs[0]["seconds"]}  # cycle 0 is the same
+
+
+def test_carried_motions_survive_a_round_trip_of_the_state(fetch_policy, small):
+    run = AdaptiveRun(RunConfig(human="fast-outside", cycles=2, seed=1, **small), fetch_policy)
+    run.run()
+    back = HumanModel.from_bytes(run.model.to_bytes())
+    assert set(back.motions) == set(run.model.motions) and back.motions
+    for key, (plan, stamps) in run.model.motions.items():
+        got, got_stamps = back.motions[key]
+        assert got_stamps == stamps and got.duration == plan.duration
+        np.testing.assert_array_equal(got.trajectory, plan.trajectory)
