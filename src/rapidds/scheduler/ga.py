@@ -28,6 +28,7 @@ Additions to the paper's loop, each measured on random instances against CP-SAT
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import time
@@ -176,16 +177,18 @@ class GeneticScheduler:
             if cfg.order_search_nodes:
                 schedules = [*schedules, *self._shortest_orders(schedules, searched, mean, d_init)]
             new = [s for s in dict.fromkeys(schedules) if s not in evaluated]
+            full: dict[Schedule, Evaluation] = {}
             if new:
                 fresh = evaluate_population(
                     problem, new, samples, mean, cache, d_init, gamma, lam, history,
                     cfg.max_overlap_iters,
                 )
                 for e in fresh:
-                    evaluated[e.schedule] = e
+                    full[e.schedule] = e
+                    evaluated[e.schedule] = _slim(e)
                     if best is None or e.objective < best.objective:
                         best, best_time = e, time.perf_counter() - t0
-            return [evaluated[s] for s in schedules]
+            return [full[s] if s in full else evaluated[s] for s in schedules]
 
         population = self._initial_population(rng, mean, d_init)
         ranked = _rank(evaluate(population))
@@ -583,6 +586,17 @@ class GeneticScheduler:
                 out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
         out.pop(s, None)
         return list(out)
+
+
+_NONE = np.empty(0)
+
+
+def _slim(e: Evaluation) -> Evaluation:
+    """What the search keeps of an evaluation it may meet again: the schedule, the objective
+    and the expected start times (for "move"). The samples' makespans, the motions and the
+    overlaps of every schedule evaluated would fill gigabytes on 64-128 tasks."""
+    return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
+                               expected_finish=_NONE)
 
 
 def _allocation(s: Schedule) -> frozenset[str]:
