@@ -8,6 +8,12 @@ from dataclasses import dataclass, field
 MUTATIONS: tuple[str, ...] = ("move", "reorder", "crossover", "add_wait", "remove_wait")
 
 
+def _number(value: object) -> bool:
+    """A finite int or float, not a bool."""
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
 def _default_weights() -> dict[str, float]:
     return {"move": 0.35, "reorder": 0.3, "crossover": 0.15, "add_wait": 0.1, "remove_wait": 0.1}
 
@@ -73,7 +79,17 @@ class GAConfig:
             this many times the schedules the search evaluated before them. With the order
             search, 0.5 and 1.0 both ended at the optimum in 1,500 of 1,500 runs on 8-10 tasks,
             0.5 in about 10 % less time.
-        seed: seed of the random generator; the same seed and inputs give the same result.
+        exact_seed_s: CP-SAT time limit (seconds) for a seed of the initial population: when
+            the motion model is a :class:`~rapidds.motion.interface.FixedDurationMotion`
+            (fixed robot durations, no proximity term), the minimum-makespan schedule on the
+            expected durations (:func:`~rapidds.scheduler.exact.solve_exact`) joins the first
+            population; 0 = off. Other motion models (the loop's diffusion policy) are never
+            seeded: their durations and costs depend on the overlaps CP-SAT does not see.
+        time_limit_s: stop the search cleanly once this much wall time has passed (checked
+            between generations and between polish passes) and return the best so far;
+            None = no limit. A safety net for callers with a deadline, not a tuning knob.
+        seed: seed of the random generator; the same seed and inputs give the same result
+            (with ``time_limit_s``, only if the limit is not reached).
     """
 
     population: int = 48
@@ -91,6 +107,8 @@ class GAConfig:
     polish_allocations: int = 16
     polish_budget: float = 0.5
     order_search_nodes: int = 300
+    exact_seed_s: float = 0.0
+    time_limit_s: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -110,6 +128,14 @@ class GAConfig:
             raise ValueError(
                 f"GAConfig.polish_budget must be a finite number >= 0, got {self.polish_budget!r}"
             )
+        if not (_number(self.exact_seed_s) and self.exact_seed_s >= 0):
+            raise ValueError(
+                f"GAConfig.exact_seed_s must be a finite number >= 0, got {self.exact_seed_s!r}"
+            )
+        if self.time_limit_s is not None and not (
+                _number(self.time_limit_s) and self.time_limit_s > 0):
+            raise ValueError(f"GAConfig.time_limit_s must be None or a finite number > 0, "
+                             f"got {self.time_limit_s!r}")
         if not (0.0 < self.elite_fraction < 1.0):
             raise ValueError(
                 f"GAConfig.elite_fraction must be in (0, 1), got {self.elite_fraction!r}"

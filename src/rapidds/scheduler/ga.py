@@ -37,13 +37,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rapidds.motion.interface import MotionModel, TrajectoryCache
+from rapidds.errors import RapiddsError
+from rapidds.motion.interface import FixedDurationMotion, MotionModel, TrajectoryCache
 from rapidds.problem import AGENTS, Agent, Problem
-from rapidds.schedule import Item, Schedule, Wait, repair
+from rapidds.schedule import Item, Schedule, Wait, repair, validate
 from rapidds.scheduler.active import AllocationOrders, longest_tails
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+from rapidds.scheduler.exact import solve_exact
 
 Progress = Callable[[int, float], None]
 # (parent, rng, parent's expected start times (n,) or None) -> child before repair, or None
@@ -64,6 +66,11 @@ class PlanResult:
         seconds: wall time of the solve.
         seconds_to_best: wall time until the final best was first evaluated.
         cache_hits, cache_misses, cache_size: statistics of the memory M.
+        improvements: (seconds, objective) each time the best objective improved, from the
+            first evaluation on: how fast the search got how close.
+        timed_out: True when ``GAConfig.time_limit_s`` stopped the search.
+        seeds: schedules that joined the first population from outside the search (the
+            caller's ``initial`` ones and the CP-SAT seed), after validation.
     """
 
     best: Evaluation
@@ -75,6 +82,9 @@ class PlanResult:
     cache_hits: int
     cache_misses: int
     cache_size: int
+    improvements: list[tuple[float, float]] = dataclasses.field(default_factory=list)
+    timed_out: bool = False
+    seeds: list[Schedule] = dataclasses.field(default_factory=list)
 
 
 def _other(agent: Agent) -> Agent:
@@ -141,6 +151,7 @@ class GeneticScheduler:
         lam: float | None = None,
         history: AllocationHistory | None = None,
         progress: Progress | None = None,
+        initial: Sequence[Schedule] = (),
     ) -> PlanResult:
         """Search schedules for one cycle.
 
@@ -153,6 +164,9 @@ class GeneticScheduler:
             history: past allocations for the diversity term.
             progress: called as ``progress(generation, best_objective)`` after the initial
                 population (generation 0) and after every generation.
+            initial: schedules that join the first population, e.g. last cycle's best ones
+                (re-use across cycles); each must hold every task once on an allowed agent
+                (ValueError otherwise). Empty (the default) leaves the search as it was.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -167,6 +181,11 @@ class GeneticScheduler:
         evaluated: dict[Schedule, Evaluation] = {}
         best: Evaluation | None = None
         best_time = 0.0
+        improvements: list[tuple[float, float]] = []
+        deadline = math.inf if cfg.time_limit_s is None else t0 + cfg.time_limit_s
+
+        def late() -> bool:
+            return time.perf_counter() > deadline
 
         searched: set[frozenset[str]] = set()  # allocations whose order has been searched
 
@@ -188,9 +207,11 @@ class GeneticScheduler:
                     evaluated[e.schedule] = _slim(e)
                     if best is None or e.objective < best.objective:
                         best, best_time = e, time.perf_counter() - t0
+                        improvements.append((best_time, e.objective))
             return [full[s] if s in full else evaluated[s] for s in schedules]
 
-        population = self._initial_population(rng, mean, d_init)
+        seeds = self._seeds(initial, mean, d_init)
+        population = self._initial_population(rng, mean, d_init, seeds)
         ranked = _rank(evaluate(population))
         assert best is not None
         history_best = [best.objective]
@@ -201,7 +222,11 @@ class GeneticScheduler:
         local_stall = 0  # generations since this population's best improved (restart)
         polished: set[Schedule] = set()
         generations = 0
+        timed_out = False
         for generation in range(1, cfg.generations + 1):
+            if late():
+                timed_out = True
+                break
             generations = generation
             before, local_before = best.objective, ranked[0].objective
             elites = _select_elites(ranked, n_elite, cfg.elites_per_allocation)
@@ -227,10 +252,11 @@ class GeneticScheduler:
                 progress(generation, best.objective)
             if cfg.patience and stall >= cfg.patience:
                 break
-        if cfg.polish and best.schedule not in polished:
-            polished.add(self._polish(best, evaluate).schedule)
-        if cfg.polish and cfg.polish_allocations > 1:
-            self._polish_runners_up(evaluated, evaluate, polished)
+        if cfg.polish and best.schedule not in polished and not late():
+            polished.add(self._polish(best, evaluate, late).schedule)
+        if cfg.polish and cfg.polish_allocations > 1 and not late():
+            self._polish_runners_up(evaluated, evaluate, polished, late)
+        timed_out = timed_out or late()
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -242,6 +268,9 @@ class GeneticScheduler:
             cache_hits=cache_stats[0],
             cache_misses=cache_stats[1],
             cache_size=cache_stats[2],
+            improvements=improvements,
+            timed_out=timed_out,
+            seeds=seeds,
         )
 
     def _polish_runners_up(
@@ -249,6 +278,7 @@ class GeneticScheduler:
         evaluated: dict[Schedule, Evaluation],
         evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
         polished: set[Schedule],
+        late: Callable[[], bool],
     ) -> None:
         """The end of a solve: a polish of the best schedule of each of the
         ``polish_allocations`` best allocations, within ``polish_budget``. The trap it targets:
@@ -263,7 +293,7 @@ class GeneticScheduler:
                 return
             if e.schedule not in polished:
                 polished.add(e.schedule)
-                self._polish(e, evaluate, lambda: len(evaluated) > limit)
+                self._polish(e, evaluate, lambda: len(evaluated) > limit or late())
 
     def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[frozenset[str]],
                          mean: np.ndarray, d_init: np.ndarray) -> list[Schedule]:
@@ -376,12 +406,35 @@ class GeneticScheduler:
 
     # ------------------------------------------------------------------------- population
 
-    def _initial_population(
-        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray
-    ) -> list[Schedule]:
-        """C distinct list schedules (fewer only if the problem has fewer distinct ones)."""
-        size = self.config.population
+    def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
+               ) -> list[Schedule]:
+        """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
+        ``exact_seed_s`` and fixed robot durations, CP-SAT's schedule on the expected durations;
+        at most a population's worth."""
         out: dict[Schedule, None] = {}
+        for s in initial:
+            validate(self.problem, s)
+            out[repair(s)] = None
+        cfg = self.config
+        if cfg.exact_seed_s > 0 and isinstance(self.motion, FixedDurationMotion):
+            human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
+            try:
+                exact = solve_exact(self.problem, time_limit_s=cfg.exact_seed_s,
+                                    human_mean=human, robot_durations=d_init, load_bound=True)
+            except (RapiddsError, ValueError):  # nothing found in time, or unusable durations
+                pass
+            else:
+                out[exact.schedule] = None
+        return list(out)[: cfg.population]
+
+    def _initial_population(
+        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray,
+        seeds: Sequence[Schedule] = (),
+    ) -> list[Schedule]:
+        """``seeds`` and then distinct list schedules, C in all (fewer only if the problem
+        has fewer distinct ones)."""
+        size = self.config.population
+        out: dict[Schedule, None] = dict.fromkeys(seeds)
         misses = 0
         while len(out) < size and misses < size:
             schedule = self.list_schedule(rng, mean, d_init)
