@@ -63,6 +63,11 @@ class GAConfig:
             O(n^2) evaluations per pass, and with a diffusion motion model as many new motion
             requests at most; turn it off where those are expensive.
         polish_passes: cap on the local-search passes of one polish.
+        polish_window: the polish changes an item's position by at most this many places
+            (see :meth:`~rapidds.scheduler.ga.GeneticScheduler.neighbours`); 0 = no limit.
+            The whole neighbourhood has O(n^2) schedules: about 6,500 per pass on 64 tasks
+            and 26,000 on 128. Sequences of at most this many items keep all of it, so jobs
+            of up to 10 tasks (where the search was tuned) polish as before.
         polish_allocations: at the end, also polish the best schedule found for each of this
             many best allocations (who does which task), not only the overall best; 0 or 1 =
             the overall best only. Descents from runner-up allocations reach optima that the
@@ -104,6 +109,7 @@ class GAConfig:
     activate_children: bool = True
     polish: bool = True
     polish_passes: int = 20
+    polish_window: int = 10
     polish_allocations: int = 16
     polish_budget: float = 0.5
     order_search_nodes: int = 300
@@ -117,7 +123,7 @@ class GAConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"GAConfig.{name} must be an integer >= 1, got {value!r}")
         for name in ("patience", "restart_after", "elites_per_allocation", "polish_passes",
-                     "polish_allocations", "order_search_nodes", "seed"):
+                     "polish_allocations", "order_search_nodes", "polish_window", "seed"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"GAConfig.{name} must be an integer >= 0, got {value!r}")

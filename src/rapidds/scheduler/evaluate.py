@@ -166,12 +166,15 @@ def _overlaps(s: np.ndarray, f: np.ndarray, rc: np.ndarray, hc: np.ndarray,
         return (_EMPTY,) * rc.size
     hit = np.maximum(s[rc, None], s[None, hc]) < np.minimum(f[rc, None], f[None, hc]) - 1e-9
     rows, cols = np.nonzero(hit)
+    if not rows.size:
+        return (_EMPTY,) * rc.size
+    groups: dict[int, list[str]] = {}
+    hcl = hc.tolist()
+    for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+        groups.setdefault(r, []).append(ids[hcl[c]])
     sets: list[frozenset[str]] = [_EMPTY] * rc.size
-    if rows.size:
-        hcl = hc.tolist()
-        cut = np.flatnonzero(np.diff(rows)) + 1
-        for r, group in zip(rows[np.r_[0, cut]].tolist(), np.split(cols, cut), strict=True):
-            sets[r] = frozenset(ids[hcl[c]] for c in group.tolist())
+    for r, group in groups.items():
+        sets[r] = frozenset(group)
     return tuple(sets)
 
 

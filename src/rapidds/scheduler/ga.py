@@ -32,6 +32,7 @@ import dataclasses
 import math
 import random
 import time
+from bisect import bisect_left
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -395,7 +396,8 @@ class GeneticScheduler:
         for _ in range(self.config.polish_passes):
             if stop is not None and stop():
                 break
-            candidates = self.neighbours(current.schedule)
+            candidates = self.neighbours(current.schedule, current.expected_start,
+                                         self.config.polish_window)
             if not candidates:
                 break
             best = min(evaluate(candidates), key=lambda e: e.objective)
@@ -599,10 +601,39 @@ class GeneticScheduler:
         seq = s.sequence(agent)
         return s.replace(agent, seq[:k] + seq[k + 1 :])
 
-    def neighbours(self, s: Schedule) -> list[Schedule]:
+    def neighbours(self, s: Schedule, start: np.ndarray | None = None,
+                   window: int = 0) -> list[Schedule]:
         """Every single move, reorder, swap within an agent, pair of adjacent swaps (one in each
         agent), exchange of two tasks between agents, and wait removal of ``s`` (repaired,
-        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules."""
+        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules.
+
+        With ``window`` and the expected start times ``start`` (n,), only changes within
+        ``window`` positions: an item moves at most that far in its sequence, a task goes to
+        the other agent at most that far from where its start falls there, and the adjacent
+        swaps and exchanges pair items at most that far apart in time order. O(n window)
+        schedules; on sequences of at most ``window`` items, the whole neighbourhood.
+        """
+        near = window > 0 and start is not None and start.size > 0
+        reach = window if near else 1 << 30
+        at: dict[Item, dict[Agent, int]] = {}  # item -> where its start falls in each sequence
+        if near:
+            assert start is not None
+            index = self._index
+            for agent in AGENTS:
+                seq = s.sequence(agent)
+                slots = [k for k, x in enumerate(seq) if isinstance(x, str)]
+                starts = [start[index[seq[k]]] for k in slots]  # nondecreasing along seq
+                slots.append(len(seq))
+                for item in self.problem.ids:
+                    at.setdefault(item, {})[agent] = slots[bisect_left(starts,
+                                                                       start[index[item]])]
+
+        def anchor(item: Item, agent: Agent, k: int) -> int:
+            """Where ``item`` (at ``k`` in the other sequence) falls in ``agent``'s."""
+            seq = s.sequence(_other(agent))
+            task = next((x for x in seq[k:] if isinstance(x, str)), None)
+            return at[task][agent] if near and task is not None else len(s.sequence(agent))
+
         out: dict[Schedule, None] = {}
         for task in self._shared:
             src = s.agent_of(task)
@@ -610,6 +641,9 @@ class GeneticScheduler:
             rest = tuple(x for x in s.sequence(src) if x != task)
             seq = s.sequence(dst)
             lo, hi = self._window(seq, task)
+            if near:
+                mid = at[task][dst]
+                lo, hi = max(lo, mid - reach), min(hi, mid + reach)
             for p in range(lo, hi + 1):
                 out[repair(s.replace(src, rest).replace(dst, (*seq[:p], task, *seq[p:])))] = None
         for agent in AGENTS:
@@ -619,22 +653,25 @@ class GeneticScheduler:
                 if isinstance(item, Wait):
                     out[repair(s.replace(agent, rest))] = None
                 lo, hi = (0, len(rest)) if isinstance(item, Wait) else self._window(rest, item)
-                for p in range(lo, hi + 1):
+                for p in range(max(lo, k - reach), min(hi, k + reach) + 1):
                     if p != k:
                         out[repair(s.replace(agent, (*rest[:p], item, *rest[p:])))] = None
-                for j in range(k + 1, len(seq)):
+                for j in range(k + 1, min(len(seq), k + reach + 1)):
                     swapped = (*seq[:k], seq[j], *seq[k + 1 : j], item, *seq[j + 1 :])
                     out[repair(s.replace(agent, swapped))] = None
         h, r = s.human, s.robot
         for i in range(len(h) - 1):  # adjacent swaps in both sequences at once: one agent's
-            for j in range(len(r) - 1):  # new order often pays only with the other's
-                out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
-                                    (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
+            mid = anchor(h[i], "robot", i)  # new order often pays only with the other's
+            for j in range(len(r) - 1):
+                if abs(j - mid) <= reach:
+                    out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
+                                        (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
         for i, a in enumerate(h):
             if isinstance(a, Wait) or "robot" not in self._allowed[a]:
                 continue
+            mid = anchor(a, "robot", i)
             for j, b in enumerate(r):
-                if isinstance(b, Wait) or "human" not in self._allowed[b]:
+                if isinstance(b, Wait) or "human" not in self._allowed[b] or abs(j - mid) > reach:
                     continue
                 out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
         out.pop(s, None)
@@ -646,8 +683,9 @@ _NONE = np.empty(0)
 
 def _slim(e: Evaluation) -> Evaluation:
     """What the search keeps of an evaluation it may meet again: the schedule, the objective
-    and the expected start times (for "move"). The samples' makespans, the motions and the
-    overlaps of every schedule evaluated would fill gigabytes on 64-128 tasks."""
+    and the expected start times (for "move" and the polish window). The samples' makespans,
+    the motions and the overlaps of every schedule evaluated would fill gigabytes on 64-128
+    tasks."""
     return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
                                expected_finish=_NONE)
 
