@@ -133,7 +133,7 @@ def _passes(
 ) -> list[_Pass | None]:
     """One timeline pass per schedule over the K samples plus the expected row (last row of
     ``rows``, shape (K+1, n)) with robot durations ``robot`` (B, n); None where it deadlocks.
-    C_j follow the rule of :meth:`Timeline.overlaps`."""
+    C_j follow the rule of :meth:`Timeline.overlaps`, for the whole batch at once."""
     n = len(problem.tasks)
     size = max(1, _CHUNK_FLOATS // (rows.shape[0] * (n + 1)))
     out: list[_Pass | None] = []
@@ -141,41 +141,27 @@ def _passes(
         batch = ScheduleBatch(problem, schedules[lo : lo + size])
         start, finish, feasible = batch.simulate(batch.durations(rows, robot[lo : lo + size]))
         makespans = finish.max(axis=1)  # (B, K+1)
+        s, f = start[:, :, -1], finish[:, :, -1]  # (B, n) expected timeline
+        human = batch.human
+        # robot task j and human task i overlap with positive length (Timeline.overlaps)
+        hit = (np.maximum(s[:, :, None], s[:, None, :])
+               < np.minimum(f[:, :, None], f[:, None, :]) - 1e-9)
+        hit &= ~human[:, :, None] & human[:, None, :] & feasible[:, None, None]
+        groups: dict[tuple[int, int], list[str]] = {}
+        for b, j, i in zip(*(a.tolist() for a in np.nonzero(hit)), strict=True):
+            groups.setdefault((b, j), []).append(ids[i])
         for b in range(len(batch)):
             if not feasible[b]:
                 out.append(None)
                 continue
-            s, f = start[b, :, -1].copy(), finish[b, :, -1].copy()
-            seqs = batch.seqs[2 * b : 2 * b + 2]
-            hc = seqs[0, : batch.lengths[2 * b]]
-            rc = seqs[1, : batch.lengths[2 * b + 1]]
-            out.append(_Pass(makespans[b, :-1].copy(), s, f, _overlaps(s, f, rc, hc, ids)))
+            robot_cols = batch.seqs[2 * b + 1, : batch.lengths[2 * b + 1]].tolist()
+            state = tuple(frozenset(groups[b, j]) if (b, j) in groups else _EMPTY
+                          for j in robot_cols)
+            out.append(_Pass(makespans[b, :-1].copy(), s[b].copy(), f[b].copy(), state))
     return out
 
 
 _EMPTY: frozenset[str] = frozenset()
-
-
-def _overlaps(s: np.ndarray, f: np.ndarray, rc: np.ndarray, hc: np.ndarray,
-              ids: tuple[str, ...]) -> OverlapState:
-    """C_j of every robot task (columns ``rc``): the human tasks (columns ``hc``) whose
-    interval overlaps j's with positive length on the expected timeline ``s``, ``f``."""
-    if not rc.size:
-        return ()
-    if not hc.size:
-        return (_EMPTY,) * rc.size
-    hit = np.maximum(s[rc, None], s[None, hc]) < np.minimum(f[rc, None], f[None, hc]) - 1e-9
-    rows, cols = np.nonzero(hit)
-    if not rows.size:
-        return (_EMPTY,) * rc.size
-    groups: dict[int, list[str]] = {}
-    hcl = hc.tolist()
-    for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
-        groups.setdefault(r, []).append(ids[hcl[c]])
-    sets: list[frozenset[str]] = [_EMPTY] * rc.size
-    for r, group in groups.items():
-        sets[r] = frozenset(group)
-    return tuple(sets)
 
 
 def _infeasible(schedule: Schedule, z_d: float) -> Evaluation:

@@ -29,11 +29,13 @@ Additions to the paper's loop, each measured on random instances against CP-SAT
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import random
 import time
 from bisect import bisect_left
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -169,6 +171,21 @@ class GeneticScheduler:
                 (re-use across cycles); each must hold every task once on an allowed agent
                 (ValueError otherwise). Empty (the default) leaves the search as it was.
         """
+        with _without_cyclic_gc():
+            return self._search(human_samples, human_mean, gamma, lam, history, progress,
+                                initial)
+
+    def _search(
+        self,
+        human_samples: np.ndarray,
+        human_mean: np.ndarray,
+        gamma: float | None,
+        lam: float | None,
+        history: AllocationHistory | None,
+        progress: Progress | None,
+        initial: Sequence[Schedule],
+    ) -> PlanResult:
+        """The body of :meth:`solve`."""
         t0 = time.perf_counter()
         cfg = self.config
         problem = self.problem
@@ -676,6 +693,22 @@ class GeneticScheduler:
                 out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
         out.pop(s, None)
         return list(out)
+
+
+@contextmanager
+def _without_cyclic_gc() -> Iterator[None]:
+    """Python's cyclic garbage collector off for the block (back on after, if it was on).
+
+    A search allocates millions of small objects that the cache keeps alive, so the collector
+    keeps rescanning a growing heap for cycles the search does not make: on 64 tasks that was
+    a quarter of the run. Reference counting still frees everything as usual."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 _NONE = np.empty(0)
