@@ -84,12 +84,15 @@ class GAConfig:
             this many times the schedules the search evaluated before them. With the order
             search, 0.5 and 1.0 both ended at the optimum in 1,500 of 1,500 runs on 8-10 tasks,
             0.5 in about 10 % less time.
-        exact_seed_s: CP-SAT time limit (seconds) for a seed of the initial population: when
-            the motion model is a :class:`~rapidds.motion.interface.FixedDurationMotion`
-            (fixed robot durations, no proximity term), the minimum-makespan schedule on the
-            expected durations (:func:`~rapidds.scheduler.exact.solve_exact`) joins the first
-            population; 0 = off. Other motion models (the loop's diffusion policy) are never
-            seeded: their durations and costs depend on the overlaps CP-SAT does not see.
+        exact_seed_work: CP-SAT's budget, in its deterministic time units (about seconds),
+            for a seed of the initial population: when the motion model is a
+            :class:`~rapidds.motion.interface.FixedDurationMotion` (fixed robot durations, no
+            proximity term), the minimum-makespan schedule on the expected durations that
+            :func:`~rapidds.scheduler.exact.solve_exact` finds in that budget joins the first
+            population; 0 = off. A deterministic budget keeps the seed, and so the result,
+            independent of the machine's load. Other motion models (the loop's diffusion
+            policy) are never seeded: their durations and costs depend on the overlaps that
+            CP-SAT does not see.
         time_limit_s: stop the search cleanly once this much wall time has passed (checked
             between generations and between polish passes) and return the best so far;
             None = no limit. A safety net for callers with a deadline, not a tuning knob.
@@ -113,7 +116,7 @@ class GAConfig:
     polish_allocations: int = 16
     polish_budget: float = 0.5
     order_search_nodes: int = 300
-    exact_seed_s: float = 0.0
+    exact_seed_work: float = 1.0
     time_limit_s: float | None = None
     seed: int = 0
 
@@ -134,10 +137,9 @@ class GAConfig:
             raise ValueError(
                 f"GAConfig.polish_budget must be a finite number >= 0, got {self.polish_budget!r}"
             )
-        if not (_number(self.exact_seed_s) and self.exact_seed_s >= 0):
-            raise ValueError(
-                f"GAConfig.exact_seed_s must be a finite number >= 0, got {self.exact_seed_s!r}"
-            )
+        if not (_number(self.exact_seed_work) and self.exact_seed_work >= 0):
+            raise ValueError(f"GAConfig.exact_seed_work must be a finite number >= 0, "
+                             f"got {self.exact_seed_work!r}")
         if self.time_limit_s is not None and not (
                 _number(self.time_limit_s) and self.time_limit_s > 0):
             raise ValueError(f"GAConfig.time_limit_s must be None or a finite number > 0, "

@@ -48,6 +48,7 @@ def solve_exact(
     robot_durations: np.ndarray | None = None,
     workers: int = 1,
     load_bound: bool = False,
+    deterministic_time: float | None = None,
 ) -> ExactResult:
     """Minimum-makespan schedule of ``problem`` on deterministic durations.
 
@@ -67,6 +68,9 @@ def solve_exact(
             among equally short schedules CP-SAT may then return another one (on the 4-task
             fetch job, another robot order in 3 of 200 draws of the means), and the loop's
             "exact" condition must keep its plans.
+        deterministic_time: also stop after this much of CP-SAT's deterministic time (work
+            units of about a second each, independent of the machine's load), so that a run
+            cut short returns the same schedule every time; None = wall time only.
 
     Raises:
         ProblemError: no feasible schedule found within the time limit.
@@ -120,6 +124,8 @@ def solve_exact(
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = float(time_limit_s)
     solver.parameters.num_workers = int(workers)
+    if deterministic_time is not None:
+        solver.parameters.max_deterministic_time = float(deterministic_time)
     status = solver.solve(model)
     if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
         what = "is infeasible" if status == cp_model.INFEASIBLE else "was not solved"

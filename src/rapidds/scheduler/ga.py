@@ -428,18 +428,20 @@ class GeneticScheduler:
     def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
                ) -> list[Schedule]:
         """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
-        ``exact_seed_s`` and fixed robot durations, CP-SAT's schedule on the expected durations;
+        ``exact_seed_work`` and fixed robot durations, CP-SAT's schedule on the expected durations;
         at most a population's worth."""
         out: dict[Schedule, None] = {}
         for s in initial:
             validate(self.problem, s)
             out[repair(s)] = None
         cfg = self.config
-        if cfg.exact_seed_s > 0 and isinstance(self.motion, FixedDurationMotion):
+        if cfg.exact_seed_work > 0 and isinstance(self.motion, FixedDurationMotion):
             human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
-            try:
-                exact = solve_exact(self.problem, time_limit_s=cfg.exact_seed_s,
-                                    human_mean=human, robot_durations=d_init, load_bound=True)
+            try:  # a deterministic budget, so the seed does not depend on the machine's load;
+                # the wall-time limit only guards against a stalled solver
+                exact = solve_exact(self.problem, time_limit_s=60.0 + 20 * cfg.exact_seed_work,
+                                    human_mean=human, robot_durations=d_init, load_bound=True,
+                                    deterministic_time=cfg.exact_seed_work)
             except (RapiddsError, ValueError):  # nothing found in time, or unusable durations
                 pass
             else:
