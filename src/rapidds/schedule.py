@@ -305,8 +305,8 @@ class ScheduleBatch:
         dur = np.zeros((b_count, stride, r_count))
         dur[:, :n] = durations
         dur = dur.reshape(b_count * stride, r_count)
-        start = np.zeros_like(dur)
-        finish = np.zeros_like(dur)
+        start = np.zeros(dur.shape)  # zeros, not zeros_like: fresh zero pages, no fill pass
+        finish = np.zeros(dur.shape)
         done = np.zeros(b_count * stride, dtype=bool)
         done[n::stride] = True
         free = np.zeros((2 * b_count, r_count))

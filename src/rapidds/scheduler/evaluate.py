@@ -120,8 +120,9 @@ def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozen
         raise ValueError(f"invalid schedule {schedule}")  # pragma: no cover - validate raised
 
 
-# Candidates simulated at once: bounds the (B, n, K+1) arrays of a batch to about 16 MiB each.
-_CHUNK_FLOATS = 2**21
+# Candidates simulated at once: bounds the (B, n, K+1) arrays of a batch to about 4 MiB each
+# (and the (B, n, n) overlap tests); larger batches only page-fault more.
+_CHUNK_FLOATS = 2**19
 
 
 def _passes(

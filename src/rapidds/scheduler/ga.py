@@ -428,14 +428,15 @@ class GeneticScheduler:
     def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
                ) -> list[Schedule]:
         """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
-        ``exact_seed_work`` and fixed robot durations, CP-SAT's schedule on the expected durations;
-        at most a population's worth."""
+        ``exact_seed_work``, fixed robot durations and a job of at most ``exact_seed_tasks``
+        tasks, CP-SAT's schedule on the expected durations; at most a population's worth."""
         out: dict[Schedule, None] = {}
         for s in initial:
             validate(self.problem, s)
             out[repair(s)] = None
         cfg = self.config
-        if cfg.exact_seed_work > 0 and isinstance(self.motion, FixedDurationMotion):
+        if (cfg.exact_seed_work > 0 and len(self.problem.tasks) <= cfg.exact_seed_tasks
+                and isinstance(self.motion, FixedDurationMotion)):
             human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
             try:  # a deterministic budget, so the seed does not depend on the machine's load;
                 # the wall-time limit only guards against a stalled solver
