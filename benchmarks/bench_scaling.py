@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -239,6 +240,53 @@ def plot(stochastic: list[Run], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+# ------------------------------------------------------------------------------- ladder
+
+# The commits of the scaling work that change speed, in order, and what each changed.
+LADDER = (
+    (BASELINE, "baseline: the GA of docs/design-notes.md item 8"),
+    ("7d685fc", "timelines of a whole batch in one vectorised pass (ScheduleBatch)"),
+    ("c603b84", "slim copies of cached evaluations (memory)"),
+    ("e0f4a19", "polish window 10; order search places children when popped; faster C_j"),
+    ("e0a8e4c", "C_j of a whole batch at once; cyclic GC off during a solve"),
+    ("3268c14", "CP-SAT seed (1 unit, up to 40 tasks); 4 MiB batch chunks"),
+)
+
+
+def ladder(n: int, instances: int, cap: float, load: str) -> str:
+    """Each commit of ``LADDER`` on the same instances, one after the other, in one run."""
+    rows: list[tuple[str, str, list[Run]]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = []
+        for k, (ref, what) in enumerate(LADDER):
+            into = Path(tmp) / str(k)
+            into.mkdir()
+            trees.append((ref, what, baseline_sources(ref, into)))
+        runs: dict[str, list[Run]] = {ref: [] for ref, _, _ in trees}
+        for r in range(instances):  # instance by instance, so every commit sees the same load
+            for ref, _, src in trees:
+                runs[ref].append(run(src, ref, n, r, 0.15, cap))
+        rows = [(ref, what, runs[ref]) for ref, what, _ in trees]
+    base = rows[0][2]
+    out = [f"{n} tasks, stochastic (std 15 %), instances 0-{instances - 1} of "
+           f"`bench_scaling.py`, default `GAConfig` of each commit, one run at a time in one "
+           f"invocation (`bench_scaling.py --ladder`); 1-min load average {load} at start, "
+           f"{load_average()} at end. \"to 1 %\" = seconds until within 1 % of the "
+           "baseline's final objective on the same instance.", "",
+           "| commit | change | total s (mean) | to 1 % s (mean) | final vs baseline (mean) "
+           "| evaluations (mean) | peak RSS MB (max) |", "|---|---|---:|---:|---:|---:|---:|"]
+    for ref, what, rs in rows:
+        pairs = list(zip(rs, base, strict=True))
+        to = [x.time_to(1.01 * b.objective) for x, b in pairs]
+        out.append(
+            f"| `{ref}` | {what} | {statistics.mean(x.seconds for x in rs):.1f} | "
+            f"{statistics.mean(to):.1f} | "
+            f"{_pct(statistics.mean(x.objective / b.objective - 1 for x, b in pairs))} | "
+            f"{statistics.mean(x.evaluations for x in rs):,.0f} | "
+            f"{max(x.rss_mb for x in rs):.0f} |")
+    return "\n".join(out)
+
+
 # --------------------------------------------------------------------------------- main
 
 
@@ -251,21 +299,31 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="8-32 tasks, one instance each")
     parser.add_argument("--baseline", default=BASELINE, help="git commit of the old GA")
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--ladder", type=int, metavar="N", default=0,
+                        help="instead: each commit of the work, one by one, on N-task jobs")
+    parser.add_argument("--instances", type=int, default=2, help="instances for --ladder")
     args = parser.parse_args(argv)
+    if args.ladder:
+        text = ladder(args.ladder, args.instances, 600, load_average())
+        print(text)
+        if not args.no_write:
+            update_docs_section("## Scheduler, change by change", text)
+        return 0
     load = (load_average(), "")
     sizes = {8: 3, 16: 3, 32: 3, 64: 2, 128: 1}
     caps = {8: 120, 16: 120, 32: 240, 64: 240, 128: 240}  # old code; the new runs get 600 s
     exact_sizes = {8: 2, 16: 2, 32: 2}
     if args.quick:
         sizes, exact_sizes = {8: 1, 16: 1, 32: 1}, {16: 1}
-    new_src = ROOT / "src"
-    sys.path.insert(0, str(new_src))
+    sys.path.insert(0, str(ROOT / "src"))
     from rapidds.scheduler import solve_exact
 
     stochastic: list[Run] = []
     exact: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         old_src = baseline_sources(args.baseline, Path(tmp))
+        new_src = Path(tmp) / "new" / "src"  # a snapshot: edits during the run do not leak in
+        shutil.copytree(ROOT / "src", new_src, ignore=shutil.ignore_patterns("__pycache__"))
         for n, count in sizes.items():
             print(f"{n} tasks, stochastic ...", file=sys.stderr)
             for r in range(count):

@@ -205,7 +205,7 @@ class GeneticScheduler:
         def late() -> bool:
             return time.perf_counter() > deadline
 
-        searched: set[frozenset[str]] = set()  # allocations whose order has been searched
+        searched: set[int] = set()  # allocations whose order has been searched, as bit masks
 
         def evaluate(schedules: Sequence[Schedule]) -> list[Evaluation]:
             """Evaluations of ``schedules`` and then, with ``order_search_nodes``, of the
@@ -228,6 +228,19 @@ class GeneticScheduler:
                         improvements.append((best_time, e.objective))
             return [full[s] if s in full else evaluated[s] for s in schedules]
 
+        def complete(evaluations: list[Evaluation]) -> list[Evaluation]:
+            """``evaluations`` with their expected start times: cached slim ones are evaluated
+            again (the same values; their motions are all in the memory M already)."""
+            slim = [e.schedule for e in evaluations if e.feasible and not e.expected_start.size]
+            if not slim:
+                return evaluations
+            again = {e.schedule: e for e in evaluate_population(
+                problem, slim, samples, mean, cache, d_init, gamma, lam, history,
+                cfg.max_overlap_iters)}
+            return [again.get(e.schedule, e) for e in evaluations]
+
+        search = _Search(evaluate, complete)
+
         seeds = self._seeds(initial, mean, d_init)
         population = self._initial_population(rng, mean, d_init, seeds)
         ranked = _rank(evaluate(population))
@@ -247,7 +260,7 @@ class GeneticScheduler:
                 break
             generations = generation
             before, local_before = best.objective, ranked[0].objective
-            elites = _select_elites(ranked, n_elite, cfg.elites_per_allocation)
+            elites = complete(_select_elites(ranked, n_elite, cfg.elites_per_allocation))
             children = self._children(
                 elites, cfg.population - len(elites), rng, evaluated, mean, d_init
             )
@@ -261,7 +274,7 @@ class GeneticScheduler:
             if cfg.restart_after and local_stall >= cfg.restart_after:
                 if cfg.polish and ranked[0].schedule not in polished:
                     polished.add(ranked[0].schedule)
-                    polished.add(self._polish(ranked[0], evaluate).schedule)
+                    polished.add(self._polish(ranked[0], search).schedule)
                 ranked = _rank(evaluate(self._initial_population(rng, mean, d_init)))
                 local_stall = 0
             stall = stall + 1 if best.objective >= before else 0
@@ -271,9 +284,9 @@ class GeneticScheduler:
             if cfg.patience and stall >= cfg.patience:
                 break
         if cfg.polish and best.schedule not in polished and not late():
-            polished.add(self._polish(best, evaluate, late).schedule)
+            polished.add(self._polish(best, search, late).schedule)
         if cfg.polish and cfg.polish_allocations > 1 and not late():
-            self._polish_runners_up(evaluated, evaluate, polished, late)
+            self._polish_runners_up(evaluated, search, polished, late)
         timed_out = timed_out or late()
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
@@ -294,7 +307,7 @@ class GeneticScheduler:
     def _polish_runners_up(
         self,
         evaluated: dict[Schedule, Evaluation],
-        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        search: _Search,
         polished: set[Schedule],
         late: Callable[[], bool],
     ) -> None:
@@ -311,16 +324,16 @@ class GeneticScheduler:
                 return
             if e.schedule not in polished:
                 polished.add(e.schedule)
-                self._polish(e, evaluate, lambda: len(evaluated) > limit or late())
+                self._polish(e, search, lambda: len(evaluated) > limit or late())
 
-    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[frozenset[str]],
+    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[int],
                          mean: np.ndarray, d_init: np.ndarray) -> list[Schedule]:
         """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
         ``schedules`` not in ``searched`` (then added to it). Without waits: they only delay,
         and the first schedule met with an allocation may carry any."""
         out = []
         for s in schedules:
-            key = _allocation(s)
+            key = sum(1 << self._index[t] for t in s.tasks("human"))  # small, unlike a set
             if key not in searched:
                 searched.add(key)
                 bare = Schedule(s.tasks("human"), s.tasks("robot"))
@@ -404,7 +417,7 @@ class GeneticScheduler:
     def _polish(
         self,
         start: Evaluation,
-        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        search: _Search,
         stop: Callable[[], bool] | None = None,
     ) -> Evaluation:
         """Best-improvement local search over :meth:`neighbours`, one batch per pass; ``stop``
@@ -413,11 +426,12 @@ class GeneticScheduler:
         for _ in range(self.config.polish_passes):
             if stop is not None and stop():
                 break
+            current = search.complete([current])[0]  # the window needs its start times
             candidates = self.neighbours(current.schedule, current.expected_start,
                                          self.config.polish_window)
             if not candidates:
                 break
-            best = min(evaluate(candidates), key=lambda e: e.objective)
+            best = min(search.evaluate(candidates), key=lambda e: e.objective)
             if not best.objective < current.objective - 1e-12 * max(1.0, abs(current.objective)):
                 break
             current = best
@@ -714,16 +728,25 @@ def _without_cyclic_gc() -> Iterator[None]:
             gc.enable()
 
 
+@dataclass(frozen=True)
+class _Search:
+    """What a polish asks of the running search: ``evaluate`` schedules (cached ones come back
+    slim) and ``complete`` slim evaluations with their expected start times."""
+
+    evaluate: Callable[[Sequence[Schedule]], list[Evaluation]]
+    complete: Callable[[list[Evaluation]], list[Evaluation]]
+
+
 _NONE = np.empty(0)
 
 
 def _slim(e: Evaluation) -> Evaluation:
-    """What the search keeps of an evaluation it may meet again: the schedule, the objective
-    and the expected start times (for "move" and the polish window). The samples' makespans,
-    the motions and the overlaps of every schedule evaluated would fill gigabytes on 64-128
-    tasks."""
+    """What the search keeps of an evaluation it may meet again: the schedule and the
+    objective. The samples' makespans, the motions, the overlaps and the timeline of every
+    schedule evaluated would fill gigabytes on 64-128 tasks; the few cached schedules that
+    become parents or polish starts are evaluated again for their start times."""
     return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
-                               expected_finish=_NONE)
+                               expected_start=_NONE, expected_finish=_NONE)
 
 
 def _allocation(s: Schedule) -> frozenset[str]:
