@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_scaling.py                 # full run (about 25 min)
     .venv/bin/python benchmarks/bench_scaling.py --quick         # 8-32 tasks, one instance
     .venv/bin/python benchmarks/bench_scaling.py --baseline REF  # compare with another commit
+    .venv/bin/python benchmarks/bench_scaling.py --ladder 32     # each commit of the work
 
 Each GA run is a subprocess (``--worker``) with ``PYTHONPATH`` on the sources it measures: the
 baseline's come from ``git archive REF src``, the current ones from this tree; the instances
@@ -250,6 +251,7 @@ LADDER = (
     ("e0f4a19", "polish window 10; order search places children when popped; faster C_j"),
     ("e0a8e4c", "C_j of a whole batch at once; cyclic GC off during a solve"),
     ("3268c14", "CP-SAT seed (1 unit, up to 40 tasks); 4 MiB batch chunks"),
+    ("8a6fcd3", "cached evaluations without timelines; searched allocations as bit masks"),
 )
 
 
@@ -307,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         text = ladder(args.ladder, args.instances, 600, load_average())
         print(text)
         if not args.no_write:
-            update_docs_section("## Scheduler, change by change", text)
+            update_docs_section(f"## Scheduler, change by change ({args.ladder} tasks)", text)
         return 0
     load = (load_average(), "")
     sizes = {8: 3, 16: 3, 32: 3, 64: 2, 128: 1}
