@@ -106,7 +106,8 @@ def test_ga_evaluates_the_shortest_order_of_every_allocation_it_meets() -> None:
         for search in (True, False):
             config = GAConfig(population=2, generations=1, activate_children=False,
                               polish=False, order_search_nodes=300 * search,
-                              mutation_weights={"add_wait": 1.0}, seed=seed)
+                              mutation_weights={"add_wait": 1.0}, exact_seed_work=0,
+                              seed=seed)
             result = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
                 mean[None], mean, gamma=0.0)
             gaps[search].append(result.best.makespan_mean - optimum)

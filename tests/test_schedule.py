@@ -9,6 +9,7 @@ from rapidds.problem import Problem, Task
 from rapidds.schedule import (
     CompiledSchedule,
     Schedule,
+    ScheduleBatch,
     Wait,
     compile_schedule,
     parse_item,
@@ -181,3 +182,31 @@ def test_schedule_json_round_trip_and_assignment() -> None:
     assert parse_item("wait:b") == Wait("b") and parse_item("b") == "b"
     assert s.assignment == {"a": "human", "c": "human", "b": "robot", "d": "robot"}
     assert len({s, Schedule.from_json(s.to_json())}) == 1
+
+
+def test_batch_timelines_equal_one_by_one_timelines_bit_for_bit() -> None:
+    """ScheduleBatch: the same starts and finishes as CompiledSchedule, the same deadlocks,
+    for schedules with waits, precedence across agents and cycles, in one batch."""
+    p = _problem((("a", "c"), ("b", "d")))
+    rng = np.random.default_rng(3)
+    items = ["a", "b", "c", "d"]
+    schedules = []
+    for _ in range(300):
+        order = [str(x) for x in rng.permutation(items)]
+        cut = int(rng.integers(0, 5))
+        human: list = order[:cut]
+        robot: list = order[cut:]
+        for _ in range(int(rng.integers(0, 3))):  # waits anywhere, on any task (even own)
+            seq = human if rng.random() < 0.5 else robot
+            seq.insert(int(rng.integers(0, len(seq) + 1)), Wait(str(rng.choice(items))))
+        schedules.append(Schedule(tuple(human), tuple(robot)))
+    rows = np.vstack([HUMAN, HUMAN * rng.uniform(0.5, 2.0, size=(5, 4))])
+    batch = ScheduleBatch(p, schedules)
+    start, finish, feasible = batch.simulate(batch.durations(rows, ROBOT))
+    assert 0 < feasible.sum() < len(schedules)  # both kinds occur
+    for b, s in enumerate(schedules):
+        compiled = CompiledSchedule.build(p, s)
+        assert feasible[b] == (compiled is not None), s
+        if compiled is not None:
+            tl = compiled.simulate(compiled.durations(rows, ROBOT))
+            assert np.array_equal(start[b].T, tl.start) and np.array_equal(finish[b].T, tl.finish)

@@ -19,7 +19,7 @@ from rapidds.motion.interface import (
     TrajectoryCache,
 )
 from rapidds.problem import Problem, Task
-from rapidds.schedule import CompiledSchedule, Schedule, Wait, validate
+from rapidds.schedule import CompiledSchedule, Schedule, Wait, repair, validate
 from rapidds.scheduler import (
     AllocationHistory,
     GAConfig,
@@ -262,9 +262,9 @@ def test_ga_reaches_the_brute_force_optimum(seed: int) -> None:
     rng = np.random.default_rng(100 + seed)
     p = random_problem(rng, 4 + seed % 3)
     mean = np.nan_to_num(means(p))
-    result = GeneticScheduler(p, FixedDurationMotion(p)).solve(
+    result = GeneticScheduler(p, FixedDurationMotion(p), GAConfig(exact_seed_work=0)).solve(
         np.tile(mean, (4, 1)), mean, gamma=0.0
-    )
+    )  # the search on its own, without the CP-SAT seed
     assert result.best.makespan_mean == pytest.approx(brute_force(p), abs=1e-9)
     validate(p, result.best.schedule)
 
@@ -434,7 +434,8 @@ TRAP_INSTANCES = [
 def test_ga_defaults_reach_the_cp_sat_optimum_on_trap_instances(case: int, seed: int) -> None:
     p = _table_problem(*TRAP_INSTANCES[case])
     mean = np.nan_to_num(means(p))
-    result = GeneticScheduler(p, FixedDurationMotion(p), GAConfig(seed=seed)).solve(
+    config = GAConfig(seed=seed, exact_seed_work=0)  # the search on its own, without CP-SAT
+    result = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
         np.tile(mean, (2, 1)), mean, gamma=0.0)
     assert result.best.makespan_mean == pytest.approx(solve_exact(p).makespan, abs=1e-6)
     validate(p, result.best.schedule)
@@ -448,7 +449,8 @@ def test_ga_defaults_reach_the_cp_sat_optimum_on_trap_instances(case: int, seed:
      ("mutation_weights", {"move": 0.0}), ("polish", "yes"), ("population", 2.5),
      ("restart_after", -1), ("elites_per_allocation", -1), ("polish_allocations", -1),
      ("polish_budget", -0.5), ("polish_budget", float("nan")), ("order_search_nodes", -3),
-     ("order_search_nodes", 1.5)],
+     ("order_search_nodes", 1.5), ("polish_window", -1), ("exact_seed_work", -1.0),
+     ("exact_seed_work", True), ("time_limit_s", 0.0), ("time_limit_s", float("inf"))],
 )
 def test_config_rejects_bad_values(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):
@@ -459,3 +461,93 @@ def test_config_defaults_are_valid_and_weights_follow_the_operator_order() -> No
     c = GAConfig(mutation_weights={"reorder": 2.0})
     assert c.weights() == [0.0, 2.0, 0.0, 0.0, 0.0]
     assert 1 <= GAConfig().n_elite < GAConfig().population
+
+
+# ------------------------------------------------------------------- seeds, limits, scale
+
+
+def test_polish_window_keeps_short_sequences_whole_and_bounds_long_ones() -> None:
+    rng = np.random.default_rng(21)
+    p = Problem("free", random_problem(rng, 24, restrict=0.0).tasks)  # no precedence
+    mean = np.nan_to_num(means(p))
+    motion = FixedDurationMotion(p)
+    ga = GeneticScheduler(p, motion)
+    s = ga.list_schedule(random.Random(0), mean, motion.nominal_durations(p))
+    start = evaluate_population(p, [s], mean[None], mean, TrajectoryCache(motion),
+                                motion.nominal_durations(p), 0.0, 0.0)[0].expected_start
+    whole = ga.neighbours(s)
+    assert ga.neighbours(s, start, window=len(p.tasks)) == whole  # same schedules, same order
+    near = ga.neighbours(s, start, window=2)
+    assert set(near) < set(whole) and len(near) < len(whole) / 2
+    for agent in ("human", "robot"):  # a reorder within the window is kept, one beyond is not
+        seq = s.sequence(agent)
+        if len(seq) >= 6:
+            moved = repair(s.replace(agent, (*seq[1:3], seq[0], *seq[3:])))
+            far = repair(s.replace(agent, (*seq[1:6], seq[0], *seq[6:])))
+            assert moved in near and far in whole and far not in near
+
+
+def test_initial_schedules_join_the_first_population() -> None:
+    rng = np.random.default_rng(22)
+    p = random_problem(rng, 9)
+    mean = np.nan_to_num(means(p))
+    optimum = solve_exact(p)
+    config = GAConfig(generations=1, population=6, polish=False, order_search_nodes=0,
+                      activate_children=False, exact_seed_work=0)
+    result = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
+        mean[None], mean, gamma=0.0, initial=[optimum.schedule])
+    assert result.seeds == [optimum.schedule]
+    assert result.best_by_generation[0] == pytest.approx(optimum.makespan, abs=1e-9)
+    with pytest.raises(ValueError, match="each task once"):
+        GeneticScheduler(p, FixedDurationMotion(p), config).solve(
+            mean[None], mean, initial=[Schedule(("t0",), ())])
+
+
+def test_cp_sat_seeds_fixed_durations_only() -> None:
+    rng = np.random.default_rng(23)
+    p = random_problem(rng, 10)
+    mean = np.nan_to_num(means(p))
+    optimum = solve_exact(p, load_bound=True)
+    assert optimum.optimal
+    config = GAConfig(generations=2, population=8, exact_seed_work=5.0)  # proves it in far less
+    seeded = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
+        mean[None], mean, gamma=0.0)
+    assert seeded.seeds == [optimum.schedule]
+    assert seeded.best_by_generation[0] == pytest.approx(optimum.makespan, abs=1e-9)
+    motion = ConcurrencyMotion(lambda cj: (3.0, 0.0), 3.0)  # durations CP-SAT cannot see
+    other = GeneticScheduler(p, motion, config).solve(mean[None], mean, gamma=0.0)
+    assert other.seeds == []
+
+
+def test_time_limit_stops_the_search_with_a_feasible_best() -> None:
+    rng = np.random.default_rng(24)
+    p = random_problem(rng, 40)
+    mean = np.nan_to_num(means(p))
+    config = GAConfig(time_limit_s=0.3, patience=0)
+    result = GeneticScheduler(p, FixedDurationMotion(p), config).solve(mean[None], mean)
+    assert result.timed_out and result.generations_run < config.generations
+    assert result.best.feasible
+    validate(p, result.best.schedule)
+
+
+def test_improvements_trace_the_best_objective() -> None:
+    rng = np.random.default_rng(25)
+    p = random_problem(rng, 12)
+    mean = np.nan_to_num(means(p))
+    result = GeneticScheduler(p, FixedDurationMotion(p), GAConfig(seed=3)).solve(
+        mean[None], mean)
+    times = [t for t, _ in result.improvements]
+    values = [v for _, v in result.improvements]
+    assert times == sorted(times) and all(a > b for a, b in itertools.pairwise(values))
+    assert values[-1] == result.best.objective
+    assert times[-1] == result.seconds_to_best
+    assert not result.timed_out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_agent_load_bound_keeps_the_optimum(seed: int) -> None:
+    p = random_problem(np.random.default_rng(300 + seed), 8)
+    plain, bounded = solve_exact(p), solve_exact(p, load_bound=True)
+    assert plain.optimal and bounded.optimal
+    assert bounded.makespan == pytest.approx(plain.makespan, abs=1e-9)
+    assert bounded.makespan == pytest.approx(brute_force(p), abs=1e-9)

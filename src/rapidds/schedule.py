@@ -7,7 +7,8 @@ when it is free, every precedence predecessor of that task has finished, and, fo
 and wait edges is a deadlock: the schedule is infeasible.
 
 Timelines are vectorised over K duration samples: one topological pass over the items with arrays
-of shape (K,), so all samples of a candidate cost one Python loop.
+of shape (K,), so all samples of a candidate cost one Python loop. :class:`ScheduleBatch` also
+vectorises over schedules: B schedules cost one pass of at most n steps.
 """
 
 from __future__ import annotations
@@ -225,6 +226,116 @@ class Timeline:
                 i for i in human if max(s[idx[i]], s[cj]) < min(f[idx[i]], f[cj]) - 1e-9
             )
         return out
+
+
+class ScheduleBatch:
+    """B schedules of one problem as integer arrays, so their timelines run together.
+
+    Task ``i`` of schedule ``b`` starts when its agent is free and its gates ``deps[b, i]`` are
+    done: its predecessors and the tasks of the waits in front of it (a wait takes no time, and
+    a wait with no task after it delays nothing). Column ``n`` is a sentinel gate, always done
+    at time 0. Max and one addition per task are exact, so the times equal
+    :meth:`CompiledSchedule.simulate`'s bit for bit.
+    """
+
+    def __init__(self, problem: Problem, schedules: Sequence[Schedule]):
+        self.problem = problem
+        self.schedules = list(schedules)
+        n = self.n = len(problem.tasks)
+        b_count = len(self.schedules)
+        idx = problem.index
+        preds = [[idx[p] for p in problem.preceding[t]] for t in problem.ids]
+        own: list[list[int]] = []  # per schedule and agent (row 2b + agent): task columns
+        waits: list[tuple[int, int, int]] = []  # (schedule, task, waited task)
+        for b, s in enumerate(self.schedules):
+            for seq in (s.human, s.robot):
+                cols = [idx[x] for x in seq if x.__class__ is str]
+                if len(cols) < len(seq):
+                    pending: list[int] = []
+                    for x in seq:
+                        if isinstance(x, Wait):
+                            pending.append(idx[x.task])
+                        elif pending:
+                            waits += [(b, idx[x], w) for w in pending]
+                            pending = []
+                own.append(cols)
+        slots = [0] * (b_count * n)
+        for b, t, _ in waits:
+            slots[b * n + t] += 1
+        p_max = max((len(x) for x in preds), default=0)
+        deps = np.full((b_count, n + 1, max(1, p_max + max(slots, default=0))), n,
+                       dtype=np.intp)
+        for i, row in enumerate(preds):
+            deps[:, i, : len(row)] = row
+        used = [0] * (b_count * n)
+        for b, t, w in waits:
+            deps[b, t, p_max + used[b * n + t]] = w
+            used[b * n + t] += 1
+        self.deps = deps.reshape(b_count * (n + 1), -1)  # row b (n + 1) + i
+        longest = max((len(c) for c in own), default=0)
+        seqs = np.full((2 * b_count, longest + 1), n, dtype=np.intp)
+        for r, cols in enumerate(own):
+            seqs[r, : len(cols)] = cols
+        self.seqs = seqs  # row 2b: the human's columns of schedule b in order, 2b+1 the robot's
+        self.lengths = np.array([len(c) for c in own], dtype=np.intp)
+        self.human = np.zeros((b_count, n), dtype=bool)  # the human does task i in schedule b
+        for b in range(b_count):
+            self.human[b, own[2 * b]] = True
+
+    def __len__(self) -> int:
+        return len(self.schedules)
+
+    def durations(self, human: np.ndarray, robot: np.ndarray) -> np.ndarray:
+        """(B, n, R) durations: human rows (R, n) where the human does the task, else each
+        schedule's robot durations ``robot`` (B, n) or (n,)."""
+        robot = np.broadcast_to(np.asarray(robot, dtype=float), (len(self), self.n))
+        return np.where(self.human[:, :, None], np.asarray(human, dtype=float).T[None],
+                        robot[:, :, None])
+
+    def simulate(self, durations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Start and finish (B, n, R) of every task for R duration rows, and which schedules
+        are feasible (B,); a deadlocked schedule's times are meaningless.
+
+        Each step places the next task of every agent of every schedule whose gates are done,
+        so a pass takes at most n steps whatever B and R are.
+        """
+        b_count, n = len(self), self.n
+        r_count = durations.shape[2]
+        stride = n + 1
+        dur = np.zeros((b_count, stride, r_count))
+        dur[:, :n] = durations
+        dur = dur.reshape(b_count * stride, r_count)
+        start = np.zeros(dur.shape)  # zeros, not zeros_like: fresh zero pages, no fill pass
+        finish = np.zeros(dur.shape)
+        done = np.zeros(b_count * stride, dtype=bool)
+        done[n::stride] = True
+        free = np.zeros((2 * b_count, r_count))
+        base = np.arange(2 * b_count) // 2 * stride
+        seqs, deps = self.seqs, self.deps
+        width = seqs.shape[1]
+        flat_seqs = seqs.ravel()
+        cursor = np.arange(2 * b_count) * width  # flat position of each agent's next task
+        while True:
+            row = flat_seqs[cursor] + base  # flat (schedule, task) of every agent's next task
+            live = np.flatnonzero(row - base < n)
+            if not live.size:
+                break
+            row = row[live]
+            gate = deps[row] + base[live, None]
+            go = done[gate].all(axis=1)
+            if not go.all():
+                if not go.any():
+                    break  # every remaining agent waits on a cycle: those schedules deadlock
+                live, row, gate = live[go], row[go], gate[go]
+            ready = np.maximum(free[live], finish[gate].max(axis=1))
+            start[row] = ready
+            finish[row] = free[live] = ready + dur[row]
+            done[row] = True
+            cursor[live] += 1
+        placed = cursor - np.arange(2 * b_count) * width
+        feasible = (placed == self.lengths).reshape(b_count, 2).all(axis=1)
+        shape = (b_count, stride, r_count)
+        return start.reshape(shape)[:, :n], finish.reshape(shape)[:, :n], feasible
 
 
 def compile_schedule(problem: Problem, schedule: Schedule) -> CompiledSchedule | None:

@@ -162,10 +162,16 @@ class AllocationOrders:
         best = float("inf")
         nodes = 0
         dived = False  # a complete (or dead-ended) order has been reached
-        stack = [self._start()]
+        # A child is placed when it is popped, not when pushed: on large jobs the budget ends
+        # the search after the first dive, and most pushed siblings are never visited.
+        stack: list[tuple[_State, int, int, float]] = []
+        root: _State | None = self._start()
         position, tail, n = self.position, self.tail, len(self.ids)
-        while stack and (nodes < max_nodes or not dived):
-            state = stack.pop()
+        while (root is not None or stack) and (nodes < max_nodes or not dived):
+            if root is not None:
+                state, root = root, None
+            else:
+                state = self._place(*stack.pop())
             if not state.ready:
                 dived = True
                 if state.placed == n and state.makespan < best:
@@ -181,7 +187,7 @@ class AllocationOrders:
             conflict.sort(key=lambda c: (tail[c[0]], -position[c[0]]))
             for t, start in conflict:  # the stack pops the longest path first
                 nodes += 1
-                stack.append(self._place(state, t, agent, start))
+                stack.append((state, t, agent, start))
         schedules = [self._result(st) for _, st in reversed(found[-keep:])]
         return [x for x in schedules if x is not None], not stack
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from rapidds.motion.interface import MotionKey, MotionPlan, TrajectoryCache
 from rapidds.problem import AGENTS, Problem
-from rapidds.schedule import CompiledSchedule, Schedule, Wait, validate
+from rapidds.schedule import Schedule, ScheduleBatch, Wait, validate
 from rapidds.scheduler.diversity import AllocationHistory, diversity_term
 
 OverlapState = tuple[frozenset[str], ...]
@@ -94,13 +94,13 @@ class _Variant:
 @dataclass
 class _Candidate:
     schedule: Schedule
-    compiled: CompiledSchedule
     robot_tasks: tuple[str, ...]
-    human_ids: np.ndarray  # (h,) object array of the human's task ids
+    robot_cols: np.ndarray  # (r,) problem columns of the robot's tasks, in its order
+    human_cols: np.ndarray  # (h,) problem columns of the human's tasks, in its order
     z_d: float
-    state: OverlapState
-    state_durations: np.ndarray  # robot durations (at robot columns) that produced ``state``
-    state_pass: _Pass  # the timeline pass under ``state_durations``
+    state: OverlapState = ()
+    state_durations: np.ndarray = field(default_factory=lambda: np.empty(0))
+    state_pass: _Pass | None = None  # the timeline pass under ``state_durations``
     seen: list[OverlapState] = field(default_factory=list)
     variants: list[_Variant] = field(default_factory=list)
 
@@ -120,26 +120,49 @@ def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozen
         raise ValueError(f"invalid schedule {schedule}")  # pragma: no cover - validate raised
 
 
-def _simulate(
-    c_compiled: CompiledSchedule,
-    robot_tasks: tuple[str, ...],
-    human_ids: np.ndarray,
-    samples_and_mean: np.ndarray,
+# Candidates simulated at once: bounds the (B, n, K+1) arrays of a batch to about 4 MiB each
+# (and the (B, n, n) overlap tests); larger batches only page-fault more.
+_CHUNK_FLOATS = 2**19
+
+
+def _passes(
+    problem: Problem,
+    schedules: Sequence[Schedule],
+    rows: np.ndarray,
     robot: np.ndarray,
-) -> _Pass:
-    """One timeline pass over the K samples plus the expected row (last row of
-    ``samples_and_mean``, shape (K+1, n)). C_j follow the rule of :meth:`Timeline.overlaps`,
-    vectorised."""
-    timeline = c_compiled.simulate(c_compiled.durations(samples_and_mean, robot))
-    makespan = timeline.makespan[:-1]
-    s, f = timeline.start[-1].copy(), timeline.finish[-1].copy()
-    rc, hc = c_compiled.robot_cols, c_compiled.human_cols
-    if not rc.size:
-        return _Pass(makespan, s, f, ())
-    if not hc.size:
-        return _Pass(makespan, s, f, tuple(frozenset() for _ in robot_tasks))
-    hit = np.maximum(s[rc, None], s[None, hc]) < np.minimum(f[rc, None], f[None, hc]) - 1e-9
-    return _Pass(makespan, s, f, tuple(frozenset(human_ids[row]) for row in hit))
+    ids: tuple[str, ...],
+) -> list[_Pass | None]:
+    """One timeline pass per schedule over the K samples plus the expected row (last row of
+    ``rows``, shape (K+1, n)) with robot durations ``robot`` (B, n); None where it deadlocks.
+    C_j follow the rule of :meth:`Timeline.overlaps`, for the whole batch at once."""
+    n = len(problem.tasks)
+    size = max(1, _CHUNK_FLOATS // (rows.shape[0] * (n + 1)))
+    out: list[_Pass | None] = []
+    for lo in range(0, len(schedules), size):
+        batch = ScheduleBatch(problem, schedules[lo : lo + size])
+        start, finish, feasible = batch.simulate(batch.durations(rows, robot[lo : lo + size]))
+        makespans = finish.max(axis=1)  # (B, K+1)
+        s, f = start[:, :, -1], finish[:, :, -1]  # (B, n) expected timeline
+        human = batch.human
+        # robot task j and human task i overlap with positive length (Timeline.overlaps)
+        hit = (np.maximum(s[:, :, None], s[:, None, :])
+               < np.minimum(f[:, :, None], f[:, None, :]) - 1e-9)
+        hit &= ~human[:, :, None] & human[:, None, :] & feasible[:, None, None]
+        groups: dict[tuple[int, int], list[str]] = {}
+        for b, j, i in zip(*(a.tolist() for a in np.nonzero(hit)), strict=True):
+            groups.setdefault((b, j), []).append(ids[i])
+        for b in range(len(batch)):
+            if not feasible[b]:
+                out.append(None)
+                continue
+            robot_cols = batch.seqs[2 * b + 1, : batch.lengths[2 * b + 1]].tolist()
+            state = tuple(frozenset(groups[b, j]) if (b, j) in groups else _EMPTY
+                          for j in robot_cols)
+            out.append(_Pass(makespans[b, :-1].copy(), s[b].copy(), f[b].copy(), state))
+    return out
+
+
+_EMPTY: frozenset[str] = frozenset()
 
 
 def _infeasible(schedule: Schedule, z_d: float) -> Evaluation:
@@ -201,28 +224,30 @@ def evaluate_population(
         raise ValueError("human_samples and human_mean must be finite where the human may work")
     rows = np.vstack([samples, mean])  # (K+1, n): the expected timeline rides along
     allowed = {t.id: frozenset(t.allowed) for t in problem.tasks}
-    ids = np.array(problem.ids, dtype=object)
+    ids = problem.ids
     z_d_of = diversity_term(problem, history)
+    idx = problem.index
 
     results: list[Evaluation | None] = [None] * len(schedules)
-    active: list[tuple[int, _Candidate]] = []
-    for pos, schedule in enumerate(schedules):
+    candidates: list[_Candidate] = []
+    for schedule in schedules:
         _check_valid(problem, schedule, allowed)
-        z_d = z_d_of(schedule)
-        compiled = CompiledSchedule.build(problem, schedule)
-        if compiled is None:
-            results[pos] = _infeasible(schedule, z_d)
-            continue
         robot_tasks = schedule.tasks("robot")
-        cols = compiled.robot_cols
-        if not np.all(np.isfinite(d0[cols])):
-            bad = [str(t) for t in ids[cols][~np.isfinite(d0[cols])]]
+        rc = np.array([idx[t] for t in robot_tasks], dtype=np.intp)
+        hc = np.array([idx[t] for t in schedule.tasks("human")], dtype=np.intp)
+        candidates.append(_Candidate(schedule, robot_tasks, rc, hc, z_d_of(schedule)))
+    first = _passes(problem, schedules, rows, np.broadcast_to(d0, (len(schedules), n)), ids)
+    active: list[tuple[int, _Candidate]] = []
+    for pos, (cand, timing) in enumerate(zip(candidates, first, strict=True)):
+        if timing is None:
+            results[pos] = _infeasible(cand.schedule, cand.z_d)
+            continue
+        rc = cand.robot_cols
+        if not np.all(np.isfinite(d0[rc])):
+            bad = [ids[c] for c in rc[~np.isfinite(d0[rc])]]
             raise ValueError(f"d_init has no finite robot duration for robot tasks {bad}")
-        human_ids = ids[compiled.human_cols]
-        first = _simulate(compiled, robot_tasks, human_ids, rows, d0)
-        cand = _Candidate(
-            schedule, compiled, robot_tasks, human_ids, z_d, first.state, d0[cols], first
-        )
+        cand.state, cand.state_durations, cand.state_pass = (
+            timing.state, d0[cand.robot_cols], timing)
         active.append((pos, cand))
 
     rounds = 0
@@ -232,20 +257,31 @@ def evaluate_population(
             (j, cj) for _, c in active for j, cj in zip(c.robot_tasks, c.state, strict=True)
         ]
         plans = cache.get_many(keys)
-        still: list[tuple[int, _Candidate]] = []
+        owns: list[list[MotionPlan]] = []
+        durations: list[np.ndarray] = []
+        changed: list[int] = []  # candidates whose robot durations changed: simulate again
         offset = 0
-        for pos, c in active:
+        for k, (_, c) in enumerate(active):
             m = len(c.robot_tasks)
             own = plans[offset : offset + m]
             offset += m
             rdur = np.array([p.duration for p in own], dtype=float)
-            if np.array_equal(rdur, c.state_durations):
-                # C_j depend only on the schedule and the durations: nothing changed
-                timing = c.state_pass
-            else:
-                robot = d0.copy()
-                robot[c.compiled.robot_cols] = rdur
-                timing = _simulate(c.compiled, c.robot_tasks, c.human_ids, rows, robot)
+            owns.append(own)
+            durations.append(rdur)
+            if not np.array_equal(rdur, c.state_durations):
+                changed.append(k)
+        robot = np.empty((len(changed), n))
+        for row, k in enumerate(changed):
+            robot[row] = d0
+            robot[row, active[k][1].robot_cols] = durations[k]
+        again = dict(zip(changed, _passes(problem, [active[k][1].schedule for k in changed],
+                                          rows, robot, ids), strict=True))
+        still: list[tuple[int, _Candidate]] = []
+        for k, (pos, c) in enumerate(active):
+            own, rdur = owns[k], durations[k]
+            # C_j depend only on the schedule and the durations: unchanged ones keep the pass
+            timing = again.get(k, c.state_pass)
+            assert timing is not None  # the same schedule cannot deadlock under new durations
             next_state = timing.state
             z_s = float(sum(p.spatial_cost for p in own))
             objective = float(timing.makespan.mean()) + gamma * z_s + lam * c.z_d

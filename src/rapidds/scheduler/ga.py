@@ -28,21 +28,27 @@ Additions to the paper's loop, each measured on random instances against CP-SAT
 
 from __future__ import annotations
 
+import dataclasses
+import gc
 import math
 import random
 import time
-from collections.abc import Callable, Sequence
+from bisect import bisect_left
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
-from rapidds.motion.interface import MotionModel, TrajectoryCache
+from rapidds.errors import RapiddsError
+from rapidds.motion.interface import FixedDurationMotion, MotionModel, TrajectoryCache
 from rapidds.problem import AGENTS, Agent, Problem
-from rapidds.schedule import Item, Schedule, Wait, repair
+from rapidds.schedule import Item, Schedule, Wait, repair, validate
 from rapidds.scheduler.active import AllocationOrders, longest_tails
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+from rapidds.scheduler.exact import solve_exact
 
 Progress = Callable[[int, float], None]
 # (parent, rng, parent's expected start times (n,) or None) -> child before repair, or None
@@ -63,6 +69,11 @@ class PlanResult:
         seconds: wall time of the solve.
         seconds_to_best: wall time until the final best was first evaluated.
         cache_hits, cache_misses, cache_size: statistics of the memory M.
+        improvements: (seconds, objective) each time the best objective improved, from the
+            first evaluation on: how fast the search got how close.
+        timed_out: True when ``GAConfig.time_limit_s`` stopped the search.
+        seeds: schedules that joined the first population from outside the search (the
+            caller's ``initial`` ones and the CP-SAT seed), after validation.
     """
 
     best: Evaluation
@@ -74,6 +85,9 @@ class PlanResult:
     cache_hits: int
     cache_misses: int
     cache_size: int
+    improvements: list[tuple[float, float]] = dataclasses.field(default_factory=list)
+    timed_out: bool = False
+    seeds: list[Schedule] = dataclasses.field(default_factory=list)
 
 
 def _other(agent: Agent) -> Agent:
@@ -140,6 +154,7 @@ class GeneticScheduler:
         lam: float | None = None,
         history: AllocationHistory | None = None,
         progress: Progress | None = None,
+        initial: Sequence[Schedule] = (),
     ) -> PlanResult:
         """Search schedules for one cycle.
 
@@ -152,7 +167,25 @@ class GeneticScheduler:
             history: past allocations for the diversity term.
             progress: called as ``progress(generation, best_objective)`` after the initial
                 population (generation 0) and after every generation.
+            initial: schedules that join the first population, e.g. last cycle's best ones
+                (re-use across cycles); each must hold every task once on an allowed agent
+                (ValueError otherwise). Empty (the default) leaves the search as it was.
         """
+        with _without_cyclic_gc():
+            return self._search(human_samples, human_mean, gamma, lam, history, progress,
+                                initial)
+
+    def _search(
+        self,
+        human_samples: np.ndarray,
+        human_mean: np.ndarray,
+        gamma: float | None,
+        lam: float | None,
+        history: AllocationHistory | None,
+        progress: Progress | None,
+        initial: Sequence[Schedule],
+    ) -> PlanResult:
+        """The body of :meth:`solve`."""
         t0 = time.perf_counter()
         cfg = self.config
         problem = self.problem
@@ -166,8 +199,13 @@ class GeneticScheduler:
         evaluated: dict[Schedule, Evaluation] = {}
         best: Evaluation | None = None
         best_time = 0.0
+        improvements: list[tuple[float, float]] = []
+        deadline = math.inf if cfg.time_limit_s is None else t0 + cfg.time_limit_s
 
-        searched: set[frozenset[str]] = set()  # allocations whose order has been searched
+        def late() -> bool:
+            return time.perf_counter() > deadline
+
+        searched: set[int] = set()  # allocations whose order has been searched, as bit masks
 
         def evaluate(schedules: Sequence[Schedule]) -> list[Evaluation]:
             """Evaluations of ``schedules`` and then, with ``order_search_nodes``, of the
@@ -176,18 +214,35 @@ class GeneticScheduler:
             if cfg.order_search_nodes:
                 schedules = [*schedules, *self._shortest_orders(schedules, searched, mean, d_init)]
             new = [s for s in dict.fromkeys(schedules) if s not in evaluated]
+            full: dict[Schedule, Evaluation] = {}
             if new:
                 fresh = evaluate_population(
                     problem, new, samples, mean, cache, d_init, gamma, lam, history,
                     cfg.max_overlap_iters,
                 )
                 for e in fresh:
-                    evaluated[e.schedule] = e
+                    full[e.schedule] = e
+                    evaluated[e.schedule] = _slim(e)
                     if best is None or e.objective < best.objective:
                         best, best_time = e, time.perf_counter() - t0
-            return [evaluated[s] for s in schedules]
+                        improvements.append((best_time, e.objective))
+            return [full[s] if s in full else evaluated[s] for s in schedules]
 
-        population = self._initial_population(rng, mean, d_init)
+        def complete(evaluations: list[Evaluation]) -> list[Evaluation]:
+            """``evaluations`` with their expected start times: cached slim ones are evaluated
+            again (the same values; their motions are all in the memory M already)."""
+            slim = [e.schedule for e in evaluations if e.feasible and not e.expected_start.size]
+            if not slim:
+                return evaluations
+            again = {e.schedule: e for e in evaluate_population(
+                problem, slim, samples, mean, cache, d_init, gamma, lam, history,
+                cfg.max_overlap_iters)}
+            return [again.get(e.schedule, e) for e in evaluations]
+
+        search = _Search(evaluate, complete)
+
+        seeds = self._seeds(initial, mean, d_init)
+        population = self._initial_population(rng, mean, d_init, seeds)
         ranked = _rank(evaluate(population))
         assert best is not None
         history_best = [best.objective]
@@ -198,10 +253,14 @@ class GeneticScheduler:
         local_stall = 0  # generations since this population's best improved (restart)
         polished: set[Schedule] = set()
         generations = 0
+        timed_out = False
         for generation in range(1, cfg.generations + 1):
+            if late():
+                timed_out = True
+                break
             generations = generation
             before, local_before = best.objective, ranked[0].objective
-            elites = _select_elites(ranked, n_elite, cfg.elites_per_allocation)
+            elites = complete(_select_elites(ranked, n_elite, cfg.elites_per_allocation))
             children = self._children(
                 elites, cfg.population - len(elites), rng, evaluated, mean, d_init
             )
@@ -215,7 +274,7 @@ class GeneticScheduler:
             if cfg.restart_after and local_stall >= cfg.restart_after:
                 if cfg.polish and ranked[0].schedule not in polished:
                     polished.add(ranked[0].schedule)
-                    polished.add(self._polish(ranked[0], evaluate).schedule)
+                    polished.add(self._polish(ranked[0], search).schedule)
                 ranked = _rank(evaluate(self._initial_population(rng, mean, d_init)))
                 local_stall = 0
             stall = stall + 1 if best.objective >= before else 0
@@ -224,10 +283,11 @@ class GeneticScheduler:
                 progress(generation, best.objective)
             if cfg.patience and stall >= cfg.patience:
                 break
-        if cfg.polish and best.schedule not in polished:
-            polished.add(self._polish(best, evaluate).schedule)
-        if cfg.polish and cfg.polish_allocations > 1:
-            self._polish_runners_up(evaluated, evaluate, polished)
+        if cfg.polish and best.schedule not in polished and not late():
+            polished.add(self._polish(best, search, late).schedule)
+        if cfg.polish and cfg.polish_allocations > 1 and not late():
+            self._polish_runners_up(evaluated, search, polished, late)
+        timed_out = timed_out or late()
         cache_stats = (cache.hits, cache.misses, len(cache))
         return PlanResult(
             best=best,
@@ -239,13 +299,17 @@ class GeneticScheduler:
             cache_hits=cache_stats[0],
             cache_misses=cache_stats[1],
             cache_size=cache_stats[2],
+            improvements=improvements,
+            timed_out=timed_out,
+            seeds=seeds,
         )
 
     def _polish_runners_up(
         self,
         evaluated: dict[Schedule, Evaluation],
-        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        search: _Search,
         polished: set[Schedule],
+        late: Callable[[], bool],
     ) -> None:
         """The end of a solve: a polish of the best schedule of each of the
         ``polish_allocations`` best allocations, within ``polish_budget``. The trap it targets:
@@ -260,16 +324,16 @@ class GeneticScheduler:
                 return
             if e.schedule not in polished:
                 polished.add(e.schedule)
-                self._polish(e, evaluate, lambda: len(evaluated) > limit)
+                self._polish(e, search, lambda: len(evaluated) > limit or late())
 
-    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[frozenset[str]],
+    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[int],
                          mean: np.ndarray, d_init: np.ndarray) -> list[Schedule]:
         """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
         ``schedules`` not in ``searched`` (then added to it). Without waits: they only delay,
         and the first schedule met with an allocation may carry any."""
         out = []
         for s in schedules:
-            key = _allocation(s)
+            key = sum(1 << self._index[t] for t in s.tasks("human"))  # small, unlike a set
             if key not in searched:
                 searched.add(key)
                 bare = Schedule(s.tasks("human"), s.tasks("robot"))
@@ -353,7 +417,7 @@ class GeneticScheduler:
     def _polish(
         self,
         start: Evaluation,
-        evaluate: Callable[[Sequence[Schedule]], list[Evaluation]],
+        search: _Search,
         stop: Callable[[], bool] | None = None,
     ) -> Evaluation:
         """Best-improvement local search over :meth:`neighbours`, one batch per pass; ``stop``
@@ -362,10 +426,12 @@ class GeneticScheduler:
         for _ in range(self.config.polish_passes):
             if stop is not None and stop():
                 break
-            candidates = self.neighbours(current.schedule)
+            current = search.complete([current])[0]  # the window needs its start times
+            candidates = self.neighbours(current.schedule, current.expected_start,
+                                         self.config.polish_window)
             if not candidates:
                 break
-            best = min(evaluate(candidates), key=lambda e: e.objective)
+            best = min(search.evaluate(candidates), key=lambda e: e.objective)
             if not best.objective < current.objective - 1e-12 * max(1.0, abs(current.objective)):
                 break
             current = best
@@ -373,12 +439,38 @@ class GeneticScheduler:
 
     # ------------------------------------------------------------------------- population
 
-    def _initial_population(
-        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray
-    ) -> list[Schedule]:
-        """C distinct list schedules (fewer only if the problem has fewer distinct ones)."""
-        size = self.config.population
+    def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
+               ) -> list[Schedule]:
+        """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
+        ``exact_seed_work``, fixed robot durations and a job of at most ``exact_seed_tasks``
+        tasks, CP-SAT's schedule on the expected durations; at most a population's worth."""
         out: dict[Schedule, None] = {}
+        for s in initial:
+            validate(self.problem, s)
+            out[repair(s)] = None
+        cfg = self.config
+        if (cfg.exact_seed_work > 0 and len(self.problem.tasks) <= cfg.exact_seed_tasks
+                and isinstance(self.motion, FixedDurationMotion)):
+            human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
+            try:  # a deterministic budget, so the seed does not depend on the machine's load;
+                # the wall-time limit only guards against a stalled solver
+                exact = solve_exact(self.problem, time_limit_s=60.0 + 20 * cfg.exact_seed_work,
+                                    human_mean=human, robot_durations=d_init, load_bound=True,
+                                    deterministic_time=cfg.exact_seed_work)
+            except (RapiddsError, ValueError):  # nothing found in time, or unusable durations
+                pass
+            else:
+                out[exact.schedule] = None
+        return list(out)[: cfg.population]
+
+    def _initial_population(
+        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray,
+        seeds: Sequence[Schedule] = (),
+    ) -> list[Schedule]:
+        """``seeds`` and then distinct list schedules, C in all (fewer only if the problem
+        has fewer distinct ones)."""
+        size = self.config.population
+        out: dict[Schedule, None] = dict.fromkeys(seeds)
         misses = 0
         while len(out) < size and misses < size:
             schedule = self.list_schedule(rng, mean, d_init)
@@ -543,10 +635,39 @@ class GeneticScheduler:
         seq = s.sequence(agent)
         return s.replace(agent, seq[:k] + seq[k + 1 :])
 
-    def neighbours(self, s: Schedule) -> list[Schedule]:
+    def neighbours(self, s: Schedule, start: np.ndarray | None = None,
+                   window: int = 0) -> list[Schedule]:
         """Every single move, reorder, swap within an agent, pair of adjacent swaps (one in each
         agent), exchange of two tasks between agents, and wait removal of ``s`` (repaired,
-        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules."""
+        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules.
+
+        With ``window`` and the expected start times ``start`` (n,), only changes within
+        ``window`` positions: an item moves at most that far in its sequence, a task goes to
+        the other agent at most that far from where its start falls there, and the adjacent
+        swaps and exchanges pair items at most that far apart in time order. O(n window)
+        schedules; on sequences of at most ``window`` items, the whole neighbourhood.
+        """
+        near = window > 0 and start is not None and start.size > 0
+        reach = window if near else 1 << 30
+        at: dict[Item, dict[Agent, int]] = {}  # item -> where its start falls in each sequence
+        if near:
+            assert start is not None
+            index = self._index
+            for agent in AGENTS:
+                seq = s.sequence(agent)
+                slots = [k for k, x in enumerate(seq) if isinstance(x, str)]
+                starts = [start[index[seq[k]]] for k in slots]  # nondecreasing along seq
+                slots.append(len(seq))
+                for item in self.problem.ids:
+                    at.setdefault(item, {})[agent] = slots[bisect_left(starts,
+                                                                       start[index[item]])]
+
+        def anchor(item: Item, agent: Agent, k: int) -> int:
+            """Where ``item`` (at ``k`` in the other sequence) falls in ``agent``'s."""
+            seq = s.sequence(_other(agent))
+            task = next((x for x in seq[k:] if isinstance(x, str)), None)
+            return at[task][agent] if near and task is not None else len(s.sequence(agent))
+
         out: dict[Schedule, None] = {}
         for task in self._shared:
             src = s.agent_of(task)
@@ -554,6 +675,9 @@ class GeneticScheduler:
             rest = tuple(x for x in s.sequence(src) if x != task)
             seq = s.sequence(dst)
             lo, hi = self._window(seq, task)
+            if near:
+                mid = at[task][dst]
+                lo, hi = max(lo, mid - reach), min(hi, mid + reach)
             for p in range(lo, hi + 1):
                 out[repair(s.replace(src, rest).replace(dst, (*seq[:p], task, *seq[p:])))] = None
         for agent in AGENTS:
@@ -563,26 +687,66 @@ class GeneticScheduler:
                 if isinstance(item, Wait):
                     out[repair(s.replace(agent, rest))] = None
                 lo, hi = (0, len(rest)) if isinstance(item, Wait) else self._window(rest, item)
-                for p in range(lo, hi + 1):
+                for p in range(max(lo, k - reach), min(hi, k + reach) + 1):
                     if p != k:
                         out[repair(s.replace(agent, (*rest[:p], item, *rest[p:])))] = None
-                for j in range(k + 1, len(seq)):
+                for j in range(k + 1, min(len(seq), k + reach + 1)):
                     swapped = (*seq[:k], seq[j], *seq[k + 1 : j], item, *seq[j + 1 :])
                     out[repair(s.replace(agent, swapped))] = None
         h, r = s.human, s.robot
         for i in range(len(h) - 1):  # adjacent swaps in both sequences at once: one agent's
-            for j in range(len(r) - 1):  # new order often pays only with the other's
-                out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
-                                    (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
+            mid = anchor(h[i], "robot", i)  # new order often pays only with the other's
+            for j in range(len(r) - 1):
+                if abs(j - mid) <= reach:
+                    out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
+                                        (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
         for i, a in enumerate(h):
             if isinstance(a, Wait) or "robot" not in self._allowed[a]:
                 continue
+            mid = anchor(a, "robot", i)
             for j, b in enumerate(r):
-                if isinstance(b, Wait) or "human" not in self._allowed[b]:
+                if isinstance(b, Wait) or "human" not in self._allowed[b] or abs(j - mid) > reach:
                     continue
                 out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
         out.pop(s, None)
         return list(out)
+
+
+@contextmanager
+def _without_cyclic_gc() -> Iterator[None]:
+    """Python's cyclic garbage collector off for the block (back on after, if it was on).
+
+    A search allocates millions of small objects that the cache keeps alive, so the collector
+    keeps rescanning a growing heap for cycles the search does not make: on 64 tasks that was
+    a quarter of the run. Reference counting still frees everything as usual."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+@dataclass(frozen=True)
+class _Search:
+    """What a polish asks of the running search: ``evaluate`` schedules (cached ones come back
+    slim) and ``complete`` slim evaluations with their expected start times."""
+
+    evaluate: Callable[[Sequence[Schedule]], list[Evaluation]]
+    complete: Callable[[list[Evaluation]], list[Evaluation]]
+
+
+_NONE = np.empty(0)
+
+
+def _slim(e: Evaluation) -> Evaluation:
+    """What the search keeps of an evaluation it may meet again: the schedule and the
+    objective. The samples' makespans, the motions, the overlaps and the timeline of every
+    schedule evaluated would fill gigabytes on 64-128 tasks; the few cached schedules that
+    become parents or polish starts are evaluated again for their start times."""
+    return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
+                               expected_start=_NONE, expected_finish=_NONE)
 
 
 def _allocation(s: Schedule) -> frozenset[str]:
