@@ -47,7 +47,7 @@ def _cycle_row(rec: dict[str, Any]) -> list[str]:
         str(rec["cycle"]), f"{rec['lambda']:g}", " ".join(rec["human"]), " ".join(rec["robot"]),
         routes or "-", f"{e['makespan'] + rec['gamma'] * e['spatial']:.2f}",
         f"{r['makespan']:.2f}", f"{r['spatial']:.2f}", f"{r['cost']:.2f}",
-        f"{r['min_separation']:.2f}", f"{rec['seconds']['total']:.1f}",
+        f"{r['min_separation']:.2f}", f"{rec['seconds']['total']:.2f}",
     ]
 
 
