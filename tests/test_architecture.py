@@ -132,3 +132,14 @@ def test_light_commands_import_no_heavy_library(argv: list[str]) -> None:
     out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
                          timeout=120)
     assert "HEAVY []" in out.stderr, out.stderr[-2000:]
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["ablation", "--help"]])
+def test_help_imports_no_numpy(argv: list[str]) -> None:
+    """Help is read far more often than anything is run: it lists options without numpy."""
+    code = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n"
+            "    pass\nprint('LOADED', sorted(m for m in ('numpy', 'pandas') if m in sys.modules),"
+            " file=sys.stderr)")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                         timeout=120)
+    assert "LOADED []" in out.stderr, out.stderr[-2000:]

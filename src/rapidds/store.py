@@ -38,13 +38,14 @@ import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlencode
-
-import numpy as np
 
 from rapidds.errors import StateError
 from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
+
+if TYPE_CHECKING:  # numpy is imported where arrays are (de)serialised: light commands skip it
+    import numpy as np
 
 SCHEMA_VERSION = 1
 
@@ -75,12 +76,16 @@ CREATE TABLE IF NOT EXISTS arrays (
 
 
 def _npy(a: np.ndarray) -> bytes:
+    import numpy as np
+
     buf = io.BytesIO()
     np.save(buf, np.asarray(a), allow_pickle=False)
     return buf.getvalue()
 
 
 def _from_npy(b: bytes) -> np.ndarray:
+    import numpy as np
+
     return np.load(io.BytesIO(b), allow_pickle=False)
 
 

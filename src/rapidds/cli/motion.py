@@ -10,14 +10,16 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 
 from rapidds.cli import app, fail
 from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
+
+if TYPE_CHECKING:  # imported where used: `rapidds --help` does not pay for numpy
+    import numpy as np
 
 
 def _read_config_file(path: Path) -> dict[str, Any]:
@@ -136,6 +138,8 @@ def _check_batch(policy: Any, n: int, candidates: int) -> None:
 
 
 def _parse_path(spec: str, d: int, option: str = "--steer-cost") -> np.ndarray:
+    import numpy as np
+
     """'x,y;x,y;...' -> (P, d) points (one person's path, or one pose)."""
     from rapidds.motion.config import ConfigError
 
@@ -151,6 +155,8 @@ def _parse_path(spec: str, d: int, option: str = "--steer-cost") -> np.ndarray:
 def _picture(path: Path, samples: np.ndarray, bounds: np.ndarray, people: list[np.ndarray],
              beta: float, title: str) -> Path:
     """Samples drawn over the workspace, on a heat map of the steering cost when there is one."""
+    import numpy as np
+
     from rapidds.motion.steering import proximity_cost
     from rapidds.plots._mpl import plt, save
     from rapidds.plots.maps import plot_paths
@@ -186,6 +192,7 @@ def _sample_in_world(
     drawn over that cost as a heat map with the walls (paper Figure 3 style)."""
     from functools import partial
 
+    import numpy as np
     import torch
 
     from rapidds.human.spatial import SpatialModel
@@ -297,6 +304,8 @@ def sample_cmd(
     if policy_dir is None:
         fail("--policy is required without --world")
         return
+    import numpy as np
+
     from rapidds.motion.config import ConfigError, cpu_threads
     from rapidds.motion.policy import DiffusionPolicy
     from rapidds.motion.steering import (

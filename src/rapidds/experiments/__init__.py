@@ -3,31 +3,39 @@
 :mod:`rapidds.experiments.ablation` runs the trials (one Dask task per trial, stored by the
 client in one SQLite file, resumable); :mod:`rapidds.experiments.report` turns the stored records
 into the figure, the table and the check of the paper's claims without recomputing anything.
+Names are imported on first use, so the CLI's ``--help`` does not pay for numpy and pandas.
 """
 
 from __future__ import annotations
 
-from rapidds.experiments.ablation import (
-    ABLATION,
-    BASELINES,
-    PAPER_HUMANS,
-    StudyConfig,
-    StudyOutcome,
-    run_study,
-    run_trial,
-)
-from rapidds.experiments.report import StudyData, load_study, summarise, write_report
+import importlib
+from typing import TYPE_CHECKING, Any
 
+if TYPE_CHECKING:
+    from rapidds.experiments.ablation import (
+        ABLATION,
+        BASELINES,
+        PAPER_HUMANS,
+        StudyConfig,
+        StudyOutcome,
+        run_study,
+        run_trial,
+    )
+    from rapidds.experiments.report import StudyData, load_study, summarise, write_report
+
+_WHERE = {
+    "ABLATION": "ablation", "BASELINES": "ablation", "PAPER_HUMANS": "ablation",
+    "StudyConfig": "ablation", "StudyOutcome": "ablation", "run_study": "ablation",
+    "run_trial": "ablation",
+    "StudyData": "report", "load_study": "report", "summarise": "report", "write_report": "report",
+}
 __all__ = [
-    "ABLATION",
-    "BASELINES",
-    "PAPER_HUMANS",
-    "StudyConfig",
-    "StudyData",
-    "StudyOutcome",
-    "load_study",
-    "run_study",
-    "run_trial",
-    "summarise",
-    "write_report",
+    "ABLATION", "BASELINES", "PAPER_HUMANS", "StudyConfig", "StudyData", "StudyOutcome",
+    "load_study", "run_study", "run_trial", "summarise", "write_report",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'rapidds.experiments' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"rapidds.experiments.{_WHERE[name]}"), name)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field
 
 from rapidds.settings import Settings
-from rapidds.worlds.base import World
+
+if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
+    from rapidds.worlds.base import World
 
 __all__ = ["ADAPT_LEVELS", "Adapt", "RunConfig"]
 

@@ -14,11 +14,13 @@ done it less.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import StateError
 from rapidds.problem import AGENTS, Agent, Problem
-from rapidds.schedule import Schedule
+
+if TYPE_CHECKING:  # annotations only: the CLI's --help imports this package without numpy
+    from rapidds.schedule import Schedule
 
 
 class AllocationHistory:
