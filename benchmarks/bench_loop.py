@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import torch
-from _common import cpu_model, update_docs_section
+from _common import cpu_model, load_average, update_docs_section
 
 from rapidds.loop import AdaptiveRun, RunConfig, load_policy
 from rapidds.worlds.fetch import ARCHETYPES
@@ -32,7 +32,7 @@ def main() -> None:
     policy = load_policy(make_world("fetch"))
     rows, times = [], []
     wins = 0
-    t_all = time.perf_counter()
+    t_all, load0 = time.perf_counter(), load_average()
     for human in ARCHETYPES:
         tails: dict[str, list[float]] = {"full": [], "none": []}
         for seed in range(args.seeds):
@@ -54,7 +54,9 @@ def main() -> None:
         f"`benchmarks/bench_loop.py --seeds {args.seeds}`: {args.cycles} cycles per run, default "
         "`RunConfig` (GA population 24, patience 8, K = 32, 4 particles x 8 SVDD candidates per "
         "motion request), bundled policy, one torch thread.",
-        f"Machine: {torch.get_num_threads()} torch thread on {cpu_model()} (2 cores).",
+        f"Machine: {torch.get_num_threads()} torch thread on {cpu_model()} (2 cores); 1-min load "
+        f"average {load0} at start, {load_average()} at end (the cores are shared, so seconds "
+        "are upper bounds).",
         "",
         f"Time per cycle (plan + deploy + model update), {t.size} cycles: median "
         f"{np.median(t):.2f} s, p90 {np.percentile(t, 90):.2f} s, max {t.max():.2f} s. "
