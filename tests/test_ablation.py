@@ -32,6 +32,9 @@ from rapidds.experiments.report import (
     check_claims,
     load_study,
     paired_bootstrap,
+    summarise,
+    table_markdown,
+    table_rows,
     verdict,
 )
 from rapidds.store import RunStore
@@ -149,7 +152,7 @@ def test_study_stores_records_and_writes_figures_and_tables(study):
     assert sessions[-1]["ran"] + sessions[-1]["skipped"] == 8
 
     # --json: per archetype and level, per-cycle median and quartiles of the stored costs
-    assert set(summary) == {*HUMANS, "claims"}
+    assert set(summary) == {*HUMANS, "claims", "plan_cost", "claims_plan_cost"}
     for h in HUMANS:
         for lv in LEVELS:
             cell = summary[h][lv]
@@ -158,11 +161,21 @@ def test_study_stores_records_and_writes_figures_and_tables(study):
             np.testing.assert_allclose(cell["median"], np.median(costs, axis=0), atol=1e-4)
             np.testing.assert_allclose(cell["q1"], np.percentile(costs, 25, axis=0), atol=1e-4)
             np.testing.assert_allclose(cell["q3"], np.percentile(costs, 75, axis=0), atol=1e-4)
+            plans = np.array([[r["plan_cost"]["cost"] for r in recs[f"fetch-{h}-{lv}-s{i}"]]
+                              for i in (0, 1)])
+            np.testing.assert_allclose(summary["plan_cost"][h][lv]["median"],
+                                       np.median(plans, axis=0), atol=1e-4)
         assert summary["claims"]["per_archetype"][h]["versus"]["none"]["pairs"] == 2
+        assert summary["claims_plan_cost"]["per_archetype"][h]["versus"]["none"]["pairs"] == 2
     for row in rows:
         score = np.median([np.mean([r["realised"]["cost"] for r in recs[
             f"fetch-{row['archetype']}-{row['level']}-s{i}"][-4:]]) for i in (0, 1)])
         assert float(row["median"]) == pytest.approx(score, abs=1e-5)
+        plan = np.median([np.mean([r["plan_cost"]["cost"] for r in recs[
+            f"fetch-{row['archetype']}-{row['level']}-s{i}"][-4:]]) for i in (0, 1)])
+        assert float(row["plan_median"]) == pytest.approx(plan, abs=1e-5)
+    assert (out / "ablation-plan.png").read_bytes()[:4] == b"\x89PNG"
+    assert "plan cost" in md and "claims, plan cost" in report
 
 
 @pytest.mark.slow
@@ -242,7 +255,7 @@ def test_bad_input_is_one_line_and_exit_2(study, tmp_path, capsys):
 
 def _synthetic(scores: dict[str, dict[str, list[float]]], cycles: int = 4) -> StudyData:
     """A study whose trial scores are given: every cycle of trial i costs scores[h][lv][i]."""
-    trials = {h: {lv: {s: np.tile([v, 0.0, 0.0, 1.0], (cycles, 1))  # one column per METRICS
+    trials = {h: {lv: {s: np.tile([v, 0.0, 0.0, 1.0, v], (cycles, 1))  # one column per METRICS
                        for s, v in enumerate(vals)} for lv, vals in cell.items()}
               for h, cell in scores.items()}
     return StudyData(Path("."), cycles, {}, trials)
@@ -269,6 +282,22 @@ def test_claims_check_counts_strict_wins_and_ties():
                                                 "archetypes": 2, "paper": 3}
     assert c["full_better_than"]["temporal"]["strictly_better"] == 0
     assert check_claims(data) == c  # seeded: the same report every time
+    # the plan cost (here equal to the realised one) is checked on the same resampled trials
+    p = check_claims(data, measure="plan_cost")
+    assert p["measure"] == "plan_cost" and p["per_archetype"] == c["per_archetype"]
+
+
+def test_a_study_stored_before_plan_costs_still_reports():
+    """Old stores have no plan cost: the report keeps to the realised cost."""
+    data = _synthetic({"fast-middle": {"full": [1.0, 2.0], "none": [1.5, 2.5]}})
+    for runs in data.trials["fast-middle"].values():
+        for a in runs.values():
+            a[:, -1] = np.nan
+    assert not data.has_plan_cost
+    summary = summarise(data)
+    assert "claims_plan_cost" not in summary and "plan_cost" not in summary
+    rows = table_rows(data)
+    assert "plan_median" not in rows[0] and "plan cost" not in table_markdown(rows, 4)
 
 
 def test_paired_bootstrap_uses_the_pairing():

@@ -192,3 +192,25 @@ def test_resume_redraws_missing_charts_and_names_changed_settings(tmp_path):
                                 "--resume"), capture_output=True, text=True, timeout=300)
     assert other.returncode == 2
     assert "population=8 (asked 9)" in other.stderr and "Traceback" not in other.stderr
+
+
+def test_plan_cost_scores_the_executed_plan_under_the_truth(policy):
+    """The plan cost (paper Fig. 5) is the plan under the teammate's true model: for the
+    oracle, whose planning model is that truth, it repeats the planner's own expectation (the
+    same C_j and spatial cost; the makespan up to its 32 samples against 256); for a planner
+    on the population prior facing a middle walker, the motions' true spatial cost is not the
+    believed one."""
+    risky = 0
+    for adapt in ("oracle", "none"):
+        run = AdaptiveRun(RunConfig(human="slow-middle", adapt=adapt, cycles=2, lam=0.0,
+                                    **SMALL), policy)
+        for rec in run.run():
+            pc, exp = rec["plan_cost"], rec["expected"]
+            assert pc["cost"] == pytest.approx(pc["makespan"] + rec["gamma"] * pc["spatial"])
+            if adapt == "oracle":
+                assert pc["spatial"] == pytest.approx(exp["spatial"], abs=1e-9)
+                assert pc["makespan"] == pytest.approx(exp["makespan"], abs=0.5)
+            elif rec["routes"].get("t3") == "middle" and "t2" in rec["human"]:
+                risky += 1
+                assert pc["spatial"] > exp["spatial"] + 0.2, (pc, exp)
+    assert risky >= 1  # the prior sent the robot down the corridor beside the person

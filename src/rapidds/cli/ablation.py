@@ -43,6 +43,9 @@ def _print_report(out: Path, as_json: bool, console: Console) -> None:
     console.print(table_markdown(table_rows(data), min(4, data.cycles)), highlight=False,
                   markup=False)
     console.print(claims_markdown(claims), highlight=False, markup=False)
+    if "claims_plan_cost" in summary:
+        console.print("Plan cost:\n" + claims_markdown(summary["claims_plan_cost"]),
+                      highlight=False, markup=False)
     console.print("wrote " + ", ".join(str(p) for p in paths.values()), highlight=False)
 
 

@@ -1,9 +1,13 @@
 """Figures, tables and the paper's claims, from a study's stored records only (no recomputing).
 
-Statistics (also in docs/reproduction.md):
+Two costs per cycle, each analysed the same way: the realised cost (what the deployed cycle
+cost: realised makespan + gamma x realised spatial cost) and the plan cost (the paper's Figure 5
+measure: the executed plan scored under the teammate's true model, ``record["plan_cost"]``;
+studies stored before it existed have only the first). Statistics (also in
+docs/reproduction.md):
 
-- per cycle: median and quartiles over trials of the realised cost (the figure and ``--json``);
-- per trial: the mean realised cost of its last ``k = 4`` cycles, after exploration, when the
+- per cycle: median and quartiles over trials of the cost (the figures and ``--json``);
+- per trial: the mean cost of its last ``k = 4`` cycles, after exploration, when the
   plan has settled ("trial score"); the table gives the median and IQR over trials of it and
   its gap to the oracle's median;
 - claims: for each archetype and ablation level, the difference median(full) - median(level)
@@ -37,7 +41,9 @@ from rapidds.experiments.ablation import (
 from rapidds.fileio import atomic_write_text
 from rapidds.store import RunStore
 
-METRICS = ("cost", "makespan", "spatial", "min_separation")
+METRICS = ("cost", "makespan", "spatial", "min_separation", "plan_cost")
+"""Columns of a trial's array: the realised ones, then the plan cost (NaN where not stored)."""
+MEASURES = {"cost": "realised cost", "plan_cost": "plan cost"}
 LAST_K = 4
 RESAMPLES = 2000
 CONFIDENCE = 0.95
@@ -52,7 +58,8 @@ _LEVEL_ORDER = ABLATION + BASELINES
 class StudyData:
     """Complete trials of a stored study.
 
-    trials[human][level][seed] is a (cycles, len(METRICS)) array of realised values.
+    trials[human][level][seed] is a (cycles, len(METRICS)) array: realised values, then the
+    plan cost (NaN in a study stored before plan costs were recorded).
     """
 
     path: Path
@@ -68,10 +75,18 @@ class StudyData:
         m = METRICS.index(name)
         return np.array([cell[s][:, m] for s in sorted(cell)]).reshape(len(cell), self.cycles)
 
-    def scores(self, human: str, level: str) -> dict[int, float]:
-        """Trial seed -> mean realised cost of its last k cycles."""
-        k = min(LAST_K, self.cycles)
-        return {s: float(a[-k:, 0].mean()) for s, a in self.trials[human][level].items()}
+    def scores(self, human: str, level: str, measure: str = "cost") -> dict[int, float]:
+        """Trial seed -> mean ``measure`` (realised "cost" or "plan_cost") of its last k
+        cycles."""
+        k, m = min(LAST_K, self.cycles), METRICS.index(measure)
+        return {s: float(a[-k:, m].mean()) for s, a in self.trials[human][level].items()}
+
+    @property
+    def has_plan_cost(self) -> bool:
+        """Every stored cycle has its plan cost."""
+        m = METRICS.index("plan_cost")
+        return all(np.isfinite(a[:, m]).all() for cell in self.trials.values()
+                   for runs in cell.values() for a in runs.values())
 
     @property
     def humans(self) -> list[str]:
@@ -110,7 +125,8 @@ def load_study(out: Path) -> StudyData:
             if [r["cycle"] for r in recs] != list(range(int(cfg["cycles"]))):
                 incomplete.append(rid)
                 continue
-            arr = np.array([[float(r["realised"][m]) for m in METRICS] for r in recs])
+            arr = np.array([[float(r["realised"][m]) for m in METRICS[:-1]]
+                            + [_plan_cost(r)] for r in recs])
             raw.setdefault(cfg["human"], {}).setdefault(cfg["adapt"], {})[int(cfg["seed"])] = arr
     if cycles is None or settings is None or not raw:
         raise StateError(f"{out} holds no finished trial yet")
@@ -127,6 +143,11 @@ def load_study(out: Path) -> StudyData:
     return StudyData(out, cycles, settings, trials, incomplete, sessions)
 
 
+def _plan_cost(record: Mapping[str, Any]) -> float:
+    pc = record.get("plan_cost")
+    return float(pc["cost"]) if pc else float("nan")
+
+
 # --------------------------------------------------------------------------------------------
 # statistics
 
@@ -136,13 +157,14 @@ def _quartiles(x: np.ndarray, axis: int | None = None) -> tuple[Any, Any, Any]:
     return q1, med, q3
 
 
-def summarise_curves(data: StudyData) -> dict[str, dict[str, dict[str, Any]]]:
+def summarise_curves(data: StudyData, measure: str = "cost"
+                     ) -> dict[str, dict[str, dict[str, Any]]]:
     """{human: {level: {"median", "q1", "q3": per-cycle lists, "trials": n}}}."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
     for h in data.humans:
         out[h] = {}
         for lv in data.levels(h):
-            q1, med, q3 = _quartiles(data.metric(h, lv), axis=0)
+            q1, med, q3 = _quartiles(data.metric(h, lv, measure), axis=0)
             out[h][lv] = {"median": [round(float(v), 4) for v in med],
                           "q1": [round(float(v), 4) for v in q1],
                           "q3": [round(float(v), 4) for v in q3],
@@ -152,12 +174,16 @@ def summarise_curves(data: StudyData) -> dict[str, dict[str, dict[str, Any]]]:
 
 def table_rows(data: StudyData) -> list[dict[str, Any]]:
     """One row per archetype and level: trial-score median, IQR, gap to the oracle, and the
-    median makespan and spatial cost of the same cycles (where the cost comes from)."""
+    median makespan and spatial cost of the same cycles (where the cost comes from); then the
+    same median, IQR and gap for the plan cost when the study has it."""
     k = min(LAST_K, data.cycles)
+    plan = data.has_plan_cost
     rows = []
     for h in data.humans:
         oracle = data.scores(h, "oracle") if "oracle" in data.trials[h] else None
         ref = float(np.median(list(oracle.values()))) if oracle else None
+        oracle_p = data.scores(h, "oracle", "plan_cost") if plan and oracle else None
+        ref_p = float(np.median(list(oracle_p.values()))) if oracle_p else None
         for lv in data.levels(h):
             s = np.array(list(data.scores(h, lv).values()))
             q1, med, q3 = (float(v) for v in _quartiles(s))
@@ -165,12 +191,18 @@ def table_rows(data: StudyData) -> list[dict[str, Any]]:
             mk = float(np.median([a[-k:, 1].mean() for a in cell]))
             sp = float(np.median([a[-k:, 2].mean() for a in cell]))
             sep = float(np.median([a[-k:, 3].min() for a in cell]))
-            rows.append({
+            row: dict[str, Any] = {
                 "archetype": h, "level": lv, "trials": len(s), "median": med, "q1": q1, "q3": q3,
                 "gap_to_oracle": None if ref is None else med - ref,
                 "gap_to_oracle_pct": None if not ref else 100.0 * (med - ref) / ref,
                 "makespan": mk, "spatial": sp, "min_separation": sep,
-            })
+            }
+            if plan:
+                p1, pm, p3 = (float(v) for v in _quartiles(
+                    np.array(list(data.scores(h, lv, "plan_cost").values()))))
+                row.update({"plan_median": pm, "plan_q1": p1, "plan_q3": p3,
+                            "plan_gap_to_oracle": None if ref_p is None else pm - ref_p})
+            rows.append(row)
     return rows
 
 
@@ -192,19 +224,21 @@ def verdict(lo: float, hi: float) -> str:
     return "better" if hi < 0 else "worse" if lo > 0 else "tie"
 
 
-def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED
-                 ) -> dict[str, Any]:
-    """Per archetype, full against each ablation level; counts set beside the paper's."""
+def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED,
+                 measure: str = "cost") -> dict[str, Any]:
+    """Per archetype, full against each ablation level on ``measure`` (realised "cost" or
+    "plan_cost"); counts set beside the paper's. The bootstrap streams do not depend on the
+    measure, so both checks resample the same trials."""
     per: dict[str, Any] = {}
     for h in data.humans:
         if "full" not in data.trials[h]:
             continue
-        full = data.scores(h, "full")
+        full = data.scores(h, "full", measure)
         versus: dict[str, Any] = {}
         for lv in ABLATION[1:]:
             if lv not in data.trials[h]:
                 continue
-            other = data.scores(h, lv)
+            other = data.scores(h, lv, measure)
             common = sorted(set(full) & set(other))
             if len(common) < 2:
                 continue
@@ -225,7 +259,9 @@ def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTST
             "archetypes": len(compared), "paper": paper,
         }
     return {
-        "statistic": (f"per trial: mean realised cost of the last {min(LAST_K, data.cycles)} "
+        "measure": measure,
+        "statistic": (f"per trial: mean {MEASURES[measure]} of the last "
+                      f"{min(LAST_K, data.cycles)} "
                       "cycles; per level: median over trials; full - level with a "
                       f"{CONFIDENCE:.0%} paired percentile bootstrap CI ({resamples} resamples "
                       f"of trials, seed {seed}); better: CI < 0, worse: CI > 0, else tie"),
@@ -235,9 +271,14 @@ def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTST
 
 
 def summarise(data: StudyData) -> dict[str, Any]:
-    """The ``--json`` summary: per-cycle curves per archetype and level, plus ``claims``."""
+    """The ``--json`` summary: per-cycle curves of the realised cost per archetype and level,
+    plus ``claims``; with plan costs stored, also ``plan_cost`` (the same curves) and
+    ``claims_plan_cost``."""
     out: dict[str, Any] = dict(summarise_curves(data))
     out["claims"] = check_claims(data)
+    if data.has_plan_cost:
+        out["plan_cost"] = summarise_curves(data, "plan_cost")
+        out["claims_plan_cost"] = check_claims(data, measure="plan_cost")
     return out
 
 
@@ -250,14 +291,19 @@ def _f(v: float | None, fmt: str = ".2f") -> str:
 
 
 def table_markdown(rows: list[dict[str, Any]], k: int) -> str:
+    plan = bool(rows) and "plan_median" in rows[0]
     head = (f"| archetype | level | trials | median cost, last {k} | IQR | gap to oracle | "
-            "gap % | makespan | spatial | min. separation |\n"
-            "|---|---|---:|---:|---|---:|---:|---:|---:|---:|\n")
+            "gap % | makespan | spatial | min. separation |"
+            + (" plan cost | plan IQR | plan gap to oracle |" if plan else "") + "\n"
+            "|---|---|---:|---:|---|---:|---:|---:|---:|---:|"
+            + ("---:|---|---:|" if plan else "") + "\n")
     body = "".join(
         f"| {r['archetype']} | {LABELS.get(r['level'], r['level'])} | {r['trials']} | "
         f"{r['median']:.2f} | {r['q1']:.2f}–{r['q3']:.2f} | {_f(r['gap_to_oracle'], '+.2f')} | "
         f"{_f(r['gap_to_oracle_pct'], '+.1f')} | {r['makespan']:.2f} | {r['spatial']:.3f} | "
-        f"{r['min_separation']:.2f} |\n"
+        f"{r['min_separation']:.2f} |"
+        + (f" {r['plan_median']:.2f} | {r['plan_q1']:.2f}–{r['plan_q3']:.2f} | "
+           f"{_f(r['plan_gap_to_oracle'], '+.2f')} |" if plan else "") + "\n"
         for r in rows)
     return head + body
 
@@ -294,12 +340,12 @@ def claims_markdown(claims: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _curves_for_plot(data: StudyData) -> dict[str, dict[str, np.ndarray]]:
-    return {h: {LABELS.get(lv, lv): data.metric(h, lv) for lv in data.levels(h)}
+def _curves_for_plot(data: StudyData, measure: str = "cost") -> dict[str, dict[str, np.ndarray]]:
+    return {h: {LABELS.get(lv, lv): data.metric(h, lv, measure) for lv in data.levels(h)}
             for h in data.humans}
 
 
-def plot_settled(data: StudyData, path: Path) -> Path:
+def plot_settled(data: StudyData, path: Path, measure: str = "cost") -> Path:
     """The cycles after exploration only, on their own scale: exploration's alternating
     allocations cost up to twice as much and flatten the differences that remain after it."""
     from rapidds.plots._mpl import plt, save
@@ -309,7 +355,7 @@ def plot_settled(data: StudyData, path: Path) -> Path:
     fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
     for ax, h in zip(axes[0], names, strict=True):
         for lv in data.levels(h):
-            arr = data.metric(h, lv)[:, first:]
+            arr = data.metric(h, lv, measure)[:, first:]
             x = np.arange(first, data.cycles)
             q1, med, q3 = _quartiles(arr, axis=0)
             color = f"C{_LEVEL_ORDER.index(lv)}" if lv in _LEVEL_ORDER else None
@@ -317,15 +363,16 @@ def plot_settled(data: StudyData, path: Path) -> Path:
             ax.fill_between(x, q1, q3, color=color, alpha=0.12)
         ax.set_title(f"{h}, after exploration")
         ax.set_xlabel("cycle")
-    axes[0][0].set_ylabel("realised cost")
+    axes[0][0].set_ylabel(MEASURES[measure])
     axes[0][-1].legend(fontsize=8)
     fig.tight_layout()
     return save(fig, path)
 
 
 def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
-    """Write the figure (PNG, PDF; and the cycles after exploration alone, PNG), the table
-    (Markdown, CSV), summary.json and report.md."""
+    """Write the figure (PNG, PDF; and the cycles after exploration alone, PNG), the same for
+    the plan cost when stored (``ablation-plan*``), the table (Markdown, CSV), summary.json
+    and report.md."""
     from rapidds.plots.curves import plot_study_panels
 
     out = out or data.path
@@ -338,6 +385,13 @@ def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
     }
     if data.cycles >= 4:
         paths["settled"] = plot_settled(data, out / "ablation-settled.png")
+    if data.has_plan_cost:
+        plan = _curves_for_plot(data, "plan_cost")
+        paths["plan_png"] = plot_study_panels(plan, out / "ablation-plan.png", end, "plan cost")
+        paths["plan_pdf"] = plot_study_panels(plan, out / "ablation-plan.pdf", end, "plan cost")
+        if data.cycles >= 4:
+            paths["plan_settled"] = plot_settled(data, out / "ablation-plan-settled.png",
+                                                 "plan_cost")
     rows = table_rows(data)
     summary = summarise(data)
     md_table = table_markdown(rows, k)
@@ -345,7 +399,8 @@ def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
         "table_md": ("table.md", md_table),
         "table_csv": ("table.csv", table_csv(rows)),
         "summary": ("summary.json", json.dumps(summary, indent=1) + "\n"),
-        "report": ("report.md", report_markdown(data, md_table, summary["claims"])),
+        "report": ("report.md", report_markdown(data, md_table, summary["claims"],
+                                                summary.get("claims_plan_cost"))),
     }
     for key, (name, text) in files.items():
         atomic_write_text(out / name, text)
@@ -353,7 +408,8 @@ def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
     return paths
 
 
-def report_markdown(data: StudyData, md_table: str, claims: dict[str, Any]) -> str:
+def report_markdown(data: StudyData, md_table: str, claims: dict[str, Any],
+                    plan_claims: dict[str, Any] | None = None) -> str:
     s = data.settings
     n = sum(len(c) for lv in data.trials.values() for c in lv.values())
     settings = ", ".join(f"{k}={s[k]}" for k in (
@@ -371,7 +427,12 @@ def report_markdown(data: StudyData, md_table: str, claims: dict[str, Any]) -> s
         f"Median over trials (line) and interquartile range (band) of the realised cost per "
         f"cycle; the red line marks the end of exploration (lambda = 0 after it).\n\n"
         + ("![after exploration](ablation-settled.png)\n\n" if data.cycles >= 4 else "")
+        + ("![plan cost per cycle](ablation-plan.png)\n\nThe same for the plan cost: the "
+           "executed plan scored under the teammate's true model (the paper's Figure 5).\n\n"
+           if plan_claims else "")
         + f"## Last {min(LAST_K, data.cycles)} cycles\n\n{md_table}\n"
-        f"## The paper's claims\n\n{claims_markdown(claims)}"
+        f"## The paper's claims, realised cost\n\n{claims_markdown(claims)}"
+        + (f"\n## The paper's claims, plan cost\n\n{claims_markdown(plan_claims)}"
+           if plan_claims else "")
         + (f"\n## Sessions\n\n{timing}" if timing else "")
     )

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -34,7 +34,7 @@ from rapidds.loop.model import (
     workspace_cost,
 )
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
-from rapidds.motion.interface import MotionKey, MotionModel, TrajectoryCache
+from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule, Timeline
@@ -58,6 +58,8 @@ __all__ = [
     "load_policy",
     "timeline_of",
 ]
+
+PLAN_COST_SAMPLES = 256  # true-duration samples behind a cycle's plan cost (s.e. ~0.01 s)
 
 LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) models updated
     "full": (True, True),
@@ -118,6 +120,28 @@ class LiveTeammate(Teammate, Protocol):
         """Present ``plan`` (its schedule, the robot's motions); called once per cycle, in the
         thread that then calls :meth:`~rapidds.worlds.base.Teammate.execute`."""
         ...
+
+
+class _PlannedMotions:
+    """The motions a plan chose, as a motion model: each robot task keeps its trajectory and
+    duration whatever runs beside it; only its spatial cost is re-scored with ``cost``."""
+
+    def __init__(self, motions: Mapping[str, MotionPlan],
+                 cost: Callable[[frozenset[str], np.ndarray], np.ndarray]):
+        self._motions, self._cost = motions, cost
+
+    def nominal_durations(self, problem: Problem) -> np.ndarray:
+        return np.array([self._motions[t].duration if t in self._motions else np.nan
+                         for t in problem.ids])
+
+    def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
+        out = []
+        for task, concurrent in requests:
+            m = self._motions[task]
+            s = (float(self._cost(concurrent, m.trajectory[None])[0])
+                 if concurrent and m.trajectory is not None else 0.0)
+            out.append(MotionPlan(task, concurrent, m.duration, s, m.trajectory))
+        return out
 
 
 @dataclass
@@ -192,13 +216,17 @@ class AdaptiveRun:
         """(K, n) planning samples and (n,) means from the belief (or the truth for oracle)."""
         k = self.config.samples
         if self.config.adapt == "oracle":
-            person = self._truth()
-            ids = self.problem.ids
-            mean_d, sd_d = person.true_mean_durations(), person.true_std_durations()
-            mean = np.array([mean_d.get(t, np.nan) for t in ids])
-            sd = np.array([sd_d.get(t, np.nan) for t in ids])
-            return np.maximum(rng.normal(mean, sd, (k, len(ids))), 0.5 * mean), mean
+            return self._true_durations(k, rng)
         return self.model.temporal.sample(k, rng), self.model.temporal.mean()
+
+    def _true_durations(self, k: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """(k, n) samples of the teammate's true durations and their (n,) means."""
+        person = self._truth()
+        ids = self.problem.ids
+        mean_d, sd_d = person.true_mean_durations(), person.true_std_durations()
+        mean = np.array([mean_d.get(t, np.nan) for t in ids])
+        sd = np.array([sd_d.get(t, np.nan) for t in ids])
+        return np.maximum(rng.normal(mean, sd, (k, len(ids))), 0.5 * mean), mean
 
     def _truth(self) -> SimulatedTeammate:
         assert isinstance(self.teammate, SimulatedTeammate)
@@ -207,9 +235,34 @@ class AdaptiveRun:
     def _spatial(self) -> SpatialModel:
         if self.config.adapt != "oracle":
             return self.model.spatial
+        return self._true_spatial()
+
+    def _true_spatial(self) -> SpatialModel:
         if self._oracle_spatial is None:
             self._oracle_spatial = oracle_spatial(self.world, self.config, self._truth())
         return self._oracle_spatial
+
+    def plan_cost(self, plan: CyclePlan) -> dict[str, float] | None:
+        """The paper's plan cost (its Figure 5): the plan's schedule with its robot motions,
+        scored under the teammate's TRUE model: expected makespan over their true durations
+        plus gamma x the motions' spatial cost against their true paths (the oracle's models),
+        with C_j taken on the true expected timeline. No diversity term: it is a cost of the
+        allocation history, not of the cycle. None for a teammate whose truth is unknown (a
+        live person). Draws from its own random stream, so the cycle's numbers do not change.
+        """
+        if not isinstance(self.teammate, SimulatedTeammate):
+            return None
+        self._check_current(plan)
+        best = plan.best
+        rng = np.random.default_rng([self.config.seed, plan.cycle, 104_729])
+        samples, mean = self._true_durations(PLAN_COST_SAMPLES, rng)
+        motion = _PlannedMotions(best.motions, workspace_cost(self.world, self._true_spatial()))
+        gamma = self.problem.objective.gamma
+        ev = evaluate_population(self.problem, [best.schedule], samples, mean,
+                                 TrajectoryCache(motion), motion.nominal_durations(self.problem),
+                                 gamma, 0.0)[0]
+        return {"cost": ev.makespan_mean + gamma * ev.spatial, "makespan": ev.makespan_mean,
+                "spatial": ev.spatial}
 
     def _plan_exact(
         self, motion: MotionModel, samples: np.ndarray, mean: np.ndarray
@@ -334,6 +387,7 @@ class AdaptiveRun:
             "belief": {"mean_durations": {  # of the tasks the person may do
                 t: m for t, m in zip(self.problem.ids, self.model.temporal.mean().tolist(),
                                      strict=True) if math.isfinite(m)}},
+            "plan_cost": self.plan_cost(plan),
             "search": plan.search,
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},

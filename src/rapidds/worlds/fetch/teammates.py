@@ -219,7 +219,7 @@ def archetype(name: str, world: FetchWorld) -> FetchTeammate:
 
 def population(n: int, rng: np.random.Generator,
                world: FetchWorld) -> list[FetchTeammate]:
-    """``n`` other people, the source of the priors: speed U(2.0, 3.8) m/s, handling
+    """``n`` other people, the source of the priors: speed U(2.4, 5.0) m/s, handling
     U(0.2, 1.0) s, cv U(0.06, 0.15), and for t2 and t3 independently the middle or the
     outside route with probability 1/2 each, so the population is mixed in both."""
     if n < 1:
