@@ -38,7 +38,7 @@ import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 from urllib.parse import urlencode
 
 import numpy as np
@@ -124,6 +124,13 @@ class RunStore:
     of the folder with "another {lock_as} is writing ...".
     """
 
+    KIND: ClassVar[str] = "run store"
+    """What the store is called in messages."""
+    EXTRA_SCHEMA: ClassVar[str] = ""
+    """SQL a subclass adds to a new store, in the transaction that creates it."""
+    TABLES: ClassVar[frozenset[str]] = _TABLES
+    """Tables an existing store must have to be opened as this kind."""
+
     def __init__(self, path: str | Path, *, readonly: bool = False,
                  timeout: float = DEFAULT_TIMEOUT, lock_as: str | None = None):
         self.path = Path(path)
@@ -159,12 +166,12 @@ class RunStore:
             return StateError(f"{self.path}: locked by another process for more than "
                               f"{self.timeout:g} s; try again when it has finished")
         if name.startswith(_NOT_A_STORE):
-            return StateError(f"{self.path}: not a rapidds run store ({exc})")
+            return StateError(f"{self.path}: not a rapidds {self.KIND} ({exc})")
         if name.startswith("SQLITE_CANTOPEN"):
-            return StateError(f"{self.path}: cannot open the run store ({exc})")
+            return StateError(f"{self.path}: cannot open the {self.KIND} ({exc})")
         if name.startswith(("SQLITE_READONLY", "SQLITE_FULL", "SQLITE_IOERR")):
-            return StateError(f"{self.path}: cannot write the run store ({exc})")
-        return StateError(f"{self.path}: run store error ({name or type(exc).__name__}: {exc})")
+            return StateError(f"{self.path}: cannot write the {self.KIND} ({exc})")
+        return StateError(f"{self.path}: {self.KIND} error ({name or type(exc).__name__}: {exc})")
 
     def _open_for_writing(self) -> sqlite3.Connection:
         deadline = time.monotonic() + self.timeout
@@ -183,7 +190,7 @@ class RunStore:
                 finally:
                     db.execute("ROLLBACK")
                 if found is None:
-                    raise StateError(f"{self.path}: an empty file, not a rapidds run store; "
+                    raise StateError(f"{self.path}: an empty file, not a rapidds {self.KIND}; "
                                      "remove it or choose another path")
             self._ensure_wal(db, deadline)
             db.execute("PRAGMA synchronous=FULL")
@@ -195,9 +202,9 @@ class RunStore:
 
     def _open_readonly(self) -> sqlite3.Connection:
         if not self.path.exists():
-            raise StateError(f"{self.path}: no such run store")
+            raise StateError(f"{self.path}: no such {self.KIND}")
         if not self.path.is_file():
-            raise StateError(f"{self.path}: not a file, so not a rapidds run store")
+            raise StateError(f"{self.path}: not a file, so not a rapidds {self.KIND}")
         db = self._connect(mode="ro")
         try:
             found = self._inspect(db)
@@ -219,7 +226,7 @@ class RunStore:
             raise
         if found is None:
             db.close()
-            raise StateError(f"{self.path}: an empty file, not a rapidds run store")
+            raise StateError(f"{self.path}: an empty file, not a rapidds {self.KIND}")
         return db
 
     def _inspect(self, db: sqlite3.Connection) -> int | None:
@@ -230,22 +237,26 @@ class RunStore:
                 "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
             if not tables:
                 return None
-            if not tables >= _TABLES:
+            if not tables >= self.TABLES:
                 shown = ", ".join(sorted(tables)[:6]) + (", ..." if len(tables) > 6 else "")
-                raise StateError(f"{self.path}: not a rapidds run store (an SQLite database "
+                raise StateError(f"{self.path}: not a rapidds {self.KIND} (an SQLite database "
                                  f"with tables {shown})")
             row = db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
         except sqlite3.DatabaseError as exc:
             if _errname(exc).startswith(_NOT_A_STORE):
-                raise StateError(f"{self.path}: not a rapidds run store ({exc})") from None
+                raise StateError(f"{self.path}: not a rapidds {self.KIND} ({exc})") from None
             raise
         if row is None or not str(row[0]).isdigit():
-            raise StateError(f"{self.path}: not a rapidds run store (no schema version)")
+            raise StateError(f"{self.path}: not a rapidds {self.KIND} (no schema version)")
         if int(row[0]) != SCHEMA_VERSION:
             raise StateError(
                 f"{self.path}: store schema {row[0]}, this rapidds reads {SCHEMA_VERSION}"
             )
+        self._check_kind(db)
         return int(row[0])
+
+    def _check_kind(self, db: sqlite3.Connection) -> None:
+        """A subclass's check that the store is its kind (StateError if not); only reads."""
 
     def _ensure_wal(self, db: sqlite3.Connection, deadline: float) -> None:
         """Switch to WAL (readers never wait for the writer). The pragma needs an exclusive
@@ -280,7 +291,7 @@ class RunStore:
             db = sqlite3.connect(tmp, isolation_level=None)
             try:
                 db.execute("PRAGMA journal_mode=WAL")
-                db.executescript(f"BEGIN IMMEDIATE; {_SCHEMA} "
+                db.executescript(f"BEGIN IMMEDIATE; {_SCHEMA} {self.EXTRA_SCHEMA} "
                                  f"INSERT INTO meta VALUES ('schema', '{SCHEMA_VERSION}'); "
                                  "COMMIT;")
             finally:
@@ -393,6 +404,7 @@ class RunStore:
         Writing a cycle twice is refused rather than duplicated."""
         try:
             with self._tx() as db:
+                self._before_cycle(db, run_id, cycle)
                 db.execute(
                     "INSERT INTO cycles VALUES (?, ?, ?, ?, ?)",
                     (run_id, cycle, _dumps(record), state, time.time()),
@@ -403,6 +415,10 @@ class RunStore:
                 )
         except sqlite3.IntegrityError:
             raise StateError(f"run '{run_id}' already has cycle {cycle}") from None
+
+    def _before_cycle(self, db: sqlite3.Connection, run_id: str, cycle: int) -> None:
+        """A subclass's check, inside :meth:`record_cycle`'s transaction, that the cycle may be
+        written now (StateError if not)."""
 
     def record_trial(
         self, run_id: str, config: dict[str, Any], records: list[dict[str, Any]]
