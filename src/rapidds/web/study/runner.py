@@ -111,7 +111,8 @@ class StudySession:
     """The study in ``folder`` (its ``study.sqlite``), served to one experimenter's browser."""
 
     def __init__(self, folder: Path, *, policy: DiffusionPolicy | None = None,
-                 policy_path: Path | None = None, lock_as: str | None = "rapidds study serve"):
+                 policy_path: Path | None = None, world: World | None = None,
+                 lock_as: str | None = "rapidds study serve"):
         path = Path(folder) / STORE_NAME
         if not path.is_file():
             raise StateError(f"{folder} holds no study ({STORE_NAME}); create one with "
@@ -119,7 +120,10 @@ class StudySession:
         self.store = StudyStore(path, lock_as=lock_as)
         try:
             base = self.store.base_config
-            self.world: World = make_world(base.world, base.variant)
+            if world is not None and (world.name, world.variant) != (base.world, base.variant):
+                raise StateError(f"the study runs on {base.world} ({base.variant}), not "
+                                 f"{world.name} ({world.variant})")
+            self.world: World = world or make_world(base.world, base.variant)
             if policy is None:
                 from rapidds.loop.run import load_policy
 
@@ -215,20 +219,20 @@ class StudySession:
             gantt=gantt_svg(timeline, title="the robot's plan (expected times)"))
 
     # -- submits ------------------------------------------------------------------------------
-    def _turn(self, pid: str, token: str) -> Step:
+    def _turn(self, pid: str, token: str, kind: str) -> Step:
+        """``pid``'s next step, if it is the one the page answered and of ``kind``."""
         step = self.store.next_step(pid)
-        if token != step_token(step):
-            raise OutOfTurn(f"this page is out of date (it answers '{token}'); {pid}'s next "
-                            f"step is {step.describe()}: reload the page", step)
+        if token != step_token(step) or step.kind != kind:
+            raise OutOfTurn(f"this page is out of date (it answers '{token[:60]}' with a {kind} "
+                            f"submit); {pid}'s next step is {step.describe()}: reload the page",
+                            step)
         return step
 
     def submit_round(self, pid: str, token: str, source: str, fields: Mapping[str, str],
                      tracker: str | None = None) -> dict[str, Any]:
         """Record what the person did in their current round (one transaction) and return the
         cycle's record."""
-        step = self._turn(pid, token)
-        if step.kind != "round":
-            raise OutOfTurn(f"{pid}'s next step is {step.describe()}, not a round", step)
+        step = self._turn(pid, token, "round")
         assert step.system is not None
         held = self.plan(pid)
         assert held is not None
@@ -275,7 +279,7 @@ class StudySession:
         return {t: typed_execution(self.world, mate, t, d) for t, d in durations.items()}
 
     def submit_survey(self, pid: str, token: str, fields: Mapping[str, str]) -> None:
-        step = self._turn(pid, token)
+        step = self._turn(pid, token, "survey")
         assert step.system is not None
         items = self.store.items.items
         unanswered = [i for i in items if not str(fields.get(i.id, "")).strip()]
@@ -297,7 +301,7 @@ class StudySession:
             raise InputError(str(exc)) from None
 
     def submit_ranking(self, pid: str, token: str, fields: Mapping[str, str]) -> None:
-        self._turn(pid, token)
+        self._turn(pid, token, "ranking")
         systems = self.store.participant(pid).systems
         n = len(systems)
         extra = sorted(set(fields) - {f"rank{r}" for r in range(1, n + 1)})
@@ -323,7 +327,7 @@ class StudySession:
             raise InputError(str(exc)) from None
 
     def submit_demographics(self, pid: str, token: str, fields: Mapping[str, str]) -> None:
-        self._turn(pid, token)
+        self._turn(pid, token, "demographics")
         known = {name for name, _, _ in DEMOGRAPHICS}
         extra = sorted(set(fields) - known)
         if extra:
