@@ -57,7 +57,8 @@ def page(title: str, where: str, body: str) -> str:
 
 
 def _form(api: str, step: str, inner: str, button: str, busy: str = "saving…") -> str:
-    return (f"<form data-api='{e(api)}' data-step='{e(step)}' data-busy='{e(busy)}'>{inner}"
+    return (f"<form novalidate data-api='{e(api)}' data-step='{e(step)}' data-busy='{e(busy)}'>"
+            f"{inner}"
             f"<div><button type=submit>{e(button)}</button><span class=busy></span></div>"
             "<p class=error role=alert></p></form>")
 

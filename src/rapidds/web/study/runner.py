@@ -18,6 +18,7 @@ after validation, the run is reloaded from the store, so memory never runs ahead
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -272,6 +273,14 @@ class StudySession:
         empty = [t for t, v in typed.items() if not v]
         if empty:
             raise InputError(f"type the duration of {', '.join(empty)} in seconds")
+        for t, v in typed.items():
+            try:
+                ok = math.isfinite(float(v)) and float(v) > 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise InputError(f"duration of {t}: {v[:40]!r} is not a positive number of "
+                                 "seconds")
         try:
             durations = validate_durations(typed, tasks)
         except StudyDataError as exc:
