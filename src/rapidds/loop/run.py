@@ -134,12 +134,13 @@ class AdaptiveRun:
 
     world: defaults to the registry's ``config.world``; teammate: defaults to the world's
     simulated ``config.human`` (pass a live person's teammate to run with them); policy:
-    defaults to the world's bundled one; store: where every cycle is recorded.
+    defaults to the world's bundled one; store: where every cycle is recorded; prior: the
+    starting belief (default: the world's population prior for this config, computed anew).
     """
 
     def __init__(self, config: RunConfig, policy: DiffusionPolicy | None = None,
                  store: RunStore | None = None, world: World | None = None,
-                 teammate: Teammate | None = None):
+                 teammate: Teammate | None = None, prior: HumanModel | None = None):
         self.world = world or make_world(config.world, config.variant)
         self.config = config.resolved(self.world)
         self.teammate = check_teammate(self.world, self.config, teammate)
@@ -157,7 +158,10 @@ class AdaptiveRun:
         self.store = store
         self.problem: Problem = self.world.problem().with_objective(
             gamma=self.config.gamma, lam=self.config.lam)
-        self.model = prior_model(self.world, self.config)
+        # a given prior (e.g. one population prior shared by a study's runs, computed once) is
+        # copied: the run learns into its own model
+        self.model = (HumanModel.from_bytes(prior.to_bytes()) if prior is not None
+                      else prior_model(self.world, self.config))
         self._oracle_spatial: SpatialModel | None = None
         self.next_cycle = 0
         self._timing: dict[int, dict[str, float]] = {}

@@ -33,6 +33,9 @@ API (all writes one transaction each; readers never block the writer):
   of turn StateError, each with one line.
 * ``validate_durations(durations, tasks)``: typed-in or tracked task durations checked (positive,
   finite, the tasks expected) before they reach the loop.
+* Folders: ``create_study(out, design, run, items)`` writes ``out/design.csv`` and
+  ``out/study.sqlite`` (refusing a folder that holds a different design);
+  ``study_path(out)`` is the store's path.
 * Readers: ``store.survey_frame()`` (participant, system, item, value), ``store.rankings()``,
   ``store.demographics()``.
 """
@@ -66,10 +69,14 @@ __all__ = [
     "StudyStore",
     "SurveyItem",
     "SurveyItems",
+    "create_study",
     "default_items",
+    "study_path",
     "validate_durations",
 ]
 
+STORE_NAME = "study.sqlite"
+DESIGN_NAME = "design.csv"
 LIKERT: tuple[int, int] = (1, 7)
 """The survey's scale: 1 = strongly disagree ... 7 = strongly agree."""
 SEED_STRIDE = 10_000
@@ -549,3 +556,33 @@ class StudyStore(RunStore):
     def demographics(self) -> dict[str, dict[str, str]]:
         return {pid: self._json(f, f"demographics of {pid}") for pid, f in self._rows(
             "SELECT participant, fields FROM demographics ORDER BY participant")}
+
+
+def study_path(out: str | Path) -> Path:
+    """The study store of folder ``out``."""
+    return Path(out) / STORE_NAME
+
+
+def create_study(out: str | Path, design: StudyDesign, run: RunConfig,
+                 items: SurveyItems | None = None, *, lock_as: str | None = None) -> StudyStore:
+    """Folder ``out`` with this study: ``design.csv`` (the assignment table, for the
+    experimenter) and ``study.sqlite``; a folder holding another design is refused before
+    anything is written, the same design is opened as it is. Returns the open store."""
+    out = Path(out)
+    csv = out / DESIGN_NAME
+    if csv.exists():
+        try:
+            there = StudyDesign.from_csv(csv)
+        except StudyDesignError as exc:
+            raise StateError(f"{csv} exists and is not this study's design ({exc})") from None
+        if there != design:
+            raise StateError(f"{out} already holds a different study design ({csv}); choose "
+                             "another --out or the same settings")
+    store = StudyStore.create(study_path(out), design, run, items, lock_as=lock_as)
+    try:
+        if not csv.exists():
+            design.to_csv(csv)
+    except BaseException:
+        store.close()
+        raise
+    return store

@@ -53,8 +53,10 @@ __all__ = [
     "BODY_POINTS",
     "HANDS",
     "HUMAN_TASKS",
+    "SPEEDS",
     "PaintingTeammate",
     "archetype",
+    "individual",
     "mirror_body",
     "population",
     "rest_points",
@@ -306,6 +308,28 @@ def population(n: int, rng: np.random.Generator, *, dt: float = 0.15,
             name=f"person-{i}", hand=hand, means=means, cv=float(rng.uniform(0.06, 0.15)),
             habit_seed=int(rng.integers(2**31)), dt=dt, layout=layout))
     return people
+
+
+SPEEDS: dict[str, tuple[float, float]] = {"fast": (3.0, 3.8), "slow": (6.2, 7.0)}
+"""Brushing time range (s) of a person primed to brush fast or slow: around the archetypes'
+3.4 s and 6.6 s, on either side of the robot's 4.65 s."""
+
+
+def individual(name: str, hand: str, speed: str, rng: np.random.Generator, *,
+               dt: float = 0.15, layout: CellLayout = LAYOUT) -> PaintingTeammate:
+    """One person primed to use ``hand`` and brush ``speed`` ("fast" / "slow"), otherwise their
+    own: brushing U(SPEEDS[speed]) s, prep U(5.6, 6.4) s, secure U(4.6, 5.4) s, cv U(0.06,
+    0.15) and their own habits (paths), as :func:`population` draws them. A simulated study
+    participant."""
+    if hand not in HANDS:
+        raise ValueError(f"hand must be one of {', '.join(HANDS)}, got {hand!r}")
+    if speed not in SPEEDS:
+        raise ValueError(f"speed must be one of {', '.join(SPEEDS)}, got {speed!r}")
+    means = {"prep_vise": float(rng.uniform(5.6, 6.4)),
+             "secure_piece": float(rng.uniform(4.6, 5.4)),
+             "brush": float(rng.uniform(*SPEEDS[speed]))}
+    return PaintingTeammate(name=name, hand=hand, means=means, cv=float(rng.uniform(0.06, 0.15)),
+                            habit_seed=int(rng.integers(2**31)), dt=dt, layout=layout)
 
 
 def population_statistics(

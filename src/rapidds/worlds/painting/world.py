@@ -26,6 +26,7 @@ the spatial term alone would pick among them, which always favours the avoidant 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -224,6 +225,20 @@ class PaintingWorld:
         from rapidds.worlds.painting.teammates import archetype
 
         return archetype(name, dt=self.dt, layout=self.layout)
+
+    def participant(self, name: str, levels: Mapping[str, str],
+                    rng: np.random.Generator) -> PaintingTeammate:
+        """A simulated study participant primed as ``levels`` (``hand``: left / right,
+        ``speed``: fast / slow, the user study's priming factors), drawn around that group:
+        their own durations and paths (:func:`.teammates.individual`)."""
+        from rapidds.worlds.painting.teammates import individual
+
+        missing = [f for f in ("hand", "speed") if f not in levels]
+        if missing:
+            raise ValueError(f"a painting participant needs the priming factor(s) "
+                             f"{', '.join(missing)} (hand: left/right, speed: fast/slow)")
+        return individual(name, levels["hand"], levels["speed"], rng, dt=self.dt,
+                          layout=self.layout)
 
     def robot_points(self, traj: np.ndarray) -> np.ndarray:
         """(..., H, 7) joint trajectories -> (..., H, 12, 3) points along the arm."""

@@ -1,0 +1,188 @@
+"""``rapidds study``: the user-study instrument (design, simulate, analyze; serve lives beside).
+
+``design`` and ``analyze`` stay light (no torch); ``simulate`` starts a Dask cluster like
+``rapidds ablation``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+from rapidds.cli import app
+from rapidds.experiments.study.systems import SYSTEMS
+
+if TYPE_CHECKING:
+    from rapidds.experiments.study.design import StudyDesign
+    from rapidds.experiments.study.store import StudyStore, SurveyItems
+    from rapidds.loop.config import RunConfig
+
+study_app = typer.Typer(name="study", help="User studies: design, serve, simulate, analyze.",
+                        no_args_is_help=True)
+app.add_typer(study_app, name="study")
+
+
+def _split(value: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in value.split(",") if v.strip())
+
+
+_PARTICIPANTS = typer.Option(32, help="Participants (a multiple of order rows x priming groups: "
+                             "16 for four systems).")
+_SYSTEMS = typer.Option(",".join(SYSTEMS), help="Systems, comma-separated: "
+                        f"{', '.join(SYSTEMS)}.")
+_WORLD = typer.Option("painting", help="Registered world the study runs on.")
+_VARIANT = typer.Option(None, help="World variant (default: the world's first).")
+_ROUNDS = typer.Option(7, help="Rounds (task cycles) with each system.")
+_GAMMA = typer.Option(None, help="Proximity weight (default: the world's).")
+_SEED = typer.Option(0, help="Study seed: which participant gets which order and group, and "
+                     "(simulated) who each participant is.")
+_ITEMS = typer.Option(None, help="Survey items file (YAML: items: [{id, text}, ...]); default: "
+                      "Hoffman's fluency items + 'The robot got in the way of me completing my "
+                      "tasks'. Stored in the study.")
+_POP = typer.Option(24, help="GA population C.")
+_GEN = typer.Option(40, help="GA generations G.")
+_SAMPLES = typer.Option(32, help="Monte-Carlo duration samples K.")
+_PARTICLES = typer.Option(2, help="Steered samples per motion request B (2 x 4 as in the "
+                          "ablation: 2.5x faster than the loop's 4 x 8 on painting).")
+_CANDIDATES = typer.Option(4, help="SVDD candidates M per step.")
+_JSON = typer.Option(False, "--json", help="Print a JSON summary on stdout.")
+_UNBALANCED = typer.Option(False, "--allow-unbalanced", help="Accept a participant count that "
+                           "cannot balance order rows x priming groups (near-balance; pilots, "
+                           "tests).")
+
+
+def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
+           gamma: float | None, seed: int, items: Path | None, search: dict[str, int],
+           unbalanced: bool = False) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
+    """Validate every option before anything is written: design, world, run settings, items."""
+    from rapidds.experiments.study.design import StudyDesign
+    from rapidds.experiments.study.store import SurveyItems
+    from rapidds.loop.config import RunConfig
+    from rapidds.worlds.registry import make_world
+
+    design = StudyDesign(participants=participants, systems=_split(systems), rounds=rounds,
+                         seed=seed, require_balance=not unbalanced)
+    w = make_world(world, variant)
+    run = RunConfig(world=world, variant=w.variant, gamma=gamma, cycles=rounds, **search)
+    survey = SurveyItems.load(items) if items is not None else None
+    return design, run.resolved(w), survey
+
+
+def _summary(store: StudyStore, out: Path) -> dict[str, Any]:
+    design, run = store.design, store.base_config
+    steps = store.progress()
+    return {"out": str(out), "participants": design.participants, "systems": design.systems,
+            "rounds": design.rounds, "seed": design.seed, "world": run.world,
+            "variant": run.variant, "gamma": run.gamma, "balanced": design.balanced,
+            "items": list(store.items.ids),
+            "runs_finished": sum(store.rounds_done(p.id, s) >= design.rounds
+                                 for p in store.participants() for s in p.systems),
+            "participants_done": sum(s.kind == "done" for s in steps.values())}
+
+
+@study_app.command("design")
+def design_cmd(
+    out: Path = typer.Option(..., help="Folder for design.csv and study.sqlite."),
+    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, world: str = _WORLD,
+    variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
+    seed: int = _SEED, items: Path | None = _ITEMS, population: int = _POP,
+    generations: int = _GEN, samples: int = _SAMPLES, particles: int = _PARTICLES,
+    candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED, as_json: bool = _JSON,
+) -> None:
+    """Counterbalanced design (Williams squares, priming groups balanced across orders) written
+    to DIR/design.csv and DIR/study.sqlite. The same design again changes nothing; a different
+    one in the same folder is refused."""
+    from rapidds.experiments.study.store import create_study
+
+    design, run, survey = _build(participants, systems, world, variant, rounds, gamma, seed,
+                                 items, dict(population=population, generations=generations,
+                                             samples=samples, particles=particles,
+                                             candidates=candidates), allow_unbalanced)
+    with create_study(out, design, run, survey, lock_as="rapidds study design") as store:
+        summary = _summary(store, out)
+    if as_json:
+        print(json.dumps(summary), flush=True)
+        return
+    table = design.assign()
+    typer.echo(table.assign(order=table["order"].map(" > ".join)).to_string(index=False))
+    typer.echo(f"{design.participants} participants x {len(design.systems)} systems x "
+               f"{design.rounds} rounds on {run.world} ({run.variant}), gamma {run.gamma:g}; "
+               f"wrote {out / 'design.csv'} and {out / 'study.sqlite'}")
+
+
+@study_app.command("simulate")
+def simulate_cmd(
+    out: Path = typer.Option(..., help="Study folder; created with this design if it has none; "
+                             "rerunning skips finished participant x system runs."),
+    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, world: str = _WORLD,
+    variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
+    seed: int = _SEED, population: int = _POP, generations: int = _GEN,
+    samples: int = _SAMPLES, particles: int = _PARTICLES, candidates: int = _CANDIDATES,
+    allow_unbalanced: bool = _UNBALANCED,
+    workers: int | None = typer.Option(None, help="Local Dask worker processes (default: one "
+                                       f"per CPU, {os.cpu_count()} here)."),
+    scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
+                                         "e.g. tcp://host:8786, instead of a local cluster."),
+    as_json: bool = _JSON,
+) -> None:
+    """The study's protocol with simulated participants drawn around their priming group, each
+    system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
+    from rich.console import Console
+
+    from rapidds.cli.ablation import _Progress
+    from rapidds.experiments.ablation import check_scheduler_address, dask_client
+    from rapidds.experiments.study.simulate import simulate_study
+    from rapidds.experiments.study.store import create_study
+
+    design, run, _ = _build(participants, systems, world, variant, rounds, gamma, seed, None,
+                            dict(population=population, generations=generations,
+                                 samples=samples, particles=particles, candidates=candidates),
+                            allow_unbalanced)
+    if scheduler:
+        check_scheduler_address(scheduler)
+    err = Console(stderr=True, soft_wrap=True)
+    where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
+    with create_study(out, design, run, lock_as="rapidds study simulate") as store:
+        try:
+            with dask_client(workers, scheduler) as client, _Progress(err) as bar:
+                outcome = simulate_study(store, client, bar.on_trial, bar.on_start)
+        except KeyboardInterrupt:
+            err.print(f"interrupted; finished runs are stored in {out}; rerun the same command "
+                      "to finish", highlight=False)
+            raise typer.Exit(130) from None
+        summary = _summary(store, out)
+    line = {"finished": __import__("time").strftime("%Y-%m-%d %H:%M:%S"),
+            "wall_s": round(outcome.wall_s, 2), "ran": outcome.ran, "skipped": outcome.skipped,
+            "total": outcome.total, "workers": outcome.workers, "cluster": where,
+            "run_seconds_sum": round(sum(outcome.trial_seconds), 2),
+            "load_average": list(os.getloadavg())}
+    with open(out / "sessions.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")
+    summary.update(simulated=line)
+    if as_json:
+        print(json.dumps(summary), flush=True)
+        return
+    err.print(f"{outcome.ran} runs simulated, {outcome.skipped} already stored, "
+              f"{outcome.wall_s:.1f} s on {outcome.workers} workers ({where}); "
+              f"analyse with: rapidds study analyze {out}", highlight=False)
+
+
+@study_app.command("analyze")
+def analyze_cmd(
+    folder: Path = typer.Argument(..., help="Study folder (holding study.sqlite)."),
+    as_json: bool = _JSON,
+) -> None:
+    """The paper's analyses on whatever the study holds: rm-ANOVA of the cost reductions,
+    ranking test, ART ANOVA per survey item, figures and report.md."""
+    from rapidds.experiments.study.analyze import analyze_study
+
+    result = analyze_study(folder)
+    if as_json:
+        print(json.dumps(result.summary), flush=True)
+        return
+    typer.echo(result.report)
+    typer.echo("wrote " + ", ".join(str(p) for p in result.files))

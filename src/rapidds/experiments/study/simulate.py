@@ -1,0 +1,205 @@
+"""The user study with simulated participants, on Dask: objective measures only.
+
+Every participant of the stored design is one simulated person, drawn around their priming group
+by the world (``world.participant(name, levels, rng)``: the painting world's
+:func:`~rapidds.worlds.painting.teammates.individual`, with their own durations and hand paths)
+from ``(study seed, position)``, so the same person uses every system. Each participant x system
+is one Dask task: an :class:`~rapidds.loop.run.AdaptiveRun` of the study's rounds with the
+system's adaptation level, starting from the population prior, on a worker without a store; the
+client writes each finished run whole (:meth:`~rapidds.store.RunStore.record_trial`), so a rerun
+skips the stored ones. Runs use the seed :meth:`.StudyStore.config_for` gives, shared by a
+participant's systems (common random numbers within a person).
+
+Simulated people answer no survey and rank nothing: this module writes rounds only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from rapidds.errors import RapiddsError, StateError
+from rapidds.experiments.ablation import StudyOutcome, _worker_policy
+from rapidds.experiments.study.store import StudyStore
+from rapidds.loop.config import RunConfig
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from rapidds.loop.model import HumanModel
+    from rapidds.worlds.base import SimulatedTeammate, World
+
+__all__ = ["PERSON_STREAM", "DrawsParticipants", "Trial", "person_rng", "run_trial",
+           "simulate_study", "simulated_participant", "trials_to_run"]
+
+PERSON_STREAM = 7_331
+"""Random stream a simulated participant is drawn from: (study seed, position, PERSON_STREAM)."""
+
+
+@runtime_checkable
+class DrawsParticipants(Protocol):
+    """A world that can simulate study participants: one person primed as ``levels`` (factor ->
+    level of the design's priming factors), otherwise drawn from ``rng``."""
+
+    def participant(self, name: str, levels: Mapping[str, str],
+                    rng: np.random.Generator) -> SimulatedTeammate: ...
+
+
+def person_rng(study_seed: int, position: int) -> np.random.Generator:
+    return np.random.default_rng([study_seed, position, PERSON_STREAM])
+
+
+def simulated_participant(world: World, name: str, levels: Mapping[str, str], study_seed: int,
+                          position: int) -> SimulatedTeammate:
+    """The simulated person of a participant: the same for every system."""
+    if not isinstance(world, DrawsParticipants):
+        raise RapiddsError(f"world '{world.name}' cannot simulate study participants (it has no "
+                           "participant(name, levels, rng) method)")
+    try:
+        return world.participant(name, dict(levels), person_rng(study_seed, position))
+    except ValueError as exc:
+        raise RapiddsError(f"world '{world.name}': {exc}") from None
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One participant x system: the run's config (resolved), the person's priming levels and
+    where their random draw comes from."""
+
+    run_id: str
+    participant: str
+    system: str
+    config: dict[str, Any]
+    levels: dict[str, str]
+    study_seed: int
+    position: int
+
+    @property
+    def key(self) -> str:
+        """Dask key, unique per trial AND settings (a shared scheduler must not mix studies)."""
+        digest = hashlib.sha1(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()
+        return f"rapidds-study-{self.run_id}-{digest[:10]}"
+
+
+def trials_to_run(store: StudyStore) -> tuple[list[Trial], int]:
+    """The trials not yet stored whole, participants in design order and each one's systems in
+    their order (a study stopped early is complete for its first participants); and how many
+    trials the study has."""
+    design = store.design
+    out, total = [], 0
+    for p in store.participants():
+        for system in p.systems:
+            total += 1
+            if store.rounds_done(p.id, system) >= design.rounds:
+                continue
+            cfg = store.config_for(p.id, system)
+            out.append(Trial(cfg.run_id, p.id, system, cfg.model_dump(), dict(p.factors),
+                             design.seed, p.position))
+    return out, total
+
+
+# -- worker side ---------------------------------------------------------------------------------
+@lru_cache(maxsize=2)
+def _worker_world(name: str, variant: str | None) -> World:
+    from rapidds.worlds.registry import make_world
+
+    return make_world(name, variant)
+
+
+@lru_cache(maxsize=4)
+def _worker_prior(name: str, variant: str | None, key: str) -> HumanModel:
+    """The population prior, computed once per worker (the painting one takes seconds). ``key``
+    is the spatial settings it depends on; the run copies it before learning."""
+    from rapidds.loop.model import prior_model
+
+    return prior_model(_worker_world(name, variant), RunConfig(**json.loads(key)))
+
+
+def _prior_key(cfg: RunConfig) -> str:
+    """What the prior depends on: the world's spatial settings (and the seed only where the
+    surrogate network, which it seeds, is used)."""
+    keep = {"world": cfg.world, "variant": cfg.variant, "beta": cfg.beta, "rho": cfg.rho,
+            "grid_points": cfg.grid_points, "surrogate": cfg.surrogate,
+            "seed": cfg.seed if cfg.surrogate else 0}
+    return json.dumps(keep, sort_keys=True)
+
+
+def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
+    """Run one participant x system (all rounds) and return its records; the Dask task. Touches
+    no files: the client stores the result."""
+    import torch
+
+    from rapidds.loop.run import AdaptiveRun
+
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    t = Trial(**trial)
+    world = _worker_world(t.config["world"], t.config["variant"])
+    cfg = RunConfig(**t.config).resolved(world)
+    person = simulated_participant(world, t.participant, t.levels, t.study_seed, t.position)
+    prior = _worker_prior(cfg.world, cfg.variant, _prior_key(cfg))
+    run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, teammate=person, prior=prior)
+    records = run.run()
+    return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
+            "seconds": time.perf_counter() - t0}
+
+
+# -- client side ---------------------------------------------------------------------------------
+TrialCallback = Callable[[dict[str, Any], int, int], None]
+"""on_trial(result, stored_so_far, total), called after each trial is stored."""
+
+
+def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | None = None,
+                   on_start: Callable[[int, int], None] | None = None) -> StudyOutcome:
+    """Submit every participant x system not yet stored, store each as it finishes. A failed
+    trial stops the study (the others are cancelled; what is stored stays)."""
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    todo, total = trials_to_run(store)
+    outcome = StudyOutcome(total=total, skipped=total - len(todo))
+    outcome.workers = len(client.scheduler_info().get("workers", {}))
+    if on_start is not None:
+        on_start(total, outcome.skipped)
+    t0 = time.perf_counter()
+    futures = {client.submit(run_trial, asdict(t), key=t.key, pure=False, retries=0,
+                             priority=len(todo) - k): t for k, t in enumerate(todo)}
+    stored = outcome.skipped
+    try:
+        for fut in as_completed(list(futures)):
+            t = futures.pop(fut)
+            if fut.status == "error":
+                exc = fut.exception()
+                if isinstance(exc, RapiddsError):
+                    raise exc
+                if isinstance(exc, KilledWorker):
+                    raise RapiddsError(f"run {t.run_id} killed its worker repeatedly (out of "
+                                       f"memory?); {stored} runs are stored, rerun to continue"
+                                       ) from exc
+                raise RuntimeError(f"run {t.run_id} failed: {type(exc).__name__}: {exc}; "
+                                   f"{stored} runs are stored") from exc
+            if fut.status == "cancelled":
+                raise RapiddsError(f"run {t.run_id} was cancelled by the Dask scheduler; "
+                                   f"{stored} runs are stored, rerun to continue")
+            result = fut.result()
+            fut.release()
+            if result["run_id"] != t.run_id:  # pragma: no cover - a key collision
+                raise StateError(f"task for {t.run_id} returned {result['run_id']}")
+            if store.record_trial(t.run_id, result["config"], result["records"]):
+                outcome.ran += 1
+                stored += 1
+                outcome.trial_seconds.append(float(result["seconds"]))
+                if on_trial is not None:
+                    on_trial(result, stored, total)
+    finally:
+        if futures:
+            client.cancel(list(futures))
+        outcome.wall_s = time.perf_counter() - t0
+    return outcome
