@@ -6,9 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from rapidds.experiments.study.design import StudyDesign
-from rapidds.experiments.study.store import StudyStore
+from rapidds.experiments.study.store import create_study
 from rapidds.loop.config import RunConfig
-from rapidds.web.study.runner import STORE_NAME
 from rapidds.worlds.base import World
 
 SEARCH = dict(population=8, generations=4, samples=8, patience=2, particles=2, candidates=4)
@@ -16,9 +15,9 @@ FACTORS = {"speed": ("fast", "slow"), "route": ("middle", "outside")}
 
 
 def make_study(folder: Path, world: World, participants: int = 1, seed: int = 3) -> Path:
-    """A study in ``folder`` (its study.sqlite); returns the folder."""
+    """A study in ``folder`` (design.csv, study.sqlite); returns the folder."""
     design = StudyDesign(participants=participants, systems=("full", "none"), rounds=2,
                          factors=FACTORS, seed=seed, require_balance=False)
     cfg = RunConfig(world=world.name, **SEARCH).resolved(world)
-    StudyStore.create(folder / STORE_NAME, design, cfg).close()
+    create_study(folder, design, cfg).close()
     return folder

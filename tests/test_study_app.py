@@ -14,10 +14,10 @@ import pytest
 from fastapi.testclient import TestClient
 from study_helpers import make_study
 
-from rapidds.experiments.study.store import StudyStore
+from rapidds.experiments.study.store import StudyStore, study_path
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.web.study.app import MAX_BODY, StudyWorker, create_study_app
-from rapidds.web.study.runner import STORE_NAME, StudySession
+from rapidds.web.study.runner import StudySession
 from rapidds.web.study.tracker import tracker_csv
 from rapidds.worlds.fetch.world import FetchWorld
 
@@ -58,7 +58,7 @@ class Study:
     def stored(self) -> tuple[int, int, int, int]:
         """(rounds, survey answers, rankings, demographics) in the store, read by another
         connection: what is committed."""
-        with StudyStore.open_readonly(self.folder / STORE_NAME) as s:
+        with StudyStore.open_readonly(study_path(self.folder)) as s:
             return (len(s.records()), len(s.survey_frame()), len(s.rankings()),
                     len(s.demographics()))
 
@@ -111,7 +111,7 @@ def test_a_round_page_shows_the_plan_and_each_submit_stores_one_round(study: Stu
                                         **{f"d:{t}": f"{d}" for t, d in typed.items()}})
     assert r.status_code == 200, r.text
     assert study.stored() == (2, 0, 0, 0)
-    with StudyStore.open_readonly(study.folder / STORE_NAME) as s:
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
         rid = s.run_id(pid, s.participant(pid).systems[0])
         rec = s.records(rid)[-1]
         assert rec["observed"] == pytest.approx(typed)
@@ -129,7 +129,7 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
     text = tracker_csv(done, study.world.dt, t0=50.0)
     r = study.post(pid, "round", step, {"source": "tracker", "tracker_file": ""}, tracker=text)
     assert r.status_code == 200, r.text
-    with StudyStore.open_readonly(study.folder / STORE_NAME) as s:
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
         rid = s.run_id(pid, s.participant(pid).systems[0])
         rec = s.records(rid)[0]
         arrays = s.arrays(rid, 0)
@@ -243,7 +243,7 @@ def test_survey_ranking_and_demographics_validate_and_store_once(study: Study) -
     r = study.post(pid, "demographics", step, {"age": "23", "handedness": "left", "gender": ""})
     assert r.status_code == 200
     assert "has finished every part" in study.client.get(f"/p/{pid}").text
-    with StudyStore.open_readonly(study.folder / STORE_NAME) as s:
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
         systems = s.participant(pid).systems
         assert s.rankings() == {pid: (systems[1], systems[0])}  # system 2 first
         assert s.demographics() == {pid: {"age": "23", "handedness": "left"}}

@@ -54,6 +54,8 @@ async function submitForm(form, event) {
 document.addEventListener("DOMContentLoaded", () => {
   for (const form of document.querySelectorAll("form[data-api]")) {
     form.addEventListener("submit", (ev) => submitForm(form, ev));
+    // a message belongs to the answers it was about: gone once they change
+    form.addEventListener("change", () => { form.querySelector(".error").textContent = ""; });
     for (const r of form.querySelectorAll("input[name=source]")) {
       r.addEventListener("change", () => showSources(form));
     }

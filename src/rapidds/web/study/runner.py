@@ -28,7 +28,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
-from rapidds.experiments.study.store import Step, StudyStore, validate_durations
+from rapidds.experiments.study.store import (
+    STORE_NAME,
+    Step,
+    StudyStore,
+    study_path,
+    validate_durations,
+)
 from rapidds.schedule import Timeline
 from rapidds.web.study.pages import DEMOGRAPHICS, gantt_svg
 from rapidds.web.study.tracker import (
@@ -41,12 +47,12 @@ from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, Wor
 from rapidds.worlds.registry import make_world
 
 if TYPE_CHECKING:
+    from rapidds.loop.model import HumanModel
     from rapidds.loop.run import AdaptiveRun, CyclePlan
     from rapidds.motion.policy import DiffusionPolicy
 
-__all__ = ["STORE_NAME", "InputError", "OutOfTurn", "StudySession", "View", "step_token"]
+__all__ = ["InputError", "OutOfTurn", "StudySession", "View", "step_token"]
 
-STORE_NAME = "study.sqlite"
 SOURCES = ("tracker", "simulated", "typed")
 
 
@@ -114,7 +120,7 @@ class StudySession:
     def __init__(self, folder: Path, *, policy: DiffusionPolicy | None = None,
                  policy_path: Path | None = None, world: World | None = None,
                  lock_as: str | None = "rapidds study serve"):
-        path = Path(folder) / STORE_NAME
+        path = study_path(folder)
         if not path.is_file():
             raise StateError(f"{folder} holds no study ({STORE_NAME}); create one with "
                              f"'rapidds study design --out {folder}'")
@@ -133,6 +139,7 @@ class StudySession:
         except BaseException:
             self.store.close()
             raise
+        self._prior: HumanModel | None = None  # the population prior, computed once
         self._runs: dict[str, AdaptiveRun] = {}
         self._plans: dict[str, tuple[CyclePlan, View]] = {}
 
@@ -172,8 +179,12 @@ class StudySession:
                 mate = self.teammate(pid)
             except TrackerError as exc:
                 mate = _Unobserved(pid, str(exc))
+            if self._prior is None:
+                from rapidds.loop.model import prior_model
+
+                self._prior = prior_model(self.world, self.store.base_config)
             run = AdaptiveRun(self.store.config_for(pid, system), self.policy, self.store,
-                              self.world, teammate=mate)
+                              self.world, teammate=mate, prior=self._prior)
             self._runs[rid] = run
         return run
 
