@@ -5,6 +5,9 @@ with a message and nothing stored, stale pages refused, and resume after a resta
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -12,10 +15,13 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from study_helpers import make_study
+from study_helpers import SEARCH, make_study
 
-from rapidds.experiments.study.store import StudyStore, study_path
+from rapidds.experiments.study.design import StudyDesign
+from rapidds.experiments.study.store import StudyStore, create_study, study_path
+from rapidds.loop.config import RunConfig
 from rapidds.motion.policy import DiffusionPolicy
+from rapidds.store import RunStore
 from rapidds.web.study.app import MAX_BODY, StudyWorker, create_study_app
 from rapidds.web.study.runner import StudySession
 from rapidds.web.study.tracker import tracker_csv
@@ -267,3 +273,43 @@ def test_a_restarted_server_resumes_with_the_same_plan(study: Study) -> None:
     assert after["makespan"] == pytest.approx(before["makespan"])
     assert study.post(pid, "round", step, {"source": "simulated"}).status_code == 200
     assert study.stored() == (2, 0, 0, 0)
+
+
+def test_a_group_without_a_simulated_person_needs_a_tracker_file(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+
+
+    design = StudyDesign(participants=1, systems=("full", "none"), rounds=1,
+                         factors={"hand": ("left", "right")}, require_balance=False)
+    create_study(tmp_path, design, RunConfig(world="fetch", **SEARCH).resolved(fetch_world)
+                 ).close()
+    study = Study(tmp_path, fetch_world, fetch_policy)
+    try:
+        pid = _pid(study)
+        step = study.step(pid)
+        for source in ("simulated", "typed"):
+            r = study.post(pid, "round", step, {"source": source, "d:t0": "3"})
+            assert r.status_code == 400 and "upload a tracker file" in r.json()["error"]
+        tasks = _human_tasks(study, pid)
+        done = fetch_world.teammate("slow-middle").execute(0, tasks, np.random.default_rng(1))
+        r = study.post(pid, "round", step, {"source": "tracker"},
+                       tracker=tracker_csv(done, fetch_world.dt))
+        assert r.status_code == 200, r.text
+        assert study.stored() == (1, 0, 0, 0)
+    finally:
+        study.close()
+
+
+def test_serve_refuses_a_folder_without_a_study_in_one_line(tmp_path: Path) -> None:
+
+
+    RunStore(tmp_path / "plain" / "study.sqlite").close()  # a run store, not a study
+    env_path = str(Path(__file__).resolve().parents[1] / "src")
+    for folder, message in ((tmp_path / "none", "holds no study"),
+                            (tmp_path / "plain", "not a rapidds study store")):
+        out = subprocess.run(
+            [sys.executable, "-c", "from rapidds.cli import main; main()", "study", "serve",
+             str(folder), "--port", "0"], capture_output=True, text=True, timeout=300,
+            env={**os.environ, "PYTHONPATH": env_path})
+        assert out.returncode == 2, out.stderr
+        assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr

@@ -78,7 +78,11 @@ class StudyWorker:
 
     def __init__(self, open_session: Callable[[], StudySession]):
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="rapidds-study")
-        self.session: StudySession = self._pool.submit(open_session).result()
+        try:
+            self.session: StudySession = self._pool.submit(open_session).result()
+        except BaseException:
+            self._pool.shutdown(wait=True)
+            raise
 
     def run(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(session, *args)`` in the worker thread, waited for (outside the event loop)."""
