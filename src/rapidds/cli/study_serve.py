@@ -56,6 +56,7 @@ def serve_cmd(
             shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
             url = f"http://{shown}:{bound[1]}/"
             steps = worker.run(lambda s: s.store.progress())
+            worker.background(lambda s: s.prior())  # while the experimenter opens the page
             waiting = sum(s.kind != "done" for s in steps.values())
 
             app = create_study_app(worker, allowed_hosts(str(bound[0])))

@@ -168,6 +168,16 @@ class StudySession:
         of that name)."""
         return group_teammate(self.world, self.store.participant(pid).group)
 
+    def prior(self) -> HumanModel:
+        """The population prior every run starts from (the same for all of the study's runs:
+        it depends on the world and the spatial settings only), computed once; the server
+        computes it right after it starts, so the first page does not wait for it."""
+        if self._prior is None:
+            from rapidds.loop.model import prior_model
+
+            self._prior = prior_model(self.world, self.store.base_config)
+        return self._prior
+
     def _run(self, pid: str, system: str) -> AdaptiveRun:
         from rapidds.loop.run import AdaptiveRun
 
@@ -179,12 +189,8 @@ class StudySession:
                 mate = self.teammate(pid)
             except TrackerError as exc:
                 mate = _Unobserved(pid, str(exc))
-            if self._prior is None:
-                from rapidds.loop.model import prior_model
-
-                self._prior = prior_model(self.world, self.store.base_config)
             run = AdaptiveRun(self.store.config_for(pid, system), self.policy, self.store,
-                              self.world, teammate=mate, prior=self._prior)
+                              self.world, teammate=mate, prior=self.prior())
             self._runs[rid] = run
         return run
 
