@@ -6,4 +6,7 @@ the adaptive loop (what the study harness reuses); :mod:`.session` runs the loop
 in a worker thread; :mod:`.protocol` validates what the browser sends; :mod:`.server` is the
 FastAPI app with the fixed tick and the WebSocket; ``static/`` holds the page (plain HTML and
 JavaScript, no build step). ``rapidds play`` (:mod:`rapidds.cli.play`) puts them together.
+
+:mod:`.study` is the user-study app (``rapidds study serve``): a participant's rounds, surveys,
+ranking and demographics as server-rendered pages over the study store.
 """

@@ -1,0 +1,92 @@
+"""``rapidds study serve DIR``: run a designed user study with real people in the browser.
+
+fastapi, uvicorn and torch are imported inside the command, so ``rapidds --help`` stays light.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import sys
+from pathlib import Path
+
+import typer
+
+from rapidds.cli import fail
+from rapidds.cli.study import study_app
+
+
+@study_app.command("serve")
+def serve_cmd(
+    folder: Path = typer.Argument(..., help="The study's folder (from 'rapidds study design')."),
+    host: str = typer.Option("127.0.0.1", help="Address to listen on; anything but a loopback "
+                             "address lets other machines open the study."),
+    port: int = typer.Option(8000, min=0, max=65535, help="Port (0: any free one)."),
+    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
+                                       "bundled one)."),
+    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    as_json: bool = typer.Option(False, "--json", help="Print the address (and at the end what "
+                                 "was stored) as JSON lines."),
+    verbose: bool = typer.Option(False, help="Log every request that failed."),
+) -> None:
+    """Serve the study in FOLDER in a browser: the robot's plan of each round, what the person
+    did (tracker file, simulated cell or durations typed in), the survey after each system, the
+    ranking and the demographics form. Every submit is stored at once; stop with Ctrl-C and
+    start again to continue where each participant stopped."""
+    from rapidds.cli.run import set_threads
+    from rapidds.experiments.study.store import STORE_NAME, study_path
+    from rapidds.web.server import LOOPBACK, allowed_hosts, listen
+    from rapidds.web.study.app import StudyWorker, create_study_app
+    from rapidds.web.study.runner import StudySession
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
+                        format="rapidds study serve: %(levelname)s: %(message)s")
+    if not study_path(folder).is_file():
+        fail(f"{folder} holds no study ({STORE_NAME}); create one with 'rapidds study design "
+             f"--out {folder}'")
+    sock = listen(host, port)  # first: a taken port is said before seconds of loading
+    with contextlib.closing(sock):
+        set_threads(threads)
+        worker = StudyWorker(lambda: StudySession(folder, policy_path=policy))
+        try:
+            import uvicorn
+
+            bound = sock.getsockname()
+            shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
+            url = f"http://{shown}:{bound[1]}/"
+            steps = worker.run(lambda s: s.store.progress())
+            worker.background(lambda s: s.prior())  # while the experimenter opens the page
+            waiting = sum(s.kind != "done" for s in steps.values())
+
+            app = create_study_app(worker, allowed_hosts(str(bound[0])))
+            server = uvicorn.Server(uvicorn.Config(
+                app, log_level="warning", lifespan="on", timeout_graceful_shutdown=3,
+                access_log=False))
+
+            def ready() -> None:
+                if as_json:
+                    typer.echo(json.dumps({"url": url, "study": str(study_path(folder)),
+                                           "participants": len(steps), "unfinished": waiting}))
+                else:
+                    typer.echo(f"rapidds study serve: open {url} ({len(steps)} participants, "
+                               f"{waiting} unfinished; Ctrl-C stops, every submit is kept in "
+                               f"{study_path(folder)})")
+                if host not in LOOPBACK:
+                    typer.echo(f"rapidds study serve: listening on {host}: other machines can "
+                               "reach it", err=True)
+                sys.stdout.flush()
+
+            ready()
+            with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the normal stop
+                server.run(sockets=[sock])
+            final = worker.run(lambda s: s.store.progress())
+        finally:
+            worker.close()
+    left = {pid: step.describe() for pid, step in final.items() if step.kind != "done"}
+    if as_json:
+        typer.echo(json.dumps({"stopped": True, "study": str(study_path(folder)),
+                               "participants": len(final), "next": left}))
+    else:
+        typer.echo(f"stopped: {len(final) - len(left)} of {len(final)} participants finished; "
+                   f"the study is in {study_path(folder)}")

@@ -1,0 +1,233 @@
+"""What a study participant did in one round, as the loop's :class:`HumanExecution` per task.
+
+Three sources, one result (duration in s and a body-point path sampled at the world's ``dt``):
+
+* **A tracker file** the experimenter uploads (:func:`parse_tracker`): CSV with a header, or JSON
+  (a list of objects with the same fields). One row per body point per sample::
+
+      task,point,t,x,y,z
+      brush,0,12.00,-0.16,-0.29,0.03
+      brush,1,12.00,0.16,-0.29,0.03
+      ...
+
+  ``task``: a human task of the round's plan (every one of them, no other). ``point``: the body
+  point's index 0..K-1 in the world's order (painting: 0 left hand, 1 right hand, 2 left elbow,
+  3 right elbow; worlds with one point may leave the column out). ``t``: seconds on any clock
+  (only differences matter). ``x, y, z``: workspace coordinates in the world's units (metres),
+  ``z`` only in 3-D worlds. A task starts at its first sample (any point) and ends at its last:
+  duration = last t - first t. Each point is linearly interpolated at the world's rows
+  ``min(k dt, duration)`` and held at its first / last sample outside its own samples.
+* **The simulated cell** (:func:`group_teammate`): the world's simulated teammate of the
+  participant's priming group performs the tasks (the loop's ``execute``).
+* **Durations typed in** (:func:`typed_execution`): the path is the group's teammate's nominal
+  path of the task (its habit, no per-execution noise: ``nominal_path`` where the teammate has
+  one, else one execution with a fixed seed), stretched in time to the typed duration. The
+  spatial model then learns the group's habitual path, not this person's: typed-in rounds adapt
+  the timing to the person and the paths only to their priming group.
+
+Every problem with the input raises :class:`TrackerError` with one line that says what to fix.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from rapidds.errors import RapiddsError
+from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
+
+__all__ = [
+    "MAX_TRACKER_BYTES",
+    "TrackerError",
+    "group_teammate",
+    "parse_tracker",
+    "resample",
+    "tracker_csv",
+    "typed_execution",
+]
+
+MAX_TRACKER_BYTES = 8 * 1024 * 1024
+"""Largest tracker file accepted (about 200 000 rows of CSV)."""
+_AXES = ("x", "y", "z")
+_NOMINAL_ROWS = 401  # phases of a nominal path before it is stretched to a typed duration
+
+
+class TrackerError(RapiddsError, ValueError):
+    """A tracker file, a typed duration or a priming group the study cannot use."""
+
+
+def group_teammate(world: World, group: str) -> SimulatedTeammate:
+    """The world's simulated teammate of priming group ``group`` (painting: "left-fast", ...)."""
+    if group not in world.teammate_names:
+        raise TrackerError(
+            f"priming group '{group}' names no simulated teammate of world {world.name} (one of "
+            f"{', '.join(world.teammate_names)}): the simulated cell and typed-in durations need "
+            "one; upload a tracker file instead")
+    return world.teammate(group)
+
+
+def _rows_of(world: World, duration: float) -> np.ndarray:
+    """Times of a path's rows: min(k dt, duration), k = 0..ceil(duration / dt)."""
+    n = math.ceil(duration / world.dt - 1e-9) + 1
+    return np.minimum(np.arange(n) * world.dt, duration)
+
+
+def resample(times: np.ndarray, path: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(len(rows), K, d) body points at ``rows`` from (T, K, d) samples at increasing
+    ``times``, linearly interpolated, held at the ends."""
+    p = body_points(path)
+    flat = p.reshape(len(p), -1)
+    out = np.stack([np.interp(rows, times, flat[:, j]) for j in range(flat.shape[1])], axis=-1)
+    return out.reshape(len(rows), *p.shape[1:])
+
+
+def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
+                    duration: float) -> HumanExecution:
+    """A typed-in duration with the teammate's nominal path of ``task`` stretched to it."""
+    if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
+        raise TrackerError(f"duration of {task}: must be a positive number of seconds, got "
+                           f"{duration!r}")
+    nominal = getattr(teammate, "nominal_path", None)
+    if callable(nominal):
+        path = body_points(nominal(task, _NOMINAL_ROWS))
+        phase = np.linspace(0.0, 1.0, len(path))
+    else:  # one execution with a fixed seed, as its own phases
+        d0, raw = teammate.perform(task, np.random.default_rng(0))
+        path = body_points(raw)
+        phase = np.minimum(np.arange(len(path)) * world.dt, d0) / d0
+    rows = _rows_of(world, float(duration))
+    return HumanExecution(task, float(duration), resample(phase, path, rows / duration))
+
+
+def _table(data: bytes) -> tuple[pd.DataFrame, int]:
+    """The rows, and the number the first row has in messages (CSV: its line; JSON: 1)."""
+    text = data.decode("utf-8-sig", errors="strict").strip()
+    if not text:
+        raise TrackerError("the tracker file is empty")
+    if text[0] in "[{":
+        try:
+            obj = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise TrackerError(f"the tracker file is not valid JSON: {exc.msg} (line "
+                               f"{exc.lineno})") from None
+        if isinstance(obj, dict) and isinstance(obj.get("rows"), list):
+            obj = obj["rows"]
+        if not isinstance(obj, list) or not all(isinstance(r, dict) for r in obj):
+            raise TrackerError("a JSON tracker file must be a list of objects with fields task, "
+                               "point, t, x, y(, z)")
+        return pd.DataFrame.from_records(obj), 1
+    try:
+        return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True), 2
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise TrackerError(f"the tracker file is not valid CSV: {str(exc).strip()}") from None
+
+
+def _numbers(table: pd.DataFrame, column: str, line0: int) -> np.ndarray:
+    values = pd.to_numeric(table[column], errors="coerce").to_numpy(dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if len(bad):
+        i = int(bad[0])
+        raise TrackerError(f"tracker file row {i + line0}: {column} = {table[column].iloc[i]!r} "
+                           "is not a finite number")
+    return values
+
+
+def parse_tracker(data: bytes, world: World, tasks: Sequence[str]) -> dict[str, HumanExecution]:
+    """The person's ``tasks`` of one round from a tracker file's bytes (format: module
+    docstring); :class:`TrackerError` names the first problem."""
+    if len(data) > MAX_TRACKER_BYTES:
+        raise TrackerError(f"the tracker file is larger than {MAX_TRACKER_BYTES // 2**20} MiB")
+    try:
+        table, line0 = _table(data)
+    except UnicodeDecodeError:
+        raise TrackerError("the tracker file is not UTF-8 text (CSV or JSON)") from None
+    rest = np.asarray(world.human_rest(), dtype=float)
+    k, dim = rest.shape
+    axes = _AXES[:dim]
+    table.columns = [str(c).strip().lower() for c in table.columns]
+    if "point" not in table.columns and k == 1:
+        table["point"] = "0"
+    need = ["task", "point", "t", *axes]
+    missing = [c for c in need if c not in table.columns]
+    if missing:
+        raise TrackerError(f"the tracker file lacks column(s) {', '.join(missing)}; its header "
+                           f"must name {', '.join(need)}")
+    if table.empty:
+        raise TrackerError("the tracker file has a header but no rows")
+    table = table[need].copy()
+    for c in ("task", "point"):
+        null = np.flatnonzero(table[c].isna().to_numpy())
+        if len(null):
+            raise TrackerError(f"tracker file row {int(null[0]) + line0}: {c} is empty")
+        table[c] = table[c].astype(str).str.strip()
+    point = _numbers(table, "point", line0)
+    bad = np.flatnonzero((point != np.round(point)) | (point < 0) | (point >= k))
+    if len(bad):
+        i = int(bad[0])
+        raise TrackerError(f"tracker file row {i + line0}: point = {table['point'].iloc[i]!r}; "
+                           f"this world's person has body points 0..{k - 1}")
+    t = _numbers(table, "t", line0)
+    xyz = np.stack([_numbers(table, a, line0) for a in axes], axis=-1)
+    lo, hi = (np.asarray(b, dtype=float) for b in world.workspace_bounds)
+    span = hi - lo
+    far = np.flatnonzero(((xyz < lo - span) | (xyz > hi + span)).any(axis=1))
+    if len(far):
+        i = int(far[0])
+        raise TrackerError(
+            f"tracker file row {i + line0}: ({', '.join(f'{v:g}' for v in xyz[i])}) is far "
+            f"outside the workspace [{', '.join(f'{v:g}' for v in lo)}] .. "
+            f"[{', '.join(f'{v:g}' for v in hi)}]: are the coordinates in metres, in the "
+            "world's frame?")
+    names = table["task"].to_numpy()
+    wanted = list(dict.fromkeys(tasks))
+    extra = sorted(set(names) - set(wanted))
+    if extra:
+        raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
+                           f"does not do this round (their tasks: {', '.join(wanted)})")
+    out: dict[str, HumanExecution] = {}
+    for task in wanted:
+        rows = names == task
+        if not rows.any():
+            raise TrackerError(f"the tracker file has no rows for task {task} (the person's "
+                               f"tasks this round: {', '.join(wanted)})")
+        t0, t1 = float(t[rows].min()), float(t[rows].max())
+        if not t1 > t0:
+            raise TrackerError(f"task {task}: all samples have t = {t0:g}; a task needs samples "
+                               "at two times at least")
+        grid = _rows_of(world, t1 - t0)
+        path = np.empty((len(grid), k, dim))
+        for j in range(k):
+            sel = rows & (point == j)
+            if not sel.any():
+                raise TrackerError(f"task {task}: no samples of body point {j} (this world's "
+                                   f"person has points 0..{k - 1}, all needed)")
+            order = np.argsort(t[sel], kind="stable")
+            tj, pj = t[sel][order] - t0, xyz[sel][order]
+            if np.any(np.diff(tj) <= 0):
+                raise TrackerError(f"task {task}, point {j}: two samples at the same t; each "
+                                   "time once per point")
+            path[:, j] = resample(tj, pj[:, None, :], grid)[:, 0]
+        out[task] = HumanExecution(task, t1 - t0, path)
+    return out
+
+
+def tracker_csv(executions: Mapping[str, HumanExecution], dt: float, t0: float = 0.0) -> str:
+    """A tracker file (CSV) of ``executions``, one after the other from ``t0``, sampled at
+    ``dt``: the format's reference writer (tests and examples use it)."""
+    lines = ["task,point,t," + ",".join(_AXES[:body_points(next(iter(
+        executions.values())).trajectory).shape[-1]])]
+    start = t0
+    for task, ex in executions.items():
+        p = body_points(ex.trajectory)
+        times = np.minimum(np.arange(len(p)) * dt, ex.duration)
+        for r, tr in enumerate(times):
+            for j in range(p.shape[1]):
+                lines.append(f"{task},{j},{start + tr:.4f}," + ",".join(f"{v:.5f}"
+                                                                      for v in p[r, j]))
+        start += ex.duration + 1.0
+    return "\n".join(lines) + "\n"

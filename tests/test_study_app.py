@@ -1,0 +1,315 @@
+"""The study app through its HTTP interface (FastAPI's TestClient, the real session, store and
+planner on a small fetch study): pages, one stored round or answer per submit, input refused
+with a message and nothing stored, stale pages refused, and resume after a restart."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from study_helpers import SEARCH, make_study
+
+from rapidds.experiments.study.design import StudyDesign
+from rapidds.experiments.study.store import StudyStore, create_study, study_path
+from rapidds.loop.config import RunConfig
+from rapidds.motion.policy import DiffusionPolicy
+from rapidds.store import RunStore
+from rapidds.web.study.app import MAX_BODY, StudyWorker, create_study_app
+from rapidds.web.study.runner import StudySession
+from rapidds.web.study.tracker import tracker_csv
+from rapidds.worlds.fetch.world import FetchWorld
+
+BASE = "http://127.0.0.1:8000"
+HOSTS = ["127.0.0.1", "localhost"]
+
+
+class Study:
+    """A study folder served by a worker and a TestClient; ``restart()`` opens it afresh."""
+
+    def __init__(self, folder: Path, world: FetchWorld, policy: DiffusionPolicy):
+        self.folder, self.world, self.policy = folder, world, policy
+        self._open()
+
+    def _open(self) -> None:
+        self.worker = StudyWorker(lambda: StudySession(self.folder, policy=self.policy,
+                                                       world=self.world))
+        self.client = TestClient(create_study_app(self.worker, HOSTS), base_url=BASE)
+
+    def restart(self) -> None:
+        self.close()
+        self._open()
+
+    def close(self) -> None:
+        self.client.close()
+        self.worker.close()
+
+    def post(self, pid: str, kind: str, step: str, fields: dict[str, str] | None = None,
+             **extra: Any) -> Any:
+        return self.client.post(f"/api/p/{pid}/{kind}",
+                                json={"step": step, "fields": fields or {}, **extra})
+
+    def step(self, pid: str) -> str:
+        page = self.client.get(f"/p/{pid}")
+        assert page.status_code == 200, page.text
+        return page.text.split("data-step='", 1)[1].split("'", 1)[0]
+
+    def stored(self) -> tuple[int, int, int, int]:
+        """(rounds, survey answers, rankings, demographics) in the store, read by another
+        connection: what is committed."""
+        with StudyStore.open_readonly(study_path(self.folder)) as s:
+            return (len(s.records()), len(s.survey_frame()), len(s.rankings()),
+                    len(s.demographics()))
+
+
+@pytest.fixture()
+def study(tmp_path: Path, fetch_world: FetchWorld,
+          fetch_policy: DiffusionPolicy) -> Iterator[Study]:
+    s = Study(make_study(tmp_path, fetch_world), fetch_world, fetch_policy)
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+def _pid(study: Study) -> str:
+    return study.worker.run(lambda s: s.store.participants()[0].id)
+
+
+def _human_tasks(study: Study, pid: str) -> list[str]:
+    held = study.worker.run(lambda s: s.plan(pid))
+    return [t for t in held[1].human if not t.startswith("wait:")]
+
+
+def test_a_round_page_shows_the_plan_and_each_submit_stores_one_round(study: Study) -> None:
+    pid = _pid(study)
+    overview = study.client.get("/")
+    assert overview.status_code == 200 and f"/p/{pid}" in overview.text
+    page = study.client.get(f"/p/{pid}")
+    assert page.status_code == 200
+    assert "Round 1: the robot's plan" in page.text and "data:image/svg+xml;base64," in page.text
+    assert "system 1 of 2" in page.text and "round 1 of 2" in page.text
+    for name in ("full", "none"):  # the participant's pages never name the system
+        assert f"'{name}'" not in page.text
+    step = study.step(pid)
+    assert step.startswith("round:") and step.endswith(":0")
+    # the simulated cell: the priming group's simulated person does the tasks
+    r = study.post(pid, "round", step, {"source": "simulated"})
+    assert r.status_code == 200 and r.json() == {"next": f"/p/{pid}"}
+    assert study.stored() == (1, 0, 0, 0)
+    # the same page posted again (a double click, a second tab) is refused, not stored twice
+    again = study.post(pid, "round", step, {"source": "simulated"})
+    assert again.status_code == 409 and "out of date" in again.json()["error"]
+    assert study.stored() == (1, 0, 0, 0)
+    # durations typed in: stored as typed, paths at the world's dt
+    step = study.step(pid)
+    assert step.endswith(":1")
+    tasks = _human_tasks(study, pid)
+    typed = {t: 3.25 + i for i, t in enumerate(tasks)}
+    r = study.post(pid, "round", step, {"source": "typed",
+                                        **{f"d:{t}": f"{d}" for t, d in typed.items()}})
+    assert r.status_code == 200, r.text
+    assert study.stored() == (2, 0, 0, 0)
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
+        rid = s.run_id(pid, s.participant(pid).systems[0])
+        rec = s.records(rid)[-1]
+        assert rec["observed"] == pytest.approx(typed)
+        arrays = s.arrays(rid, rec["cycle"])
+    for t, d in typed.items():
+        assert arrays[f"human/{t}"].shape[0] == int(np.ceil(d / study.world.dt - 1e-9)) + 1
+
+
+def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
+    pid = _pid(study)
+    step = study.step(pid)
+    tasks = _human_tasks(study, pid)
+    person = study.worker.run(lambda s: s.teammate(pid))
+    done = person.execute(0, tasks, np.random.default_rng(7))
+    text = tracker_csv(done, study.world.dt, t0=50.0)
+    r = study.post(pid, "round", step, {"source": "tracker", "tracker_file": ""}, tracker=text)
+    assert r.status_code == 200, r.text
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
+        rid = s.run_id(pid, s.participant(pid).systems[0])
+        rec = s.records(rid)[0]
+        arrays = s.arrays(rid, 0)
+    for t in tasks:
+        assert rec["observed"][t] == pytest.approx(done[t].duration, abs=1e-3)
+        np.testing.assert_allclose(arrays[f"human/{t}"].reshape(-1, 2),
+                                   done[t].trajectory.reshape(-1, 2), atol=1e-4)
+
+
+@pytest.mark.parametrize(("fields", "extra", "message"), [
+    ({"source": "typed"}, {}, "type the duration"),
+    ({"source": "typed", "d:*": "abc"}, {}, "positive number"),
+    ({"source": "typed", "d:*": "-2"}, {}, "positive number"),
+    ({"source": "typed", "d:*": "nan"}, {}, "positive number"),
+    ({"source": "tracker"}, {}, "choose the tracker file"),
+    ({"source": "tracker"}, {"tracker": "task,point,t,x,y\nnope,0,0,1,1\n"}, "does not do"),
+    ({"source": "tracker"}, {"tracker": "task,t\n"}, "lacks column"),
+    ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0,0,1,1\n*,0,1,900,1\n"},
+     "metres"),
+    ({"source": "teleport"}, {}, "choose where"),
+])
+def test_bad_round_input_is_refused_with_a_message_and_nothing_stored(
+        study: Study, fields: dict[str, str], extra: dict[str, str], message: str) -> None:
+    pid = _pid(study)
+    step = study.step(pid)
+    tasks = _human_tasks(study, pid)
+    fields = {k.replace("*", tasks[0]): v for k, v in fields.items()}
+    for t in tasks[1:]:
+        if any(k.startswith("d:") for k in fields):
+            fields[f"d:{t}"] = "4.0"
+    extra = {k: v.replace("*", tasks[0]) for k, v in extra.items()}
+    r = study.post(pid, "round", step, fields, **extra)
+    assert r.status_code == 400, r.text
+    assert message in r.json()["error"]
+    assert study.stored() == (0, 0, 0, 0)
+    assert study.step(pid) == step  # the same round, ready for a corrected submit
+
+
+def test_malformed_requests_get_4xx_never_500(study: Study) -> None:
+    pid = _pid(study)
+    step = study.step(pid)
+    c = study.client
+    url = f"/api/p/{pid}/round"
+    cases = [
+        (c.post(url, content=b"{not json", headers={"content-type": "application/json"}), 422),
+        (c.post(url, content=b"step=x", headers={"content-type": "text/plain"}), 415),
+        (c.post(url, json={"step": step, "fields": {}, "surprise": 1}), 422),
+        (c.post(url, json={"step": 3, "fields": {}}), 422),
+        (c.post(url, json={"step": step, "fields": {"source": 5}}), 422),
+        (c.post(url, json=[1, 2]), 422),
+        (c.post(url, content=b"{}" + b" " * (MAX_BODY + 1),
+                headers={"content-type": "application/json"}), 413),
+        (c.post(url, json={"step": step, "fields": {"source": "simulated"}},
+                headers={"origin": "http://evil.example"}), 403),
+        (c.post("/api/p/P99/round", json={"step": step, "fields": {}}), 404),
+        (c.post("/api/p/..%2F..%2Fetc/round", json={"step": step, "fields": {}}), 404),
+        (c.post(f"/api/p/{pid}/launch", json={"step": step, "fields": {}}), 404),
+        (c.post(f"/api/p/{pid}/survey", json={"step": step, "fields": {}}), 409),
+        (c.get("/p/P99"), 404),
+        (c.get("/", headers={"host": "rebind.example"}), 400),
+    ]
+    for response, status in cases:
+        assert response.status_code == status, (response.request.url, response.text)
+        if response.request.url.path.startswith("/api/"):
+            assert response.json()["error"]
+    assert study.stored() == (0, 0, 0, 0)
+
+
+def _finish_rounds(study: Study, pid: str) -> None:
+    for _ in range(4):
+        step = study.step(pid)
+        assert step.startswith("round:")
+        assert study.post(pid, "round", step, {"source": "simulated"}).status_code == 200
+        if step.endswith(":1"):
+            return
+
+
+def test_survey_ranking_and_demographics_validate_and_store_once(study: Study) -> None:
+    pid = _pid(study)
+    items = study.worker.run(lambda s: s.items())
+    _finish_rounds(study, pid)
+    step = study.step(pid)
+    assert step.startswith("survey:")
+    page = study.client.get(f"/p/{pid}").text
+    assert "The robot got in the way of me completing my tasks." in page
+    answers = {i["id"]: str(1 + k % 7) for k, i in enumerate(items)}
+    part = dict(list(answers.items())[:-1])
+    r = study.post(pid, "survey", step, part)
+    assert r.status_code == 400 and "please answer every statement" in r.json()["error"]
+    r = study.post(pid, "survey", step, {**answers, items[0]["id"]: "8"})
+    assert r.status_code == 400 and "1..7" in r.json()["error"]
+    assert study.stored() == (2, 0, 0, 0)
+    assert study.post(pid, "survey", step, answers).status_code == 200
+    assert study.stored() == (2, len(items), 0, 0)
+    assert study.post(pid, "survey", step, answers).status_code == 409  # never twice
+    _finish_rounds(study, pid)
+    assert study.post(pid, "survey", study.step(pid), answers).status_code == 200
+    step = study.step(pid)
+    assert step == "ranking"
+    for bad, message in (({"rank1": "1", "rank2": "1"}, "exactly once"),
+                         ({"rank1": "2"}, "place 2 is empty"),
+                         ({"rank1": "2", "rank2": "3"}, "not one of the systems"),
+                         ({"rank1": "2", "rank2": "1", "rank3": "1"}, "unknown field")):
+        r = study.post(pid, "ranking", step, bad)
+        assert r.status_code == 400 and message in r.json()["error"], r.text
+    assert study.post(pid, "ranking", step, {"rank1": "2", "rank2": "1"}).status_code == 200
+    step = study.step(pid)
+    assert step == "demographics"
+    r = study.post(pid, "demographics", step, {"age": "twenty"})
+    assert r.status_code == 400 and "age" in r.json()["error"]
+    r = study.post(pid, "demographics", step, {"age": "23", "handedness": "left", "gender": ""})
+    assert r.status_code == 200
+    assert "has finished every part" in study.client.get(f"/p/{pid}").text
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
+        systems = s.participant(pid).systems
+        assert s.rankings() == {pid: (systems[1], systems[0])}  # system 2 first
+        assert s.demographics() == {pid: {"age": "23", "handedness": "left"}}
+        survey = s.survey_frame()
+    assert sorted(survey["system"].unique()) == sorted(systems)
+    assert json.loads(survey.groupby("item")["value"].first().to_json()) == {
+        i: int(v) for i, v in answers.items()}
+
+
+def test_a_restarted_server_resumes_with_the_same_plan(study: Study) -> None:
+    pid = _pid(study)
+    assert study.post(pid, "round", study.step(pid), {"source": "simulated"}).status_code == 200
+    step = study.step(pid)
+    before = study.worker.run(lambda s: s.plan(pid))[1].as_dict()
+    study.restart()  # a killed server: the plan was never stored, it is planned again
+    assert study.step(pid) == step
+    after = study.worker.run(lambda s: s.plan(pid))[1].as_dict()
+    for key in ("human", "robot", "routes", "step"):
+        assert after[key] == before[key]
+    assert after["expected"] == pytest.approx(before["expected"])
+    assert after["makespan"] == pytest.approx(before["makespan"])
+    assert study.post(pid, "round", step, {"source": "simulated"}).status_code == 200
+    assert study.stored() == (2, 0, 0, 0)
+
+
+def test_a_group_without_a_simulated_person_needs_a_tracker_file(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+
+
+    design = StudyDesign(participants=1, systems=("full", "none"), rounds=1,
+                         factors={"hand": ("left", "right")}, require_balance=False)
+    create_study(tmp_path, design, RunConfig(world="fetch", **SEARCH).resolved(fetch_world)
+                 ).close()
+    study = Study(tmp_path, fetch_world, fetch_policy)
+    try:
+        pid = _pid(study)
+        step = study.step(pid)
+        for source in ("simulated", "typed"):
+            r = study.post(pid, "round", step, {"source": source, "d:t0": "3"})
+            assert r.status_code == 400 and "upload a tracker file" in r.json()["error"]
+        tasks = _human_tasks(study, pid)
+        done = fetch_world.teammate("slow-middle").execute(0, tasks, np.random.default_rng(1))
+        r = study.post(pid, "round", step, {"source": "tracker"},
+                       tracker=tracker_csv(done, fetch_world.dt))
+        assert r.status_code == 200, r.text
+        assert study.stored() == (1, 0, 0, 0)
+    finally:
+        study.close()
+
+
+def test_serve_refuses_a_folder_without_a_study_in_one_line(tmp_path: Path) -> None:
+
+
+    RunStore(tmp_path / "plain" / "study.sqlite").close()  # a run store, not a study
+    env_path = str(Path(__file__).resolve().parents[1] / "src")
+    for folder, message in ((tmp_path / "none", "holds no study"),
+                            (tmp_path / "plain", "not a rapidds study store")):
+        out = subprocess.run(
+            [sys.executable, "-c", "from rapidds.cli import main; main()", "study", "serve",
+             str(folder), "--port", "0"], capture_output=True, text=True, timeout=300,
+            env={**os.environ, "PYTHONPATH": env_path})
+        assert out.returncode == 2, out.stderr
+        assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr

@@ -1,0 +1,253 @@
+"""``rapidds study serve`` end to end: the server as a subprocess, a real headless Chromium
+(Debian's, through Playwright's ``executable_path``; never ``playwright install``) walks one
+participant through two systems x two rounds (a tracker file, durations typed in, the simulated
+cell), the survey after each system, the ranking and the demographics form, with a mistake on
+each form shown on the page; the server is killed mid-study and restarted, and the page goes on
+where it stopped with the same plan. The store is checked at the end.
+
+``RAPIDDS_SCREENSHOTS=1`` also writes docs/study-plan.png, docs/study-input.png,
+docs/study-survey.png and docs/study-ranking.png.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from study_helpers import make_study
+
+from rapidds.experiments.study.store import StudyStore, study_path
+from rapidds.web.study.tracker import tracker_csv
+from rapidds.worlds.fetch.world import FetchWorld
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _chromium() -> str | None:
+    for cand in (os.environ.get("RAPIDDS_CHROMIUM"), shutil.which("chromium"),
+                 shutil.which("chromium-browser"), "/usr/bin/chromium"):
+        if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
+            return cand
+    return None
+
+
+CHROMIUM = _chromium()
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(CHROMIUM is None, reason="no Chromium found: install Debian's with "
+                       "'apt-get install chromium' (or set RAPIDDS_CHROMIUM); never "
+                       "'playwright install'"),
+]
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+SHOTS = os.environ.get("RAPIDDS_SCREENSHOTS") == "1"
+WAIT = 120_000  # ms: a page that plans (seconds on a loaded 2-core machine)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Server:
+    """``rapidds study serve DIR --json`` in a subprocess; ``url`` once it listens."""
+
+    def __init__(self, folder: Path, port: int):
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "src"),
+                                                          env.get("PYTHONPATH")]))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from rapidds.cli import main; main()", "study", "serve",
+             str(folder), "--port", str(port), "--json"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.err: list[str] = []
+        threading.Thread(target=self._pump, args=(self.proc.stdout, self.lines.put),
+                         daemon=True).start()
+        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err.append),
+                         daemon=True).start()
+        try:
+            self.hello = json.loads(self.lines.get(timeout=120))
+        except queue.Empty:
+            self.proc.kill()
+            raise AssertionError("rapidds study serve printed no address: "
+                                 + "".join(self.err)[-2000:]) from None
+        self.url = self.hello["url"]
+
+    @staticmethod
+    def _pump(stream: Any, put: Any) -> None:
+        for line in stream:
+            put(line)
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 60) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        return self.proc.wait(timeout)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield b
+        b.close()
+
+
+def _submit(page: Any) -> None:
+    """Click the form's button and wait for the next page (a refused submit stays: use
+    :func:`_refused` for those)."""
+    with page.expect_navigation(timeout=WAIT):
+        page.click("button[type=submit]")
+
+
+def _refused(page: Any, message: str) -> None:
+    page.click("button[type=submit]")
+    page.wait_for_function("document.querySelector('.error').textContent.length > 0",
+                           timeout=WAIT)
+    assert message in page.inner_text(".error")
+
+
+def _plan(page: Any) -> dict[str, Any]:
+    """What the round page says of the plan: header, sequences, motions, the person's tasks."""
+    page.wait_for_selector("#plan", timeout=WAIT)
+    return {"where": page.inner_text("header .where"),
+            "plan": page.inner_text("#plan"),
+            "tasks": page.eval_on_selector_all("input[name^='d:']",
+                                               "els => els.map(e => e.name.slice(2))")}
+
+
+def _shot(page: Any, selector: str, name: str) -> None:
+    if SHOTS:
+        page.locator(selector).screenshot(path=str(ROOT / "docs" / name))
+
+
+def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
+        browser: Any, tmp_path: Path, fetch_world: FetchWorld) -> None:
+    folder = make_study(tmp_path, fetch_world)
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        person = s.participants()[0]
+        items = s.items.items
+    pid, systems = person.id, person.systems
+    mate = fetch_world.teammate(person.group)
+    port = _free_port()
+    server = Server(folder, port)
+    assert server.hello["participants"] == 1 and server.hello["unfinished"] == 1
+    observed: dict[int, dict[str, float]] = {}
+    try:
+        page = browser.new_page(viewport={"width": 1000, "height": 900}, bypass_csp=True)
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        assert "order of systems" in page.inner_text("#overview")
+        with page.expect_navigation(timeout=WAIT):
+            page.click(f"a[href='/p/{pid}']")
+
+        # system 1, round 1: a tracker file
+        plan = _plan(page)
+        assert "system 1 of 2" in plan["where"] and "round 1 of 2" in plan["where"]
+        _shot(page, "#plan", "study-plan.png")
+        done = mate.execute(0, plan["tasks"], np.random.default_rng(11))
+        observed[0] = {t: ex.duration for t, ex in done.items()}
+        page.set_input_files("input[name=tracker_file]", files=[{
+            "name": "round1.csv", "mimeType": "text/csv",
+            "buffer": tracker_csv(done, fetch_world.dt, t0=30.0).encode()}])
+        _submit(page)
+
+        # system 1, round 2: durations typed in, a mistake first
+        plan = _plan(page)
+        assert "round 2 of 2" in plan["where"]
+        page.check("input[name=source][value=typed]")
+        typed = {t: round(4.0 + 0.5 * i, 2) for i, t in enumerate(plan["tasks"])}
+        for t, d in typed.items():
+            page.fill(f"input[name='d:{t}']", str(d))
+        page.fill(f"input[name='d:{plan['tasks'][0]}']", "-3")
+        _refused(page, "positive number")
+        _shot(page, "#input", "study-input.png")
+        page.fill(f"input[name='d:{plan['tasks'][0]}']", str(typed[plan["tasks"][0]]))
+        _submit(page)
+        observed[1] = typed
+
+        # the survey about system 1, one statement left out first
+        page.wait_for_selector("#survey", timeout=WAIT)
+        assert "The robot got in the way of me completing my tasks." in page.inner_text(
+            "#survey")
+        for k, item in enumerate(items[:-1]):
+            page.check(f"input[name='{item.id}'][value='{1 + k % 7}']")
+        _refused(page, "please answer every statement")
+        page.check(f"input[name='{items[-1].id}'][value='6']")
+        _shot(page, "#survey", "study-survey.png")
+        _submit(page)
+
+        # system 2, round 1: the simulated cell
+        plan = _plan(page)
+        assert "system 2 of 2" in plan["where"] and "round 1 of 2" in plan["where"]
+        page.check("input[name=source][value=simulated]")
+        _submit(page)
+        before = _plan(page)
+        assert "round 2 of 2" in before["where"]
+
+        # the server is killed: nothing is lost, the restarted one shows the same plan
+        server.proc.kill()
+        server.proc.wait(30)
+        server = Server(folder, port)
+        page.reload()
+        after = _plan(page)
+        assert after == before
+        page.check("input[name=source][value=simulated]")
+        _submit(page)
+
+        # the survey about system 2, then the ranking (a system twice first), demographics
+        page.wait_for_selector("#survey", timeout=WAIT)
+        for item in items:
+            page.check(f"input[name='{item.id}'][value='3']")
+        _submit(page)
+        page.wait_for_selector("#ranking", timeout=WAIT)
+        page.select_option("select[name=rank1]", "2")
+        page.select_option("select[name=rank2]", "2")
+        _refused(page, "each system exactly once")
+        page.select_option("select[name=rank2]", "1")
+        _shot(page, "#ranking", "study-ranking.png")
+        _submit(page)
+        page.wait_for_selector("#demographics", timeout=WAIT)
+        page.fill("input[name=age]", "27")
+        page.fill("input[name=handedness]", "right")
+        _submit(page)
+        assert "has finished every part" in page.inner_text("#done")
+        assert errors == []
+        page.close()
+        assert server.stop(signal.SIGINT) == 0
+        bye = json.loads(server.lines.get(timeout=30))
+        assert bye["stopped"] and bye["next"] == {}
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        assert s.next_step(pid).kind == "done"
+        first = s.records(s.run_id(pid, systems[0]))
+        second = s.records(s.run_id(pid, systems[1]))
+        assert [r["cycle"] for r in first] == [0, 1] and [r["cycle"] for r in second] == [0, 1]
+        for rec in first:
+            assert rec["observed"] == pytest.approx(observed[rec["cycle"]], abs=1e-3)
+        assert all(r["observed"] for r in second)
+        survey = s.survey_frame()
+        assert len(survey) == 2 * len(items)
+        by = survey.set_index(["system", "item"])["value"]
+        assert by[(systems[0], items[-1].id)] == 6 and by[(systems[1], items[0].id)] == 3
+        assert s.rankings() == {pid: (systems[1], systems[0])}
+        assert s.demographics() == {pid: {"age": "27", "handedness": "right"}}
