@@ -88,7 +88,8 @@ def test_side_view_projects_along_the_remaining_axis_and_body_points_draw_apart(
     plt.close(fig)
 
     model = SpatialModel.from_population(cfg, {"a": [path]})
-    body = np.stack([path, path + (0.0, 0.0, 0.05), path - (0.5, 0.0, 0.0)], axis=1)  # (T, 3, 3)
+    up, back = np.array([0.0, 0.0, 0.05]), np.array([0.5, 0.0, 0.0])
+    body = np.stack([path, path + up, path - back], axis=1)  # (T, 3, 3)
     drawn = []
     import rapidds.plots.run as run_plots
 
