@@ -124,7 +124,7 @@ def test_no_import_cycles() -> None:
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["plan", "fetch", "--seed", "0", "--json"],
-                                  ["run", "--help"], ["worlds"]])
+                                  ["run", "--help"], ["worlds"], ["case-study", "--help"]])
 def test_light_commands_import_no_heavy_library(argv: list[str]) -> None:
     code = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n"
             "    pass\nprint('HEAVY', sorted(m for m in ('torch', 'diffusers', 'distributed', "

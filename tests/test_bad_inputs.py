@@ -82,6 +82,15 @@ CASES: list[tuple[str, str]] = [
     ("ablation --out {tmp}/ab --workers 0", "--workers must be >= 1"),
     ("ablation --out {tmp}/ab --scheduler nonsense", "scheduler"),
     ("report {tmp}", "holds no study"),
+    # painting and its case study
+    ("run painting --variant upside-down", "world 'painting' has no variant 'upside-down'"),
+    ("run painting --human nobody", "unknown human 'nobody' for world painting"),
+    ("case-study painting --out {tmp}/cs --human nobody", "unknown teammate 'nobody'"),
+    ("case-study painting --out {tmp}/cs --settings sideways-g3", "unknown painting setting"),
+    ("case-study painting --out {tmp}/cs --settings ,", "--settings names no setting"),
+    ("case-study fetch --out {tmp}/cs", "no case study for world 'fetch'"),
+    ("case-study painting --out {tmp}/cs --cycles 0", "Invalid value for '--cycles'"),
+    ("case-study painting", "Missing option '--out'"),
     # the others
     ("demo --cycles 0", "--cycles: Input should be greater than or equal to 1"),
     ("demo --world moon", "unknown world 'moon'"),

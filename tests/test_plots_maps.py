@@ -64,3 +64,40 @@ def test_3d_projection_and_bad_input():
         SpatialConfig(bounds=((0, 1),), grid_points=4), [np.zeros((2, 1))])
     with pytest.raises(ValueError, match="2-D or 3-D"):
         plot_spatial_cost(one_d)
+
+
+def test_side_view_projects_along_the_remaining_axis_and_body_points_draw_apart(tmp_path,
+                                                                                monkeypatch):
+    """A side view (y, z) is the max over x of the cost, not a top view relabelled; a person's
+    (T, K, 3) paths are K lines, one per body point, not one line through all of them."""
+    from rapidds.plots.run import save_cycle_map
+
+    cfg = SpatialConfig(bounds=((0, 1), (0, 2), (0, 1)), beta=8.0, grid_points=8)
+    path = np.linspace((0.9, 0.2, 0.1), (0.9, 1.8, 0.9), 40)  # at x = 0.9 only
+    m = SpatialCostModel.from_population(cfg, [path])
+    fig, ax = plt.subplots()
+    side = plot_spatial_cost(m, ax, resolution=30, colorbar=False, axes=(1, 2)).get_array()
+    assert side.shape == (30, 30) and ax.get_xlim() == (0, 2) and ax.get_ylim() == (0, 1)
+    ys, zs = np.linspace(0, 2, 30), np.linspace(0, 1, 30)
+    for i, j in ((5, 10), (20, 25), (15, 3)):  # row = z, column = y
+        along_x = m.point_cost(np.stack([np.linspace(0, 1, 15), np.full(15, ys[j]),
+                                         np.full(15, zs[i])], axis=-1))
+        assert side[i, j] == pytest.approx(along_x.max(), abs=0.02)
+    with pytest.raises(ValueError, match="two different axes"):
+        plot_spatial_cost(m, ax, axes=(1, 1))
+    plt.close(fig)
+
+    model = SpatialModel.from_population(cfg, {"a": [path]})
+    up, back = np.array([0.0, 0.0, 0.05]), np.array([0.5, 0.0, 0.0])
+    body = np.stack([path, path + up, path - back], axis=1)  # (T, 3, 3)
+    drawn = []
+    import rapidds.plots.run as run_plots
+
+    def recorded(ax, trajectories, **kw):  # the real plot_paths, its input noted
+        drawn.append(np.asarray(trajectories).shape)
+        return plot_paths(ax, trajectories, **kw)
+
+    monkeypatch.setattr(run_plots, "plot_paths", recorded)
+    save_cycle_map(model, tmp_path / "m.png", human_paths={"a": body}, robot_paths={},
+                   overlaps={}, axes=(1, 2))
+    assert drawn == [(3, 40, 3)]

@@ -62,7 +62,8 @@ def _line(cells: list[str]) -> str:
 
 
 def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
-    """Cost curve over all stored cycles and the map of the latest cycle, named after the run
+    """Cost curve over all stored cycles and the map of the latest cycle in each of the world's
+    views (the first ``{run}-map.png``, others ``{run}-map-{view}.png``), named after the run
     (two runs in one folder keep their own pictures)."""
     from functools import partial
 
@@ -80,18 +81,19 @@ def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
         rec = records[-1]
         arrays = run.store.arrays(rid, rec["cycle"])
         world = run.world
-        view = next(iter(world.views))
-        written.append(save_cycle_map(
-            run.model.spatial, out / f"{rid}-map.png",
-            human_paths={k.split("/", 1)[1]: v for k, v in arrays.items()
-                         if k.startswith("human/")},
-            robot_paths={k.split("/", 1)[1]: np.swapaxes(world.robot_points(v), 0, 1)
-                         for k, v in arrays.items() if k.startswith("robot/")},
-            overlaps=rec["realised"]["overlaps"],
-            scene=partial(world.draw, view=view),
-            title=f"{rid}, cycle {rec['cycle']}: learned spatial cost, "
-                  "human (gold) and concurrent robot (blue) paths",
-        ))
+        for k, (view, axes) in enumerate(world.views.items()):
+            name = f"{rid}-map.png" if k == 0 else f"{rid}-map-{view}.png"
+            written.append(save_cycle_map(
+                run.model.spatial, out / name,
+                human_paths={key.split("/", 1)[1]: v for key, v in arrays.items()
+                             if key.startswith("human/")},
+                robot_paths={key.split("/", 1)[1]: np.swapaxes(world.robot_points(v), 0, 1)
+                             for key, v in arrays.items() if key.startswith("robot/")},
+                overlaps=rec["realised"]["overlaps"],
+                scene=partial(world.draw, view=view), axes=axes,
+                title=f"{rid}, cycle {rec['cycle']} ({view}): learned spatial cost, "
+                      "human (gold) and concurrent robot (blue) paths",
+            ))
     return written
 
 

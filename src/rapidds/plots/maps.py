@@ -31,26 +31,31 @@ RectLike = Any  # (xmin, ymin, xmax, ymax) or an object with those four attribut
 
 def _cost_image(
     model: SpatialCostModel, resolution: int, projection: Literal["max", "slice"],
-    slice_at: float | None,
+    slice_at: float | None, axes: tuple[int, int] = (0, 1),
 ) -> np.ndarray:
-    """(resolution, resolution) costs over the first two axes, row = y, column = x."""
+    """(resolution, resolution) costs over the workspace axes ``axes`` (h, v), row = v,
+    column = h; a 3-D workspace's remaining axis is maximised over or sliced."""
     cfg = model.config
-    (x0, x1), (y0, y1) = cfg.bounds[0], cfg.bounds[1]
+    h, v = axes
+    (x0, x1), (y0, y1) = cfg.bounds[h], cfg.bounds[v]
     xs, ys = np.linspace(x0, x1, resolution), np.linspace(y0, y1, resolution)
     gx, gy = np.meshgrid(xs, ys)  # (res_y, res_x)
-    plane = np.stack([gx, gy], axis=-1)
     if cfg.dim == 2:
+        plane = np.zeros((*gx.shape, 2))
+        plane[..., h], plane[..., v] = gx, gy
         return model.point_cost(plane)
-    z0, z1 = cfg.bounds[2]
+    depth = 3 - h - v  # the axis the picture looks along
+    z0, z1 = cfg.bounds[depth]
     if projection == "slice":
         z = (z0 + z1) / 2 if slice_at is None else float(slice_at)
         levels = np.array([z])
     else:
-        # multilinear interpolation is linear in z between grid levels, so its maximum over z
+        # multilinear interpolation is linear along an axis between grid levels, so its maximum
         # lies on a level; twice the levels also covers the MLP's smoother profile.
-        levels = np.linspace(z0, z1, 2 * cfg.shape[2] - 1)
-    zs = np.broadcast_to(levels[:, None, None, None], (len(levels), *gx.shape, 1))
-    pts = np.concatenate([plane[None].repeat(len(levels), 0), zs], axis=-1)
+        levels = np.linspace(z0, z1, 2 * cfg.shape[depth] - 1)
+    pts = np.zeros((len(levels), *gx.shape, 3))
+    pts[..., h], pts[..., v] = gx, gy
+    pts[..., depth] = levels[:, None, None]
     return model.point_cost(pts).max(axis=0)
 
 
@@ -66,13 +71,16 @@ def plot_spatial_cost(
     vmax: float = 1.0,
     colorbar: bool = True,
     title: str | None = None,
+    axes: tuple[int, int] = (0, 1),
 ) -> AxesImage:
     """Heat map of s_i(x) over the workspace's first two axes, evaluated the way the planner
     evaluates it (MLP or grid interpolation per ``model.config.use_surrogate``).
 
     For a 3-D workspace, ``projection="max"`` shows the top-down maximum over the third axis
     (the worst height a robot could meet the person at each (x, y)); ``"slice"`` shows the
-    plane z = ``slice_at`` (default: the middle of the bounds). Returns the image, for a shared
+    plane z = ``slice_at`` (default: the middle of the bounds). ``axes``: the workspace axes
+    drawn (horizontal, vertical), e.g. (1, 2) for a side view projected along x. Returns the
+    image, for a shared
     colour bar; a new figure is made when ``ax`` is None (close it with ``plt.close``).
     """
     if model.config.dim not in (2, 3):
@@ -81,8 +89,11 @@ def plot_spatial_cost(
         raise ValueError(f"projection must be 'max' or 'slice', got {projection!r}")
     if ax is None:
         _, ax = plt.subplots(figsize=(4.5, 4))
-    img = _cost_image(model, resolution, projection, slice_at)
-    (x0, x1), (y0, y1) = model.config.bounds[:2]
+    if len(set(axes)) != 2 or not all(0 <= a < model.config.dim for a in axes):
+        raise ValueError(f"axes must be two different axes of the {model.config.dim}-D "
+                         f"workspace, got {axes}")
+    img = _cost_image(model, resolution, projection, slice_at, axes)
+    (x0, x1), (y0, y1) = model.config.bounds[axes[0]], model.config.bounds[axes[1]]
     im = ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap=cmap, vmin=vmin, vmax=vmax,
                    interpolation="nearest", aspect="equal")
     if colorbar:
@@ -94,7 +105,8 @@ def plot_spatial_cost(
     return im
 
 
-def _as_paths(trajectories: ArrayLike | Sequence[ArrayLike]) -> list[np.ndarray]:
+def _as_paths(trajectories: ArrayLike | Sequence[ArrayLike],
+              axes: tuple[int, int] = (0, 1)) -> list[np.ndarray]:
     if isinstance(trajectories, np.ndarray) and trajectories.ndim == 3:
         items: Iterable[ArrayLike] = list(trajectories)
     elif isinstance(trajectories, np.ndarray) and trajectories.ndim == 2:
@@ -104,9 +116,10 @@ def _as_paths(trajectories: ArrayLike | Sequence[ArrayLike]) -> list[np.ndarray]
     paths = []
     for k, p in enumerate(items):
         a = np.asarray(p, dtype=float)
-        if a.ndim != 2 or a.shape[1] < 2 or a.shape[0] == 0:
-            raise ValueError(f"path {k} must be an (H, d >= 2) array, got shape {a.shape}")
-        paths.append(a[:, :2])
+        if a.ndim != 2 or a.shape[1] <= max(axes) or a.shape[0] == 0:
+            raise ValueError(f"path {k} must be an (H, d > {max(axes)}) array, got shape "
+                             f"{a.shape}")
+        paths.append(a[:, list(axes)])
     return paths
 
 
@@ -119,11 +132,13 @@ def plot_paths(
     lw: float = 1.2,
     label: str | None = None,
     markers: bool = True,
+    axes: tuple[int, int] = (0, 1),
 ) -> Axes:
     """Draw paths: an (N, H, d) array, one (H, d) array, or a list of (H_k, d) arrays of
     different lengths (observed human paths). A circle marks each start, a square each end;
-    the label goes to the first path only, so a legend has one entry per call."""
-    for k, p in enumerate(_as_paths(trajectories)):
+    the label goes to the first path only, so a legend has one entry per call. ``axes``: the
+    coordinates drawn (horizontal, vertical)."""
+    for k, p in enumerate(_as_paths(trajectories, axes)):
         ax.plot(p[:, 0], p[:, 1], color=color, alpha=alpha, lw=lw, label=label if k == 0 else None)
         if markers:
             ax.plot(*p[0], "o", color=color, ms=4, mec="white", mew=0.5)

@@ -23,21 +23,29 @@ def save_cycle_map(
     overlaps: Mapping[str, Sequence[str]],
     scene: Callable[[Axes], None] | None = None,
     title: str = "",
+    axes: tuple[int, int] = (0, 1),
 ) -> Path:
     """One panel per human task: its learned cost s_i(x), the static scene (``scene(ax)``, e.g.
     a world's ``draw``), the person's path for it (if they did it this cycle) and the robot's
-    workspace paths that ran while it ran."""
+    workspace paths that ran while it ran.
+
+    human_paths: task -> (T, d) path or (T, K, d) paths of K body points (each point's path is
+    drawn on its own). robot_paths: task -> (P, H, d), one path per arm point. axes: workspace
+    axes drawn (horizontal, vertical); a 3-D cost is maximised along the third."""
     tasks = list(spatial.tasks)
-    fig, axes = plt.subplots(1, len(tasks), figsize=(3.4 * len(tasks), 3.6), squeeze=False)
-    for ax, task in zip(axes[0], tasks, strict=True):
-        plot_spatial_cost(spatial[task], ax, colorbar=False, title=f"s_{task}(x)")
+    fig, panels = plt.subplots(1, len(tasks), figsize=(3.4 * len(tasks), 3.6), squeeze=False)
+    for ax, task in zip(panels[0], tasks, strict=True):
+        plot_spatial_cost(spatial[task], ax, colorbar=False, title=f"s_{task}(x)", axes=axes)
         if scene is not None:
             scene(ax)
         if task in human_paths:
-            plot_paths(ax, human_paths[task], color="gold", lw=2.0, label=f"human {task}")
+            hp = np.asarray(human_paths[task], dtype=float)
+            plot_paths(ax, np.swapaxes(hp, 0, 1) if hp.ndim == 3 else hp, color="gold",
+                       lw=2.0, label=f"human {task}", axes=axes)
         for j, concurrent in overlaps.items():
             if task in concurrent and j in robot_paths:
-                plot_paths(ax, robot_paths[j], color="deepskyblue", lw=2.0, label=f"robot {j}")
+                plot_paths(ax, robot_paths[j], color="deepskyblue", lw=1.2, label=f"robot {j}",
+                           axes=axes)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="lower center")
     if title:

@@ -17,8 +17,9 @@ check uses.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from typing import TYPE_CHECKING
 
@@ -100,6 +101,7 @@ class ArmKinematics:
     lower: np.ndarray
     upper: np.ndarray
     velocity: np.ndarray
+    _last_points: list = field(default_factory=list, repr=False)  # [(key, points)], last call
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel) -> ArmKinematics:
@@ -192,7 +194,22 @@ class ArmKinematics:
                 rot.transpose(3, 0, 1, 2).reshape(*lead, 8, 3, 3))
 
     def points(self, q: np.ndarray) -> np.ndarray:
-        """Workspace points of the arm for joint vectors (..., 7): (..., P, 3)."""
+        """Workspace points of the arm for joint vectors (..., 7): (..., P, 3).
+
+        The last answer is kept: steering asks for the same candidates' points twice per step
+        (completion time, then spatial cost), and forward kinematics was a fifth of a painting
+        cycle. The key is the joints' bytes, so equal input gives this very answer."""
+        arr = np.ascontiguousarray(q, dtype=float)
+        key = (arr.shape, hashlib.blake2b(arr.data, digest_size=16).digest())
+        memo = self._last_points
+        last = memo[0] if memo else None  # one (key, points) tuple, read at once (threads)
+        if last is not None and last[0] == key:
+            return last[1].copy()
+        out = self._points(arr)
+        memo[:] = [(key, out.copy())]  # callers may write into theirs
+        return out
+
+    def _points(self, q: np.ndarray) -> np.ndarray:
         flat, lead = self._flat(q)
         pos, rot = self._frames(flat)
         out = np.empty((flat.shape[0], self.n_points, 3))

@@ -344,8 +344,11 @@ class PaintingWorld:
         boxes: dict[str, Box] = {"table": lay.table, **lay.obstacles()}
         for name, box in boxes.items():
             lo, hi = box.lo, box.hi
+            # the table is an outline: drawn filled, it hid the heat map under it
             ax.add_patch(Rectangle((lo[h], lo[v]), hi[h] - lo[h], hi[v] - lo[v],
-                                   facecolor=colours[name], edgecolor="0.1", lw=0.6,
+                                   facecolor="none" if name == "table" else colours[name],
+                                   edgecolor="0.6" if name == "table" else "0.1",
+                                   lw=1.0 if name == "table" else 0.6,
                                    zorder=1 if name == "table" else 2))
         base = np.array(lay.robot_base)
         ax.add_patch(Circle((base[h], base[v] + (0.0 if view == "top" else 0.05)), 0.07,

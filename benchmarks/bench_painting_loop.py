@@ -1,0 +1,112 @@
+"""The paper's painting behaviours in whole runs of the loop, over seeds, and the loop's cycle
+time (plan + execute + learn, from each record's ``seconds``).
+
+    .venv/bin/python benchmarks/bench_painting_loop.py --seeds 0-7 --runs runs.jsonl [--docs]
+
+Per seed: the case study's four settings with ``left-slow`` (full adaptation, 7 cycles, the
+world's lambda), unconstrained gamma 12 with ``left-fast`` (Brush to the faster agent) and with
+``right-slow`` (the mirror image: Mix R is then the near mix). Every finished run is appended
+to ``--runs`` (JSON lines), and runs already there are not run again, so the script resumes.
+The behaviours are :func:`rapidds.experiments.painting.setting_behaviours`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import torch
+from _common import cpu_model, load_average, update_docs_section
+
+from rapidds.experiments.painting import SETTINGS, Setting, run_setting, setting_behaviours
+from rapidds.loop.run import load_policy
+from rapidds.worlds.painting import PaintingWorld
+
+RUNS: tuple[tuple[Setting, str], ...] = (
+    *((s, "left-slow") for s in SETTINGS),
+    (SETTINGS[0], "left-fast"),
+    (SETTINGS[0], "right-slow"),
+)
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",")]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seeds", default="0-4")
+    ap.add_argument("--cycles", type=int, default=7)
+    ap.add_argument("--runs", type=Path, default=Path("painting-loop-runs.jsonl"))
+    ap.add_argument("--docs", action="store_true", help="rewrite the docs section")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    load0 = load_average()
+    world = PaintingWorld()
+    policy = load_policy(world)
+    done = {}
+    if args.runs.exists():
+        for line in args.runs.read_text().splitlines():
+            d = json.loads(line)
+            done[d["setting"], d["human"], d["seed"]] = d["records"]
+    t0 = time.perf_counter()
+    for seed in _seeds(args.seeds):
+        for setting, human in RUNS:
+            key = (setting.name, human, seed)
+            if key in done:
+                continue
+            recs = run_setting(setting, human, seed, args.cycles, policy)
+            done[key] = recs
+            with args.runs.open("a") as f:
+                f.write(json.dumps({"setting": setting.name, "human": human, "seed": seed,
+                                    "records": recs}) + "\n")
+            print(f"{setting.name} {human} seed {seed}: "
+                  f"{sum(r['seconds']['total'] for r in recs):.1f} s", flush=True)
+    wall = time.perf_counter() - t0
+    seeds = _seeds(args.seeds)
+    shown: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0])
+    cycle_s = []
+    by_name = {s.name: s for s in SETTINGS}
+    for (name, human, seed), recs in done.items():
+        if seed not in seeds:
+            continue
+        cycle_s += [r["seconds"]["total"] for r in recs]
+        for b in setting_behaviours(world, by_name[name], human, recs):
+            row = shown[name, human, f"{b.belief}: {b.name}"]
+            row[0] += b.holds
+            row[1] += 1
+            row[2] += len(b.shown)
+            row[3] += len(b.cycles)
+    lines = ["| setting | teammate | behaviour | runs (every tested cycle) | cycles |",
+             "|---|---|---|---|---|"]
+    for (name, human, beh), (runs, n, cyc, ncyc) in shown.items():
+        lines.append(f"| {name} | {human} | {beh} | {runs} of {n} | {cyc} of {ncyc} |")
+    table = "\n".join(lines)
+    q = statistics.quantiles(cycle_s, n=10)
+    timing = (f"Cycle time (plan + execute + learn) over {len(cycle_s)} cycles: median "
+              f"{statistics.median(cycle_s):.2f} s, 10th-90th percentile {q[0]:.2f}-{q[-1]:.2f}"
+              f" s, max {max(cycle_s):.2f} s.")
+    print(table)
+    print(timing)
+    if args.docs:
+        update_docs_section("## Painting loop", (
+            f"`benchmarks/bench_painting_loop.py --seeds {args.seeds}`: whole runs of the loop "
+            f"(full adaptation, {args.cycles} cycles, the world's lambda 10 in the first half, "
+            "default search: population 24, 40 generations, 32 samples, 4 particles x 8 "
+            f"candidates), seeds {args.seeds}. {cpu_model()}, one torch thread, 2 cores shared "
+            f"with other jobs; 1-min load average {load0} at start, {load_average()} at end; "
+            f"{wall:.0f} s of runs in this invocation.\n\n{timing}\n\n"
+            "Behaviours (docs/reproduction.md, \"Collaborative painting\"): a prior behaviour is "
+            "tested on cycle 0, a learned one on every cycle after exploration (lambda 0). "
+            "\"runs\": runs where every tested cycle shows it.\n\n" + table))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""``rapidds case-study painting``: the paper's robot case study, its four settings each one
+resumable run of the loop, and the table and pictures of every cycle
+(:mod:`rapidds.experiments.painting`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from rapidds.cli import app, fail
+
+_STUDIES = ("painting",)
+_SETTINGS = "unconstrained-g12,constrained-g12,unconstrained-g25,unconstrained-g85"
+
+
+@app.command("case-study")
+def case_study_cmd(
+    world: str = typer.Argument(..., help=f"Case study to run: {', '.join(_STUDIES)}."),
+    out: Path = typer.Option(..., help="Folder: one sub-folder per setting (run.sqlite, Gantt "
+                             "charts, maps, frames, GIF), table.md and table.csv; rerunning "
+                             "with the same folder resumes unfinished runs."),
+    human: str = typer.Option("left-slow", help="Simulated teammate (see 'rapidds worlds')."),
+    seed: int = typer.Option(0, min=0, help="Seed of every setting's run."),
+    cycles: int = typer.Option(7, min=1, max=1000, help="Cycles per setting (the paper's 7)."),
+    settings: str = typer.Option(_SETTINGS, help="Settings, comma-separated."),
+    gif: bool = typer.Option(True, help="Animate the last cycle of each setting (GIF)."),
+    as_json: bool = typer.Option(False, "--json", help="One JSON object on stdout (table rows "
+                                 "and behaviours); cycle rows go to stderr."),
+    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+) -> None:
+    """Run the paper's painting settings (unconstrained gamma 12, constrained gamma 12,
+    unconstrained gamma 25 and 85) with full adaptation and write the per-cycle table and the
+    pictures of each."""
+    if world not in _STUDIES:
+        fail(f"no case study for world {world!r}; case studies: {', '.join(_STUDIES)}")
+    from rich.console import Console
+
+    from rapidds.cli.run import console, execute, set_threads
+    from rapidds.experiments.painting import (
+        check_setting_names,
+        save_cycle_gif,
+        save_frames,
+        setting_behaviours,
+        table_markdown,
+        table_rows,
+        write_tables,
+    )
+    from rapidds.loop.run import load_policy
+    from rapidds.store import RunStore
+    from rapidds.worlds.registry import make_world
+
+    chosen = check_setting_names([s.strip() for s in settings.split(",") if s.strip()])
+    if not chosen:
+        fail("--settings names no setting")
+    w = make_world(world)
+    if human not in w.teammate_names:
+        fail(f"unknown teammate {human!r} for world {world!r}; teammates are "
+             f"{', '.join(w.teammate_names)}")
+    con = Console(stderr=True, soft_wrap=True) if as_json else console()
+    set_threads(threads)
+    policy = load_policy(w)
+    runs = {}
+    behaviours = {}
+    for setting in chosen:
+        cfg = setting.config(human, seed, cycles)
+        sub = out / setting.name
+        rid = cfg.resolved(make_world(world, setting.variant)).run_id
+        resume = False
+        if (sub / "run.sqlite").exists():
+            with RunStore.open_readonly(sub / "run.sqlite") as st:
+                resume = st.last_cycle(rid) is not None
+        run = execute(cfg, policy, sub, resume, False, con,
+                      title=f"{setting.name}, teammate {human}, seed {seed}")
+        assert run.store is not None
+        records = run.store.records(rid)
+        runs[setting] = records
+        behaviours[setting.name] = [
+            {"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),
+             "shown": list(b.shown), "holds": b.holds}
+            for b in setting_behaviours(run.world, setting, human, records)]
+        last = records[-1]
+        arrays = run.store.arrays(rid, last["cycle"])
+        save_frames(run.world, last, arrays, sub / rid)
+        if gif:
+            save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last['cycle']:02d}.gif")
+    rows = table_rows(w, human, runs)
+    md, cs = write_tables(out, rows)
+    if as_json:
+        print(json.dumps({"rows": rows, "behaviours": behaviours}), flush=True)
+        return
+    con.print(table_markdown(rows), highlight=False, markup=False)
+    for name, found in behaviours.items():
+        for b in found:
+            con.print(f"{name}: {b['belief']}: {b['behaviour']}: "
+                      f"{'holds' if b['holds'] else 'does not hold'} "
+                      f"(shown in cycles {b['shown'] or '-'} of {b['tested']})", highlight=False)
+    con.print(f"wrote {md}, {cs} and one folder per setting in {out}", highlight=False)
