@@ -129,11 +129,11 @@ class SpatialConfig:
             ``surrogate_error``.
         chunk: most points evaluated at once, bounding the memory of one call (MLP activations
             are chunk x hidden floats).
-        forgetting: factor f in (0, 1] applied before every observation: the precision and
-            the precision-weighted mean are pulled a fraction 1 - f back to the prior's
-            (stabilised forgetting, as the temporal model's), so the belief keeps about
-            1/(1 - f) observations and follows a person whose paths change. 1 (default): the
-            paper's Eqs. 10-11 exactly.
+        forgetting: factor f in (0, 1] applied before every observation: the belief is raised
+            to the power f (precision times f, mean kept: exponential forgetting, as the
+            temporal model's), so it holds about 1/(1 - f) observations, precision at most
+            1/(rho (1 - f)), and follows a person whose paths change. 1 (default): the paper's
+            Eqs. 10-11 exactly.
     """
 
     bounds: tuple[tuple[float, float], ...]
@@ -509,6 +509,11 @@ class SpatialCostModel:
         return self._prior_mean.copy()
 
     @property
+    def prior_var(self) -> np.ndarray:
+        """(V,) population prior variance (a copy): where forgetting and a reset return to."""
+        return self._prior_var.copy()
+
+    @property
     def surrogate_stale(self) -> bool:
         """True when the MLP is missing or was fitted to an older posterior."""
         return self._stale
@@ -523,13 +528,9 @@ class SpatialCostModel:
         obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
                          self.config.beta, polyline=self.config.polyline)
         rho, f = self.config.rho, self.config.forgetting
-        prec, prior_prec = 1.0 / self._var, 1.0 / self._prior_var
-        weighted = self._mean * prec
-        if f < 1:  # stabilised forgetting: natural parameters pulled back towards the prior's
-            weighted = f * weighted + (1 - f) * self._prior_mean * prior_prec
-            prec = f * prec + (1 - f) * prior_prec
-        new_var = 1.0 / (prec + 1.0 / rho)
-        self._mean = new_var * (weighted + obs / rho)
+        var = self._var / f if f < 1 else self._var  # forgetting: precision times f
+        new_var = 1.0 / (1.0 / var + 1.0 / rho)
+        self._mean = new_var * (self._mean / var + obs / rho)
         self._var = new_var
         self.n_obs += 1
         self._stale = True
@@ -542,14 +543,6 @@ class SpatialCostModel:
         self._var = self._prior_var.copy()
         self._stale = True
         self._grid_cache.clear()
-
-    def surprise(self, traj: ArrayLike) -> float:
-        """Mean over the grid of the squared standardised residual of one observed path's point
-        costs against the posterior predictive N(mean, var + rho): about 1 for a path like the
-        ones learned, much larger for a path elsewhere (a new route, the other hand)."""
-        obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
-                         self.config.beta, polyline=self.config.polyline)
-        return float(np.mean((obs - self._mean) ** 2 / (self._var + self.config.rho)))
 
     # ------------------------------------------------------------------------- surrogate
     def _new_net(self) -> _Surrogate:
