@@ -198,6 +198,21 @@ def run_cmd(
     surrogate: bool = typer.Option(False, help="Evaluate spatial costs with the MLP surrogate."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads (1 is fastest on "
                                 "small machines)."),
+    change: str | None = typer.Option(None, help="The teammate becomes another one at a cycle: "
+                                      "NAME@CYCLE[,NAME@CYCLE...], e.g. slow-outside@12."),
+    drift: float = typer.Option(0.0, help="The teammate's durations grow by this fraction per "
+                                "cycle (negative: practice)."),
+    drift_from: int = typer.Option(0, help="Cycle the drift starts at."),
+    forgetting: float = typer.Option(_D["forgetting"].default, help="Forgetting factor of the "
+                                     "models in (0, 1]; 1 is the paper's."),
+    detect: bool = typer.Option(False, help="Detect changes of the teammate and restart the "
+                                "beliefs of the tasks that changed."),
+    hazard: float = typer.Option(_D["hazard"].default, help="Prior probability of a change at "
+                                 "one observation (with --detect)."),
+    ask: bool = typer.Option(False, help="On a detected change, ask the teammate (a simulated "
+                             "one answers truthfully); a denial keeps the belief."),
+    reexplore: int = typer.Option(0, help="Cycles planned with lambda again after a detected "
+                                  "change."),
 ) -> None:
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:
@@ -205,7 +220,9 @@ def run_cmd(
     cfg = RunConfig(world=world, variant=variant, human=human, adapt=adapt, cycles=cycles,
                     gamma=gamma, lam=lam, seed=seed, population=population,
                     generations=generations, samples=samples, particles=particles,
-                    candidates=candidates, surrogate=surrogate)
+                    candidates=candidates, surrogate=surrogate, change=change, drift=drift,
+                    drift_from=drift_from, forgetting=forgetting, detect=detect, hazard=hazard,
+                    ask=ask, reexplore=reexplore)
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 

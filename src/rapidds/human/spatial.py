@@ -129,6 +129,11 @@ class SpatialConfig:
             ``surrogate_error``.
         chunk: most points evaluated at once, bounding the memory of one call (MLP activations
             are chunk x hidden floats).
+        forgetting: factor f in (0, 1] applied before every observation: the belief is raised
+            to the power f (precision times f, mean kept: exponential forgetting, as the
+            temporal model's), so it holds about 1/(1 - f) observations, precision at most
+            1/(rho (1 - f)), and follows a person whose paths change. 1 (default): the paper's
+            Eqs. 10-11 exactly.
     """
 
     bounds: tuple[tuple[float, float], ...]
@@ -148,6 +153,7 @@ class SpatialConfig:
     seed: int = 0
     use_surrogate: bool = False
     chunk: int = 1 << 16
+    forgetting: float = 1.0
 
     def __post_init__(self) -> None:
         try:
@@ -196,6 +202,10 @@ class SpatialConfig:
                     f"SpatialConfig.prior_var must be None or a finite number > 0, got {v!r}"
                 )
             object.__setattr__(self, "prior_var", float(v))
+        f = self.forgetting
+        if not _is_real(f) or not 0 < f <= 1:
+            raise ValueError(f"SpatialConfig.forgetting must be in (0, 1], got {f!r}")
+        object.__setattr__(self, "forgetting", float(f))
         if not _is_real(self.tol) or not math.isfinite(self.tol) or self.tol < 0:
             raise ValueError(f"SpatialConfig.tol must be a finite number >= 0, got {self.tol!r}")
         object.__setattr__(self, "tol", float(self.tol))
@@ -419,6 +429,7 @@ class SpatialCostModel:
         var: ArrayLike,
         *,
         prior_mean: ArrayLike | None = None,
+        prior_var: ArrayLike | None = None,
         n_obs: int = 0,
     ):
         self.config = config
@@ -427,13 +438,16 @@ class SpatialCostModel:
         self._var = np.array(var, dtype=np.float64).reshape(-1)
         self._prior_mean = (self._mean.copy() if prior_mean is None
                             else np.array(prior_mean, dtype=np.float64).reshape(-1))
-        for name, a in (("mean", self._mean), ("var", self._var), ("prior_mean", self._prior_mean)):
+        self._prior_var = (self._var.copy() if prior_var is None
+                           else np.array(prior_var, dtype=np.float64).reshape(-1))
+        for name, a in (("mean", self._mean), ("var", self._var), ("prior_mean", self._prior_mean),
+                        ("prior_var", self._prior_var)):
             if a.shape != (v,):
                 raise ValueError(f"{name} must have V = {v} values, got {a.shape}")
             if not np.isfinite(a).all():
                 raise ValueError(f"{name} contains NaN or infinite values")
-        if (self._var <= 0).any():
-            raise ValueError("var must be > 0 at every grid point")
+        if (self._var <= 0).any() or (self._prior_var <= 0).any():
+            raise ValueError("var and prior_var must be > 0 at every grid point")
         if not _is_int(n_obs) or n_obs < 0:
             raise ValueError(f"n_obs must be an integer >= 0, got {n_obs!r}")
         self.n_obs = int(n_obs)
@@ -495,6 +509,11 @@ class SpatialCostModel:
         return self._prior_mean.copy()
 
     @property
+    def prior_var(self) -> np.ndarray:
+        """(V,) population prior variance (a copy): where forgetting and a reset return to."""
+        return self._prior_var.copy()
+
+    @property
     def surrogate_stale(self) -> bool:
         """True when the MLP is missing or was fitted to an older posterior."""
         return self._stale
@@ -508,11 +527,20 @@ class SpatialCostModel:
         """
         obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
                          self.config.beta, polyline=self.config.polyline)
-        rho = self.config.rho
-        new_var = 1.0 / (1.0 / self._var + 1.0 / rho)
-        self._mean = new_var * (self._mean / self._var + obs / rho)
+        rho, f = self.config.rho, self.config.forgetting
+        var = self._var / f if f < 1 else self._var  # forgetting: precision times f
+        new_var = 1.0 / (1.0 / var + 1.0 / rho)
+        self._mean = new_var * (self._mean / var + obs / rho)
         self._var = new_var
         self.n_obs += 1
+        self._stale = True
+        self._grid_cache.clear()
+
+    def reset(self) -> None:
+        """Back to the population prior (a detected change: this person's old paths no longer
+        describe them). ``n_obs`` keeps counting what was observed."""
+        self._mean = self._prior_mean.copy()
+        self._var = self._prior_var.copy()
         self._stale = True
         self._grid_cache.clear()
 
@@ -683,6 +711,7 @@ class SpatialCostModel:
             "mean": _encode(self._mean),
             "var": _encode(self._var),
             "prior_mean": _encode(self._prior_mean),
+            "prior_var": _encode(self._prior_var),
             "surrogate": surrogate,
         }
 
@@ -700,8 +729,13 @@ class SpatialCostModel:
         mean = _decode(data.get("mean"), "mean", v)
         var = _decode(data.get("var"), "var", v)
         prior = _decode(data.get("prior_mean"), "prior_mean", v)
+        # files written before forgetting existed hold no prior variance; only a model that
+        # forgets or resets reads it, and such a model always stored it
+        prior_var = (_decode(data["prior_var"], "prior_var", v) if "prior_var" in data
+                     else None)
         try:
-            model = cls(config, mean, var, prior_mean=prior, n_obs=data.get("n_obs", -1))
+            model = cls(config, mean, var, prior_mean=prior, prior_var=prior_var,
+                        n_obs=data.get("n_obs", -1))
         except ValueError as e:
             raise StateError(f"spatial model: {e}") from None
         sur = data.get("surrogate")

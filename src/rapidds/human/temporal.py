@@ -15,6 +15,16 @@ The scheduler plans with duration samples. Two ways to draw them:
 * ``"plugin"``: the paper's N(E[mu], E[sigma^2]) with E[sigma^2] = beta/(alpha-1); it ignores
   that uncertainty and is kept for comparison with the paper.
 
+Forgetting (beyond the paper, docs/design-notes.md "Teammates who change"): with a factor
+f < 1 every update first flattens the belief, raising it to the power f (exponential
+forgetting: nu, alpha and beta times f, mu kept), so an observation k updates old weighs f^k
+and the belief holds about 1/(1 - f) observations' worth of evidence: it follows a person who
+changes and never becomes more certain than that. The prior is forgotten too, so the mean is
+the exponentially weighted mean of the observations, with no pull towards the population (a
+"stabilised" variant that keeps the prior biased a settled belief by ~1/6 of the way back to
+it at f = 0.8). f = 1 is the paper's update exactly. ``start`` drops the observations before
+a detected change.
+
 Durations are physical, so every sample is clipped at :data:`MIN_DURATION` (a Normal or
 Student-t has mass below zero; a negative duration would let a schedule finish before it
 starts). A task whose belief has beta = 0 (prior std 0 in the problem file, never contradicted
@@ -113,6 +123,17 @@ class NIGPrior:
             beta=self.beta + self.nu * (x - self.mu) ** 2 / (2 * nu1),
         )
 
+    def discounted(self, factor: float) -> NIGPrior:
+        """This belief raised to the power ``factor`` in (0, 1] (and renormalised): the same mean,
+        nu, alpha and beta times ``factor``. ``factor`` = 1 returns self. At f >= 0.75 a belief
+        updated once per cycle keeps alpha >= 2 (a finite E[sigma^2] for plug-in sampling)."""
+        if not 0 < factor <= 1:
+            raise ValueError(f"forgetting factor must be in (0, 1], got {factor}")
+        if factor == 1:
+            return self
+        return NIGPrior(mu=self.mu, nu=factor * self.nu, alpha=factor * self.alpha,
+                        beta=factor * self.beta)
+
     def update_many(self, xs: Iterable[float]) -> NIGPrior:
         """Posterior after several observations at once (the batch form of :meth:`update`)."""
         arr = np.array([_check_duration(x) for x in xs], dtype=float)
@@ -194,22 +215,47 @@ def _draw(
 @dataclass
 class DurationModel:
     """Belief about one task's duration for one person: the prior, the observations and the
-    current posterior (kept in step by :meth:`observe`)."""
+    current posterior (kept in step by :meth:`observe`).
+
+    forgetting: factor f in (0, 1] of :meth:`NIGPrior.discounted` applied before each update
+    (1: the paper's model). start: observations before this index are no longer believed (a
+    detected change reset the belief); they stay listed as what happened.
+    """
 
     prior: NIGPrior
     observations: list[float] = field(default_factory=list)
+    forgetting: float = 1.0
+    start: int = 0
     posterior: NIGPrior = field(init=False)
 
     def __post_init__(self) -> None:
-        post = self.prior
-        for x in self.observations:
-            post = post.update(x)
-        self.posterior = post
+        if not 0 < self.forgetting <= 1:
+            raise ValueError(f"forgetting factor must be in (0, 1], got {self.forgetting}")
         self.observations = [float(x) for x in self.observations]
+        if not 0 <= self.start <= len(self.observations):
+            raise ValueError(f"start {self.start} outside 0..{len(self.observations)}")
+        self.posterior = self.fold(self.observations[self.start:])
+
+    def fold(self, xs: Iterable[float]) -> NIGPrior:
+        """The belief after ``xs`` starting from the prior, with this model's forgetting."""
+        post = self.prior
+        for x in xs:
+            post = self._step(post, x)
+        return post
+
+    def _step(self, post: NIGPrior, x: float) -> NIGPrior:
+        return post.discounted(self.forgetting).update(x)
 
     def observe(self, duration: float) -> None:
-        self.posterior = self.posterior.update(duration)
+        self.posterior = self._step(self.posterior, duration)
         self.observations.append(float(duration))
+
+    def restart(self, start: int) -> None:
+        """Believe only the observations from index ``start`` on (0 <= start <= len)."""
+        if not 0 <= start <= len(self.observations):
+            raise ValueError(f"start {start} outside 0..{len(self.observations)}")
+        self.start = int(start)
+        self.posterior = self.fold(self.observations[self.start:])
 
     def mean(self) -> float:
         return self.posterior.mu
@@ -226,13 +272,16 @@ class DurationModel:
         return {
             "prior": self.prior.to_dict(),
             "observations": list(self.observations),
+            "forgetting": self.forgetting,
+            "start": self.start,
             "posterior": self.posterior.to_dict(),
         }
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> DurationModel:
         """Rebuild by replaying the observations on the prior; the stored posterior must agree."""
-        model = cls(NIGPrior.from_dict(d["prior"]), [float(x) for x in d["observations"]])
+        model = cls(NIGPrior.from_dict(d["prior"]), [float(x) for x in d["observations"]],
+                    float(d.get("forgetting", 1.0)), int(d.get("start", 0)))
         if "posterior" in d:
             stored = NIGPrior.from_dict(d["posterior"])
             for name in ("mu", "nu", "alpha", "beta"):
@@ -271,11 +320,14 @@ class TemporalModel:
         nu: float = DEFAULT_NU,
         alpha: float = DEFAULT_ALPHA,
         sampling: Sampling = "predictive",
+        forgetting: float = 1.0,
     ) -> TemporalModel:
         """Priors from each task's human mean/std in the problem file (see
-        :meth:`NIGPrior.from_moments` for how std sets alpha and beta)."""
+        :meth:`NIGPrior.from_moments` for how std sets alpha and beta); ``forgetting`` as in
+        :class:`DurationModel` (1: the paper's update)."""
         models = {
-            t.id: DurationModel(NIGPrior.from_moments(t.human_mean, t.human_std or 0.0, nu, alpha))
+            t.id: DurationModel(NIGPrior.from_moments(t.human_mean, t.human_std or 0.0, nu, alpha),
+                                forgetting=forgetting)
             for t in problem.tasks
             if t.can("human") and t.human_mean is not None
         }
@@ -290,6 +342,7 @@ class TemporalModel:
         nu: float = DEFAULT_NU,
         alpha: float = DEFAULT_ALPHA,
         sampling: Sampling = "predictive",
+        forgetting: float = 1.0,
     ) -> TemporalModel:
         """Priors from durations measured on other people: mean and sample std (ddof=1) of each
         task's list. Tasks not listed keep the problem file's prior.
@@ -297,7 +350,8 @@ class TemporalModel:
         The confidence (nu, alpha) is not raised with the population size on purpose: the data
         describe other people, and the belief must stay ready to move toward this one.
         """
-        model = cls.from_problem(problem, nu=nu, alpha=alpha, sampling=sampling)
+        model = cls.from_problem(problem, nu=nu, alpha=alpha, sampling=sampling,
+                                 forgetting=forgetting)
         for tid, values in durations.items():
             if tid not in model.models:
                 raise ValueError(f"population durations for '{tid}', which the human cannot do")
@@ -305,7 +359,7 @@ class TemporalModel:
             if arr.size < 2:
                 raise ValueError(f"task '{tid}': need at least 2 population durations")
             prior = NIGPrior.from_moments(float(arr.mean()), float(arr.std(ddof=1)), nu, alpha)
-            model.models[tid] = DurationModel(prior)
+            model.models[tid] = DurationModel(prior, forgetting=forgetting)
         return model
 
     # -- updates and queries -------------------------------------------------------------------

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from rapidds.settings import Settings
+from rapidds.worlds.changes import parse_changes
 
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
@@ -44,6 +45,19 @@ class RunConfig(Settings):
     reuse_motions: answer a motion request from the plan steered for it in an earlier cycle
         while the spatial models it was steered against are unchanged (:mod:`.carry`); False
         empties the memory every cycle as Algorithm 1 does.
+
+    Teammates who change (docs/design-notes.md "Teammates who change"):
+    change: the simulated teammate becomes another one at a cycle, ``NAME@CYCLE[,...]``.
+    drift, drift_from: their durations grow by a factor (1 + drift) per cycle from cycle
+        ``drift_from`` on (negative: practice).
+    forgetting: factor in (0, 1] of the temporal and spatial models' stabilised forgetting;
+        1 (default) is the paper's models.
+    detect: Bayesian online change-point detection on every observed task's durations; a
+        change resets the task's beliefs to the observations since it. hazard: prior
+        probability of a change at one observation; detect_threshold: posterior probability
+        of a change that raises an alarm.
+    ask: on an alarm, ask the person whether they changed; a denial keeps the old belief.
+    reexplore: cycles after a detected change planned with the exploration weight lambda again.
     """
 
     world: str = "fetch"
@@ -66,6 +80,22 @@ class RunConfig(Settings):
     grid_points: Annotated[int, Field(ge=2, le=512)] | None = None
     surrogate: bool = False
     reuse_motions: bool = True
+    change: str | None = None
+    drift: Annotated[float, Field(gt=-0.5, lt=0.5)] = 0.0
+    drift_from: Annotated[int, Field(ge=0)] = 0
+    forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0
+    detect: bool = False
+    hazard: Annotated[float, Field(gt=0, lt=1)] = 0.05
+    detect_threshold: Annotated[float, Field(gt=0, lt=1)] = 0.5
+    ask: bool = False
+    reexplore: Annotated[int, Field(ge=0)] = 0
+
+    @field_validator("change")
+    @classmethod
+    def _check_change(cls, v: str | None) -> str | None:
+        if v is not None:
+            parse_changes(v)
+        return v
 
     def resolved(self, world: World) -> RunConfig:
         """Every None replaced by the world's value: what is stored, so a resumed run cannot
@@ -83,11 +113,19 @@ class RunConfig(Settings):
     @property
     def run_id(self) -> str:
         world = self.world if self.variant in (None, "default") else f"{self.world}-{self.variant}"
-        return f"{world}-{self.human}-{self.adapt}-s{self.seed}"
+        human = str(self.human)
+        if self.change:
+            human += "-to-" + "-to-".join(f"{n}@{c}" for n, c in parse_changes(self.change))
+        if self.drift:
+            human += f"-drift{self.drift:+g}@{self.drift_from}"
+        return f"{world}-{human}-{self.adapt}-s{self.seed}"
 
-    def lam_at(self, cycle: int) -> float:
-        """lambda for ``cycle``: constant for the first half of the cycles, then 0."""
+    def lam_at(self, cycle: int, last_change: int | None = None) -> float:
+        """lambda for ``cycle``: constant for the first half of the cycles, then 0; again for
+        ``reexplore`` cycles after a change detected in cycle ``last_change``."""
         lam = self.lam or 0.0
+        if last_change is not None and 0 < cycle - last_change <= self.reexplore:
+            return lam
         return lam if cycle < self.cycles / 2 else 0.0
 
     @property

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import json
 import zlib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -18,8 +19,33 @@ from rapidds.loop.config import RunConfig
 from rapidds.motion.interface import MotionKey
 from rapidds.scheduler import AllocationHistory
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
+from rapidds.worlds.changes import changing_teammate
+
+
+@dataclass
+class ChangeLog:
+    """What change detection needs beyond the models: the cycle of every observation of each
+    task (index-aligned with the temporal model's observations), the index up to which the
+    person confirmed they had not changed (a denied question), and the last cycle a change was
+    acted on."""
+
+    cycles: dict[str, list[int]] = field(default_factory=dict)
+    unchanged_until: dict[str, int] = field(default_factory=dict)
+    last_change: int | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        return {"cycles": self.cycles, "unchanged_until": self.unchanged_until,
+                "last_change": self.last_change}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> ChangeLog:
+        cycles = {str(k): [int(c) for c in v] for k, v in d["cycles"].items()}
+        until = {str(k): int(v) for k, v in d["unchanged_until"].items()}
+        last = d.get("last_change")
+        return cls(cycles, until, None if last is None else int(last))
 
 __all__ = [
+    "ChangeLog",
     "HumanModel",
     "check_teammate",
     "oracle_spatial",
@@ -39,10 +65,12 @@ class HumanModel:
     spatial: SpatialModel
     history: AllocationHistory = field(default_factory=AllocationHistory)
     motions: dict[MotionKey, Stamped] = field(default_factory=dict)
+    changes: ChangeLog = field(default_factory=ChangeLog)
 
     def to_bytes(self) -> bytes:
         doc = {"temporal": self.temporal.to_dict(), "spatial": self.spatial.to_dict(),
-               "history": self.history.to_dict(), "motions": encode_plans(self.motions)}
+               "history": self.history.to_dict(), "motions": encode_plans(self.motions),
+               "changes": self.changes.to_dict()}
         return zlib.compress(json.dumps(doc, allow_nan=False).encode())
 
     @classmethod
@@ -52,7 +80,8 @@ class HumanModel:
             return cls(TemporalModel.from_dict(doc["temporal"]),
                        SpatialModel.from_dict(doc["spatial"]),
                        AllocationHistory.from_dict(doc["history"]),
-                       decode_plans(doc.get("motions", [])))
+                       decode_plans(doc.get("motions", [])),
+                       ChangeLog.from_dict(doc["changes"]) if "changes" in doc else ChangeLog())
         except (zlib.error, ValueError, TypeError, KeyError) as exc:
             raise StateError(f"stored human model is corrupt ({exc})") from None
 
@@ -63,7 +92,7 @@ def spatial_config(world: World, cfg: RunConfig) -> SpatialConfig:
     assert cfg.beta is not None and cfg.grid_points is not None, "resolve the config first"
     return SpatialConfig.from_box(lo, hi, beta=cfg.beta, rho=cfg.rho,
                                   grid_points=cfg.grid_points, use_surrogate=cfg.surrogate,
-                                  seed=cfg.seed)
+                                  seed=cfg.seed, forgetting=cfg.forgetting)
 
 
 def prior_model(world: World, cfg: RunConfig) -> HumanModel:
@@ -72,7 +101,8 @@ def prior_model(world: World, cfg: RunConfig) -> HumanModel:
     prior = world.prior()
     spatial = SpatialModel.from_population(spatial_config(world, cfg), prior.paths)
     spatial.refit()
-    return HumanModel(TemporalModel.from_population(world.problem(), prior.durations), spatial)
+    return HumanModel(TemporalModel.from_population(world.problem(), prior.durations,
+                                                    forgetting=cfg.forgetting), spatial)
 
 
 def oracle_spatial(world: World, cfg: RunConfig, teammate: SimulatedTeammate,
@@ -100,11 +130,15 @@ def workspace_cost(
 
 
 def check_teammate(world: World, cfg: RunConfig, teammate: Teammate | None) -> Teammate:
-    """The run's teammate: the injected one (a live person) or the world's simulated one."""
+    """The run's teammate: the injected one (a live person) or the world's simulated one,
+    changing as ``cfg.change`` and ``cfg.drift`` say."""
     if teammate is not None:
         return teammate
     assert cfg.human is not None
     if cfg.human not in world.teammate_names:
         raise RapiddsError(f"unknown human '{cfg.human}' for world {world.name}; one of "
                            f"{', '.join(world.teammate_names)}")
-    return world.teammate(cfg.human)
+    try:
+        return changing_teammate(world, cfg.human, cfg.change, cfg.drift, cfg.drift_from)
+    except ValueError as exc:
+        raise RapiddsError(str(exc)) from None

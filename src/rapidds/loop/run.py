@@ -22,6 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from rapidds.errors import CheckpointError, RapiddsError, StateError
+from rapidds.human.changes import detect_change
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.config import RunConfig
@@ -186,7 +187,8 @@ class AdaptiveRun:
         # copied: the run learns into its own model
         self.model = (HumanModel.from_bytes(prior.to_bytes()) if prior is not None
                       else prior_model(self.world, self.config))
-        self._oracle_spatial: SpatialModel | None = None
+        self._oracle_spatial: dict[str, SpatialModel] = {}
+        self._changes: dict[int, list[dict[str, Any]]] = {}
         self.next_cycle = 0
         self._timing: dict[int, dict[str, float]] = {}
         if store is not None:
@@ -242,9 +244,12 @@ class AdaptiveRun:
         return self._true_spatial()
 
     def _true_spatial(self) -> SpatialModel:
-        if self._oracle_spatial is None:
-            self._oracle_spatial = oracle_spatial(self.world, self.config, self._truth())
-        return self._oracle_spatial
+        """The spatial model of the person the teammate is now (a habit change switches it)."""
+        truth = self._truth()
+        person = getattr(truth, "base", truth)  # a re-paced person walks the same paths
+        if person.name not in self._oracle_spatial:
+            self._oracle_spatial[person.name] = oracle_spatial(self.world, self.config, person)
+        return self._oracle_spatial[person.name]
 
     def plan_cost(self, plan: CyclePlan) -> dict[str, float] | None:
         """The paper's plan cost (its Figure 5): the plan's schedule with its robot motions,
@@ -301,7 +306,7 @@ class AdaptiveRun:
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         ga_seed = int(rng.integers(2**31))
-        lam = 0.0 if exact else cfg.lam_at(c)
+        lam = 0.0 if exact else cfg.lam_at(c, self.model.changes.last_change)
         if exact:
             best, search = self._plan_exact(carried, samples, mean)
         else:
@@ -349,13 +354,64 @@ class AdaptiveRun:
         for task, ex in deployment.human.items():
             if learn_time:
                 self.model.temporal.observe(task, ex.duration)
+                self.model.changes.cycles.setdefault(task, []).append(plan.cycle)
             if learn_space:
                 self.model.spatial.observe(task, ex.trajectory)
+        if self.config.detect and learn_time:
+            self._changes[plan.cycle] = self._detect(plan.cycle, deployment, learn_space)
         if learn_space:
             self.model.spatial.refit(deployment.human)
         self.model.history.record(plan.best.schedule)
         self.model.motions = plan.motions
         self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
+
+    def _detect(self, cycle: int, deployment: Deployment,
+                learn_space: bool) -> list[dict[str, Any]]:
+        """Change detection on the tasks observed this cycle; on a change (not denied by the
+        person) the task's beliefs restart from the observations since it. What happened goes
+        into the cycle's record."""
+        cfg, log, out = self.config, self.model.changes, []
+        for task, ex in deployment.human.items():
+            dm = self.model.temporal.models[task]
+            ch = detect_change(dm, hazard=cfg.hazard, threshold=cfg.detect_threshold)
+            if ch is None or ch.index < log.unchanged_until.get(task, 0):
+                continue
+            since = log.cycles[task][ch.index]
+            entry: dict[str, Any] = {
+                "task": task, "since_cycle": since, "probability": ch.probability,
+                "mean_before": ch.before, "mean_after": ch.after}
+            if cfg.ask:
+                entry["question"] = (f"you seem {ch.direction} on {task} since cycle {since} "
+                                     f"({ch.before:.1f} s -> {ch.after:.1f} s): has something "
+                                     "changed?")
+                entry["answer"] = answer = self._answer(task, log.cycles[task][ch.index - 1],
+                                                        cycle)
+                if answer is False:  # the person says they are who they were: an outlier
+                    log.unchanged_until[task] = len(dm.observations)
+                    entry["action"] = "kept"
+                    out.append(entry)
+                    continue
+            dm.restart(ch.index)
+            if learn_space:  # older paths are not kept: restart from the latest one
+                self.model.spatial[task].reset()
+                self.model.spatial.observe(task, ex.trajectory)
+            log.last_change = cycle
+            entry["action"] = "reset"
+            out.append(entry)
+        return out
+
+    def _answer(self, task: str, then: int, now: int) -> bool | None:
+        """The person's answer to "are you different on ``task`` now than in cycle ``then``
+        (the last observation before the suspected change)?": a simulated person answers
+        truthfully (their true mean moved by more than 10 %); a live one through
+        ``confirm_change(task, then)`` if they offer it, else None (no answer: the detector
+        is trusted)."""
+        if isinstance(self.teammate, SimulatedTeammate):
+            before = self.teammate.at(then).true_mean_durations()[task]
+            after = self.teammate.at(now).true_mean_durations()[task]
+            return bool(abs(after / before - 1) > 0.1)
+        confirm = getattr(self.teammate, "confirm_change", None)
+        return None if confirm is None else bool(confirm(task, then))
 
     # -- record -------------------------------------------------------------------------------
     def record(self, plan: CyclePlan, deployment: Deployment) -> dict[str, Any]:
@@ -393,6 +449,7 @@ class AdaptiveRun:
                                      strict=True) if math.isfinite(m)}},
             "plan_cost": self.plan_cost(plan),
             "search": plan.search,
+            **({"changes": self._changes.pop(plan.cycle, [])} if cfg.detect else {}),
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
         }

@@ -1,0 +1,183 @@
+"""Teammates who change (issue 17): changing simulated people, forgetting, change detection,
+questions, and runs that store and resume all of it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import SMALL_SEARCH as SMALL
+
+from rapidds.errors import ConfigError, StateError
+from rapidds.human.changes import detect_change, run_length_posterior
+from rapidds.human.spatial import SpatialConfig, SpatialCostModel, point_cost
+from rapidds.human.temporal import DurationModel, NIGPrior
+from rapidds.loop import AdaptiveRun, RunConfig
+from rapidds.store import RunStore
+from rapidds.worlds.changes import ChangingTeammate, Paced, changing_teammate, parse_changes
+
+PRIOR = NIGPrior.from_moments(5.0, 1.5)
+
+
+# -- forgetting -------------------------------------------------------------------------------
+def test_forgetting_off_is_the_papers_update_exactly():
+    xs = [4.1, 4.6, 3.9, 5.2, 4.4, 4.0]
+    chained = PRIOR
+    for x in xs:
+        chained = chained.update(x)
+    model = DurationModel(PRIOR, forgetting=1.0)
+    for x in xs:
+        model.observe(x)
+    assert model.posterior == chained  # bit for bit, not approximately
+    assert PRIOR.discounted(1.0) is PRIOR
+    batch = PRIOR.update_many(xs)
+    for name in ("mu", "nu", "alpha", "beta"):
+        assert getattr(model.posterior, name) == pytest.approx(getattr(batch, name), rel=1e-12)
+
+
+def test_forgetting_keeps_a_bounded_memory_and_follows_a_new_mean():
+    f = 0.8
+    model = DurationModel(PRIOR, forgetting=f)
+    plain = DurationModel(PRIOR)
+    for x in [4.0] * 30 + [8.0] * 4:
+        model.observe(x)
+        plain.observe(x)
+    # nu converges to 1/(1 - f) (the prior forgotten too): never more than ~5 observations
+    assert model.posterior.nu <= 1 / (1 - f) + 1e-9
+    assert model.posterior.beta >= 0
+    assert abs(model.mean() - 8.0) < abs(plain.mean() - 8.0) / 1.5
+    again = DurationModel.from_dict(model.to_dict())  # replay gives the stored posterior
+    assert again.posterior == model.posterior and again.forgetting == f
+
+
+def test_spatial_forgetting_off_is_unchanged_and_on_bounds_the_precision():
+    cfg = SpatialConfig(bounds=((0.0, 4.0), (0.0, 4.0)), grid_points=8)
+    paths = [np.array([[0.5, 0.5], [3.5, 0.5 + 0.1 * k]]) for k in range(3)]
+    plain = SpatialCostModel.from_population(cfg, paths)
+    forget = SpatialCostModel.from_population(
+        SpatialConfig(bounds=cfg.bounds, grid_points=8, forgetting=0.7), paths)
+    same = SpatialCostModel.from_population(cfg, paths)
+    own = np.array([[0.5, 3.5], [3.5, 3.5]])
+    for _ in range(40):
+        plain.observe(own)
+        forget.observe(own)
+    # the paper's rule by hand: precision adds 1/rho per observation
+    prec = 1 / same.var + 40 / cfg.rho
+    assert np.allclose(plain.var, 1 / prec, rtol=1e-12)
+    # precision f^n P0 + sum_k f^k / rho < f^n P0 + 1 / (rho (1 - f))
+    bound = 0.7**40 / forget.prior_var + 1 / (cfg.rho * (1 - 0.7))
+    assert np.all(1 / forget.var <= bound * (1 + 1e-12))
+    seen = point_cost(cfg.grid(), own, cfg.beta)  # the one path observed 40 times
+    assert np.abs(forget.mean - seen).max() < 1e-3 < np.abs(plain.mean - seen).max()
+    forget.reset()
+    assert np.array_equal(forget.mean, forget.prior_mean)
+
+
+# -- change detection -------------------------------------------------------------------------
+HAZARD, THRESHOLD = 0.05, 0.5  # the RunConfig defaults
+
+
+def _alarms(xs: list[float]) -> list[int]:
+    """Observation counts at which an alarm rose (the model restarting at each)."""
+    model, out = DurationModel(PRIOR), []
+    for k, x in enumerate(xs):
+        model.observe(x)
+        ch = detect_change(model, hazard=HAZARD, threshold=THRESHOLD)
+        if ch is not None:
+            out.append(k + 1)
+            model.restart(ch.index)
+    return out
+
+
+def test_planted_change_is_detected_within_two_observations_and_stationary_runs_stay_quiet():
+    """Stated rates (the RunConfig defaults): with cv 10 %, no false alarm in 60 stationary
+    sequences of 24 observations (1440 chances), and a fatigue-sized change (durations x1.85,
+    fast -> slow in fetch) detected at its first or second observation in at least 95 % of 60
+    sequences; a x1.5 change within 3 in at least 90 %."""
+    rng = np.random.default_rng(17)
+    false = sum(len(_alarms(list(rng.normal(4.3, 0.43, 24)))) for _ in range(60))
+    assert false == 0
+    for factor, within, share in ((1.85, 2, 0.95), (1.5, 3, 0.90)):
+        hits = 0
+        for _ in range(60):
+            xs = list(rng.normal(4.3, 0.43, 12)) + list(rng.normal(4.3 * factor,
+                                                                   0.43 * factor, 12))
+            first = [a for a in _alarms(xs) if a > 12]
+            hits += bool(first) and first[0] - 12 <= within
+        assert hits >= share * 60, (factor, hits)
+
+
+def test_run_length_posterior_is_a_distribution_that_moves_to_the_new_run():
+    xs = [4.2, 4.4, 4.3, 4.1, 4.5, 8.0, 8.2]
+    post = run_length_posterior(DurationModel(PRIOR), xs, HAZARD)
+    assert post.shape == (8,) and post[0] == 0 and post.sum() == pytest.approx(1)
+    assert int(np.argmax(post)) == 2  # the last two observations are the new person
+    ch = detect_change(DurationModel(PRIOR, xs), hazard=HAZARD, threshold=THRESHOLD)
+    assert ch is not None and ch.index == 5 and ch.direction == "slower"
+
+
+# -- teammates who change ---------------------------------------------------------------------
+def test_changing_teammate_switches_and_drifts(fetch_world):
+    assert parse_changes("slow-outside@12") == [("slow-outside", 12)]
+    for bad in ("slow", "x@0", "a@3,b@3"):
+        with pytest.raises(ValueError):
+            parse_changes(bad)
+    person = changing_teammate(fetch_world, "fast-outside", "slow-outside@3")
+    assert isinstance(person, ChangingTeammate)
+    assert person.at(2).name == "fast-outside" and person.at(3).name == "slow-outside"
+    assert changing_teammate(fetch_world, "fast-middle", None).name == "fast-middle"
+    drifting = changing_teammate(fetch_world, "fast-middle", None, drift=0.1, drift_from=2)
+    base = fetch_world.teammate("fast-middle").true_mean_durations()
+    assert drifting.at(2).true_mean_durations() == base
+    late = drifting.at(4)
+    assert isinstance(late, Paced)
+    assert late.true_mean_durations()["t2"] == pytest.approx(base["t2"] * 1.1**2)
+    d, path = late.perform("t2", np.random.default_rng(0))
+    assert path.shape[0] == int(np.ceil(d / fetch_world.dt - 1e-9)) + 1
+    home = fetch_world.human_rest()[0]
+    assert np.allclose(path[0], home, atol=0.3) and np.allclose(path[-1], home, atol=0.3)
+
+
+def test_bad_change_settings_are_one_line_and_exit_2(tmp_path):
+    with pytest.raises(ConfigError, match="--change"):
+        RunConfig(change="slow-outside")
+    with pytest.raises(ConfigError, match="--forgetting"):
+        RunConfig(forgetting=0.0)
+    proc = subprocess.run(
+        [sys.executable, "-c", "from rapidds.cli import main; main()", "run", "--change",
+         "nobody@3", "--cycles", "1", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "nobody" in proc.stderr and "Traceback" not in proc.stderr
+
+
+# -- the loop ---------------------------------------------------------------------------------
+def _strip(rec: dict) -> dict:
+    return {k: v for k, v in rec.items() if k != "seconds"}
+
+
+CHANGING = dict(human="fast-outside", change="slow-outside@2", cycles=5, forgetting=0.8,
+                detect=True, ask=True, reexplore=1, seed=4, **SMALL)
+
+
+@pytest.mark.slow
+def test_a_resumed_run_with_forgetting_and_detection_equals_an_uninterrupted_one(
+        fetch_policy, tmp_path):
+    cfg = RunConfig(**CHANGING)
+    whole = [_strip(r) for r in AdaptiveRun(cfg, fetch_policy).run()]
+    store = RunStore(tmp_path / "run.sqlite")
+    first = AdaptiveRun(cfg, fetch_policy, store)
+    for _ in range(3):
+        first.step()
+    resumed = AdaptiveRun(cfg, fetch_policy, RunStore(tmp_path / "run.sqlite"))
+    assert resumed.next_cycle == 3
+    resumed.run()
+    stored = [{k: v for k, v in _strip(r).items() if k != "run_id"}
+              for r in store.records(resumed.config.run_id)]
+    assert stored == whole
+    assert any(r["changes"] for r in whole), "the planted change went unnoticed"
+    alarm = next(a for r in whole for a in r["changes"])
+    assert alarm["answer"] is True and alarm["action"] == "reset" and alarm["since_cycle"] >= 2
+    with pytest.raises(StateError, match=r"forgetting=0\.8"):
+        AdaptiveRun(cfg.replace(forgetting=0.9), fetch_policy, RunStore(tmp_path / "run.sqlite"))
