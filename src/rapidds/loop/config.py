@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, field_validator
 
 from rapidds.settings import Settings
-from rapidds.worlds.changes import parse_changes
 
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
@@ -94,6 +93,8 @@ class RunConfig(Settings):
     @classmethod
     def _check_change(cls, v: str | None) -> str | None:
         if v is not None:
+            from rapidds.worlds.changes import parse_changes  # numpy: not at `--help`
+
             parse_changes(v)
         return v
 
@@ -115,6 +116,8 @@ class RunConfig(Settings):
         world = self.world if self.variant in (None, "default") else f"{self.world}-{self.variant}"
         human = str(self.human)
         if self.change:
+            from rapidds.worlds.changes import parse_changes
+
             human += "-to-" + "-to-".join(f"{n}@{c}" for n, c in parse_changes(self.change))
         if self.drift:
             human += f"-drift{self.drift:+g}@{self.drift_from}"
