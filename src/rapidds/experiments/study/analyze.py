@@ -79,6 +79,10 @@ def round_table(store: StudyStore) -> pd.DataFrame:
     return pd.DataFrame.from_records(rows, columns=cols)
 
 
+def _num(x: float | None) -> str:
+    return "(the world's)" if x is None else f"{x:g}"
+
+
 def _fmt_p(p: float) -> str:
     return "< .001" if p < 0.001 else f"{p:.3f}".lstrip("0")
 
@@ -134,8 +138,8 @@ def analyze_study(folder: str | Path) -> Analysis:
           f"(Williams order rows: {len(design.square())}), {design.rounds} rounds each, priming "
           f"groups {', '.join(design.group_name(g) for g in design.groups())} "
           f"({'balanced' if design.balanced else 'NOT balanced'}), seed {design.seed}; world "
-          f"{run.world} ({run.variant}), gamma {run.gamma:g}, lambda {run.lam:g} for the first "
-          "half of the rounds.", "",
+          f"{run.world} ({run.variant}), gamma {_num(run.gamma)}, lambda {_num(run.lam)} for the "
+          "first half of the rounds.", "",
           "Measures: temporal cost = the round's realised makespan (s); spatial cost = the "
           "round's realised spatial cost (sum over robot tasks of the largest S_i over the "
           "person's tasks that overlapped it, against the person's actual paths). Reduction = "
@@ -206,9 +210,10 @@ def analyze_study(folder: str | Path) -> Analysis:
     # -- ranking --------------------------------------------------------------------------
     md += ["## Ranking", ""]
     s["ranking"] = {"n": len(rankings)}
-    if len(rankings) < 2 or not four:
-        why = ("the 2 x 2 of systems is incomplete" if not four else
-               f"{len(rankings)} ranking(s) stored (simulated participants rank nothing)")
+    spatial_split = len({ADAPTATION[x][0] for x in systems}) == 2
+    if len(rankings) < 2 or not spatial_split:
+        why = (f"{len(rankings)} ranking(s) stored (simulated participants rank nothing)"
+               if len(rankings) < 2 else "no systems both with and without spatial adaptation")
         md += [f"Not analysed: {why}.", ""]
         s["ranking"]["skipped"] = why
     else:
@@ -234,9 +239,9 @@ def analyze_study(folder: str | Path) -> Analysis:
     full = [p for p, k in answered.items() if k == len(systems)]
     s["survey"] = {"n": len(full), "items": list(items.ids)}
     if len(full) < 2 or not four:
-        why = ("the 2 x 2 of systems is incomplete" if not four else
-               f"{len(full)} participant(s) answered the survey about every system "
-               "(simulated participants answer nothing)")
+        why = (f"{len(full)} participant(s) answered the survey about every system "
+               "(simulated participants answer nothing)" if len(full) < 2 else
+               f"ART needs the four systems {', '.join(ADAPTATION)} (a 2 x 2)")
         md += [f"Not analysed: {why}.", ""]
         s["survey"]["skipped"] = why
     else:

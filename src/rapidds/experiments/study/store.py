@@ -69,6 +69,7 @@ __all__ = [
     "StudyStore",
     "SurveyItem",
     "SurveyItems",
+    "check_study",
     "create_study",
     "default_items",
     "study_path",
@@ -320,15 +321,7 @@ class StudyStore(RunStore):
         True when written, False when this very design is already there; a different one is
         refused. ``run.variant`` must be resolved (the world's name for it), since run ids
         name it."""
-        unknown = [s for s in design.systems if s not in ADAPTATION]
-        if unknown:
-            raise StudyDesignError(f"system(s) {', '.join(unknown)} unknown; a study compares "
-                                   f"{', '.join(ADAPTATION)}")
-        if run.variant is None:
-            raise ConfigError("the study's run settings need the world's variant resolved "
-                              "(RunConfig.resolved(world))")
-        if design.participants >= SEED_STRIDE:
-            raise StudyDesignError(f"at most {SEED_STRIDE - 1} participants")
+        check_study(design, run)
         items = items or default_items()
         base = run.replace(human=None, adapt="full", cycles=design.rounds, seed=0)
         meta = {"design": design.model_dump_json(), "run": base.model_dump_json(),
@@ -558,6 +551,20 @@ class StudyStore(RunStore):
             "SELECT participant, fields FROM demographics ORDER BY participant")}
 
 
+def check_study(design: StudyDesign, run: RunConfig) -> None:
+    """What a design must satisfy to be stored with these run settings (before any file is
+    made): systems the loop knows, a resolved variant, seeds that do not overlap."""
+    unknown = [s for s in design.systems if s not in ADAPTATION]
+    if unknown:
+        raise StudyDesignError(f"system(s) {', '.join(unknown)} unknown; a study compares "
+                               f"{', '.join(ADAPTATION)}")
+    if run.variant is None:
+        raise ConfigError("the study's run settings need the world's variant resolved "
+                          "(RunConfig.resolved(world))")
+    if design.participants >= SEED_STRIDE:
+        raise StudyDesignError(f"at most {SEED_STRIDE - 1} participants")
+
+
 def study_path(out: str | Path) -> Path:
     """The study store of folder ``out``."""
     return Path(out) / STORE_NAME
@@ -568,6 +575,7 @@ def create_study(out: str | Path, design: StudyDesign, run: RunConfig,
     """Folder ``out`` with this study: ``design.csv`` (the assignment table, for the
     experimenter) and ``study.sqlite``; a folder holding another design is refused before
     anything is written, the same design is opened as it is. Returns the open store."""
+    check_study(design, run)
     out = Path(out)
     csv = out / DESIGN_NAME
     if csv.exists():
