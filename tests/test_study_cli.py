@@ -107,6 +107,13 @@ def test_design_with_own_items_and_foreign_store(tmp_path, capsys):
     _one_line(code, err, "no such study store")
 
 
+def test_cli_default_systems_are_the_studys():
+    from rapidds.cli.study import SYSTEMS_DEFAULT
+    from rapidds.experiments.study.systems import SYSTEMS
+
+    assert ",".join(SYSTEMS) == SYSTEMS_DEFAULT
+
+
 def test_simulated_participants_are_individuals_of_their_group():
     world = make_world("painting")
     a = simulated_participant(world, "P01", {"hand": "left", "speed": "fast"}, 0, 1)
