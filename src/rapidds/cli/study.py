@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -159,7 +160,7 @@ def simulate_cmd(
                       "to finish", highlight=False)
             raise typer.Exit(130) from None
         summary = _summary(store, out)
-    line = {"finished": __import__("time").strftime("%Y-%m-%d %H:%M:%S"),
+    line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"),
             "wall_s": round(outcome.wall_s, 2), "ran": outcome.ran, "skipped": outcome.skipped,
             "total": outcome.total, "workers": outcome.workers, "cluster": where,
             "run_seconds_sum": round(sum(outcome.trial_seconds), 2),
