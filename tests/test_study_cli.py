@@ -107,6 +107,13 @@ def test_design_with_own_items_and_foreign_store(tmp_path, capsys):
     _one_line(code, err, "no such study store")
 
 
+def test_cli_default_systems_are_the_studys():
+    from rapidds.cli.study import SYSTEMS_DEFAULT
+    from rapidds.experiments.study.systems import SYSTEMS
+
+    assert ",".join(SYSTEMS) == SYSTEMS_DEFAULT
+
+
 def test_simulated_participants_are_individuals_of_their_group():
     world = make_world("painting")
     a = simulated_participant(world, "P01", {"hand": "left", "speed": "fast"}, 0, 1)
@@ -206,3 +213,22 @@ def test_analysis_finds_a_planted_effect_and_not_an_absent_one(tmp_path):
     _planted_store(tmp_path / "no", spatial_effect=0.0, seed=1)
     none = analyze_study(tmp_path / "no").summary["objective"]["claims"]
     assert not none["spatial_cost_reduction"]["holds"]
+
+
+def test_a_given_prior_plans_exactly_as_the_computed_one(fetch_world, fetch_policy, small):
+    """The simulated study hands every run one prior computed per worker: the runs must be the
+    ones they would be with their own, and learn into their own copy."""
+    from rapidds.loop.config import RunConfig
+    from rapidds.loop.model import prior_model
+    from rapidds.loop.run import AdaptiveRun
+
+    cfg = RunConfig(world="fetch", human="fast-middle", adapt="full", cycles=2, seed=3,
+                    **small).resolved(fetch_world)
+    prior = prior_model(fetch_world, cfg)
+    before = prior.to_bytes()
+    own = AdaptiveRun(cfg, fetch_policy, world=fetch_world).run()
+    shared = AdaptiveRun(cfg, fetch_policy, world=fetch_world, prior=prior).run()
+    for a, b in zip(own, shared, strict=True):
+        a.pop("seconds"), b.pop("seconds")
+        assert a == b
+    assert prior.to_bytes() == before  # the run learned into a copy

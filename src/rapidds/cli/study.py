@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app
-from rapidds.experiments.study.systems import SYSTEMS
 
 if TYPE_CHECKING:
     from rapidds.experiments.study.design import StudyDesign
@@ -26,14 +26,19 @@ study_app = typer.Typer(name="study", help="User studies: design, serve, simulat
 app.add_typer(study_app, name="study")
 
 
+SYSTEMS_DEFAULT = "full,spatial,temporal,none"
+"""``",".join(rapidds.experiments.study.systems.SYSTEMS)`` (a test checks): spelled out because
+importing that package loads the statistics (pingouin, matplotlib), which ``--help`` must not."""
+
+
 def _split(value: str) -> tuple[str, ...]:
     return tuple(v.strip() for v in value.split(",") if v.strip())
 
 
 _PARTICIPANTS = typer.Option(32, help="Participants (a multiple of order rows x priming groups: "
                              "16 for four systems).")
-_SYSTEMS = typer.Option(",".join(SYSTEMS), help="Systems, comma-separated: "
-                        f"{', '.join(SYSTEMS)}.")
+_SYSTEMS = typer.Option(SYSTEMS_DEFAULT, help="Systems, comma-separated, from "
+                        f"{SYSTEMS_DEFAULT.replace(',', ', ')}.")
 _WORLD = typer.Option("painting", help="Registered world the study runs on.")
 _VARIANT = typer.Option(None, help="World variant (default: the world's first).")
 _ROUNDS = typer.Option(7, help="Rounds (task cycles) with each system.")
@@ -155,7 +160,7 @@ def simulate_cmd(
                       "to finish", highlight=False)
             raise typer.Exit(130) from None
         summary = _summary(store, out)
-    line = {"finished": __import__("time").strftime("%Y-%m-%d %H:%M:%S"),
+    line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"),
             "wall_s": round(outcome.wall_s, 2), "ran": outcome.ran, "skipped": outcome.skipped,
             "total": outcome.total, "workers": outcome.workers, "cluster": where,
             "run_seconds_sum": round(sum(outcome.trial_seconds), 2),
