@@ -191,3 +191,16 @@ def test_a_resumed_run_with_forgetting_and_detection_equals_an_uninterrupted_one
     assert alarm["answer"] is True and alarm["action"] == "reset" and alarm["since_cycle"] >= 4
     with pytest.raises(StateError, match=r"forgetting=0\.8"):
         AdaptiveRun(cfg.replace(forgetting=0.9), fetch_policy, RunStore(tmp_path / "run.sqlite"))
+
+
+def test_a_run_stored_before_these_settings_existed_still_resumes(fetch_policy, fetch_world,
+                                                                   tmp_path):
+    cfg = RunConfig(cycles=2, **SMALL)
+    new = ("change", "drift", "drift_from", "forgetting", "detect", "hazard",
+           "detect_threshold", "ask", "reexplore")
+    old = {k: v for k, v in cfg.resolved(fetch_world).model_dump().items() if k not in new}
+    store = RunStore(tmp_path / "run.sqlite")
+    store.create_run(cfg.resolved(fetch_world).run_id, old)
+    AdaptiveRun(cfg, fetch_policy, store)  # the defaults are what the old run ran with
+    with pytest.raises(StateError, match="forgetting"):
+        AdaptiveRun(cfg.replace(forgetting=0.5), fetch_policy, store)
