@@ -113,7 +113,10 @@ class StudyConfig:
 
 
 def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
-    """A stored run's config without what varies per trial, plus the study seed it came from."""
+    """A stored run's config without what varies per trial, plus the study seed it came from;
+    a setting added after the run was stored counts as its default (what the run ran with)."""
+    run_config = {**{k: f.default for k, f in RunConfig.model_fields.items()
+                     if k not in run_config}, **run_config}
     out = {k: v for k, v in run_config.items() if k not in _PER_TRIAL}
     out["study_seed"] = int(run_config["seed"]) // TRIAL_STRIDE
     return out

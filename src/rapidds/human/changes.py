@@ -18,7 +18,7 @@ needs no state of its own: a resumed run gets the same answer).
 
 No maintained package on PyPI does this for a conjugate NIG model with our forgetting (ruptures
 is offline segmentation; the BOCPD packages found are unmaintained single-file ports), and the
-recursion is a dozen lines over :func:`scipy.stats.t.logpdf`, so it lives here.
+recursion is a dozen lines of NumPy/SciPy, so it lives here.
 """
 
 from __future__ import annotations
@@ -28,48 +28,56 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
-from scipy.stats import t as student_t
+from scipy.special import gammaln, logsumexp
 
-from rapidds.human.temporal import DurationModel, NIGPrior
+from rapidds.human.temporal import DurationModel
 
 __all__ = ["Change", "detect_change", "run_length_posterior"]
 
 
-def _logpred(beliefs: Sequence[NIGPrior], x: float) -> np.ndarray:
+def _logpred(mu: np.ndarray, nu: np.ndarray, alpha: np.ndarray, beta: np.ndarray,
+             x: float) -> np.ndarray:
     """log density of ``x`` under each belief's Student-t posterior predictive."""
-    mu = np.array([b.mu for b in beliefs])
-    nu = np.array([b.nu for b in beliefs])
-    alpha = np.array([b.alpha for b in beliefs])
-    beta = np.array([b.beta for b in beliefs])
     out = np.where(x == mu, 0.0, -np.inf)  # a deterministic belief: only its own value
     live = beta > 0
     if live.any():
-        scale = np.sqrt(beta[live] * (nu[live] + 1) / (alpha[live] * nu[live]))
-        out[live] = student_t.logpdf(x, df=2 * alpha[live], loc=mu[live], scale=scale)
+        # scipy.stats.t.logpdf written out: the same numbers without its per-call overhead
+        a, n = alpha[live], nu[live]
+        scale = np.sqrt(beta[live] * (n + 1) / (a * n))
+        df = 2 * a
+        z = (x - mu[live]) / scale
+        out[live] = (gammaln(a + 0.5) - gammaln(a) - 0.5 * np.log(df * np.pi) - np.log(scale)
+                     - (a + 0.5) * np.log1p(z * z / df))
     return out
 
 
 def run_length_posterior(model: DurationModel, xs: Sequence[float], hazard: float) -> np.ndarray:
     """P(r = k | xs) for k = 0..n (index k), n = len(xs); entry 0 is 0 once n >= 1.
 
-    ``model`` supplies the prior and the forgetting of each run's belief.
+    ``model`` supplies the prior and the forgetting of each run's belief (the updates of
+    :meth:`NIGPrior.discounted` and :meth:`NIGPrior.update`, on arrays: one per run length).
     """
     if not 0 < hazard < 1:
         raise ValueError(f"hazard must be in (0, 1), got {hazard}")
+    p, f = model.prior, model.forgetting
     logp = np.array([0.0])          # log P(r = k), k = 0..len
-    beliefs = [model.prior]         # belief of run length k
+    mu, nu = np.array([p.mu]), np.array([p.nu])        # belief of run length k
+    alpha, beta = np.array([p.alpha]), np.array([p.beta])
     lh, l1h = math.log(hazard), math.log1p(-hazard)
     for x in xs:
-        pred = _logpred(beliefs, x)
-        grow = logp + l1h + pred
+        pred = _logpred(mu, nu, alpha, beta, float(x))
         new = np.full(len(logp) + 1, -np.inf)
-        new[1:] = grow
+        new[1:] = logp + l1h + pred
         # a change at x: x is the first observation of the new person, scored by the prior
-        new[1] = np.logaddexp(new[1], lh + pred[0])  # beliefs[0] is the prior
+        new[1] = np.logaddexp(new[1], lh + pred[0])  # belief 0 is the prior
         norm = logsumexp(new)
         logp = new - norm if math.isfinite(norm) else np.log(np.full(len(new), 1 / len(new)))
-        beliefs = [model.prior] + [model._step(b, x) for b in beliefs]
+        nu_f, alpha_f, beta_f = f * nu, f * alpha, f * beta
+        nu1 = nu_f + 1
+        beta = np.concatenate([[p.beta], beta_f + nu_f * (x - mu) ** 2 / (2 * nu1)])
+        mu = np.concatenate([[p.mu], (nu_f * mu + x) / nu1])
+        nu = np.concatenate([[p.nu], nu1])
+        alpha = np.concatenate([[p.alpha], alpha_f + 0.5])
     return np.exp(logp)
 
 

@@ -196,7 +196,11 @@ class AdaptiveRun:
 
     def _attach(self, store: RunStore) -> None:
         rid = self.config.run_id
-        stored = store.run_config(rid)
+        raw = store.run_config(rid)
+        # a setting added since the run was stored ran with its default (which is the old
+        # behaviour: every new setting's default is)
+        stored = None if raw is None else {
+            **{k: f.default for k, f in RunConfig.model_fields.items() if k not in raw}, **raw}
         if stored is not None and stored != self.config.model_dump():
             mine = self.config.model_dump()
             diff = ", ".join(f"{k}={stored.get(k)!r} (asked {mine.get(k)!r})"
@@ -204,7 +208,7 @@ class AdaptiveRun:
                              if stored.get(k) != mine.get(k))
             raise StateError(f"run '{rid}' in {store.path} was stored with other settings: "
                              f"{diff}; use the same settings or another --out")
-        store.create_run(rid, self.config.model_dump())
+        store.create_run(rid, raw if raw is not None else self.config.model_dump())
         last = store.last_cycle(rid)
         if last is not None:
             state = store.state(rid, last)
