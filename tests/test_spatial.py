@@ -238,8 +238,15 @@ def test_surrogate_warm_start_is_cheaper_and_deterministic(pop):
         warm = model.fit_surrogate()
         runs.append((cold, warm, model))
     (cold, warm, a), (_, _, b) = runs
+    # the same posterior fitted from scratch: what the warm start saves (comparing with the
+    # first cold fit, of another target, depended on the CPU: 250 steps for both on a Xeon)
+    fresh = SpatialCostModel.from_population(cfg, pop)
+    fresh.observe(path1)
+    fresh.observe(path2)
+    cold_same = fresh.fit_surrogate()
     assert cold.max_abs_error <= cfg.tol and warm.max_abs_error <= cfg.tol
-    assert warm.steps < cold.steps
+    assert cold_same.max_abs_error <= cfg.tol
+    assert warm.steps < cold_same.steps
     assert a.fit_surrogate().steps == 0  # nothing new: the warm fit is still within tol
     probe = np.random.default_rng(0).random((64, 4, 2)) * 10
     np.testing.assert_array_equal(a.trajectory_cost(probe), b.trajectory_cost(probe))
