@@ -106,6 +106,17 @@ def test_gamma_85_robot_keeps_still_during_secure_piece_before_learning(world, s
     assert first.during_realised == () or first.plan.during == {}
 
 
+@pytest.mark.slow
+def test_brush_goes_to_the_faster_person_once_exploration_ends(world) -> None:
+    """Temporal adaptation in a whole 7-cycle run (every seed of the sweep shows it): a person
+    who brushes faster than the robot gets Brush in every cycle after exploration."""
+    setting = SETTINGS[0]
+    recs = run_setting(setting, "left-fast", 0, cycles=7)
+    brush = setting_behaviours(world, setting, "left-fast", recs)[-1]
+    assert brush.name == "Brush with the faster agent (human)" and brush.cycles == (4, 5, 6)
+    assert brush.holds, table_markdown(table_rows(world, "left-fast", {setting: recs}))
+
+
 def test_cell_state_follows_the_stored_cycle(world) -> None:
     q_mix = world.robot_trajectory("mix_l")
     body = np.repeat(world.human_rest()[None], 5, axis=0)
