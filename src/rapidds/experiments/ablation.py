@@ -213,9 +213,6 @@ def run_study(
     A failed trial stops the study (the others in flight are cancelled; everything stored so
     far stays): a user error raised on a worker (e.g. no bundled policy) is re-raised as is.
     """
-    from distributed import as_completed
-    from distributed.scheduler import KilledWorker
-
     check_settings(study, store)
     done = finished_run_ids(store, study.cycles)
     todo = [cfg for cfg in study.trials_in_order() if cfg.run_id not in done]
@@ -230,28 +227,42 @@ def run_study(
     futures = {client.submit(run_trial, cfg.model_dump(), key=_task_key(cfg), pure=False,
                              retries=0, priority=len(todo) - k): cfg
                for k, cfg in enumerate(todo)}
+    store_results(client, futures, store, outcome, on_trial, t0)
+    return outcome
+
+
+def store_results(client: Client, futures: dict[Any, Any], store: RunStore,
+                  outcome: StudyOutcome, on_trial: TrialCallback | None, t0: float,
+                  noun: str = "trial") -> None:
+    """Store each submitted run as its Dask future finishes (``futures``: future -> anything with
+    a ``run_id``), counting into ``outcome``. A failed run stops everything: the runs still in
+    flight are cancelled, what is stored stays, and a user error raised on a worker is re-raised
+    as is. Shared by the ablation study and the simulated user study."""
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
     stored = outcome.skipped
     try:
         for fut in as_completed(list(futures)):
-            cfg = futures.pop(fut)
+            run_id = futures.pop(fut).run_id
             if fut.status == "error":
                 exc = fut.exception()
                 if isinstance(exc, RapiddsError):
                     raise exc
                 if isinstance(exc, KilledWorker):
-                    raise RapiddsError(f"trial {cfg.run_id} killed its worker repeatedly "
-                                       f"(out of memory?); {stored} trials are stored, "
+                    raise RapiddsError(f"{noun} {run_id} killed its worker repeatedly "
+                                       f"(out of memory?); {stored} {noun}s are stored, "
                                        "rerun to continue") from exc
-                raise RuntimeError(f"trial {cfg.run_id} failed: {type(exc).__name__}: {exc}; "
-                                   f"{stored} trials are stored") from exc
+                raise RuntimeError(f"{noun} {run_id} failed: {type(exc).__name__}: {exc}; "
+                                   f"{stored} {noun}s are stored") from exc
             if fut.status == "cancelled":
-                raise RapiddsError(f"trial {cfg.run_id} was cancelled by the Dask scheduler; "
-                                   f"{stored} trials are stored, rerun to continue")
+                raise RapiddsError(f"{noun} {run_id} was cancelled by the Dask scheduler; "
+                                   f"{stored} {noun}s are stored, rerun to continue")
             result = fut.result()
             fut.release()
-            if result["run_id"] != cfg.run_id:  # pragma: no cover - a key collision
-                raise StateError(f"task for {cfg.run_id} returned {result['run_id']}")
-            if store.record_trial(cfg.run_id, result["config"], result["records"]):
+            if result["run_id"] != run_id:  # pragma: no cover - a key collision
+                raise StateError(f"task for {run_id} returned {result['run_id']}")
+            if store.record_trial(run_id, result["config"], result["records"]):
                 outcome.ran += 1
                 stored += 1
                 outcome.trial_seconds.append(float(result["seconds"]))
@@ -261,7 +272,6 @@ def run_study(
         if futures:
             client.cancel(list(futures))
         outcome.wall_s = time.perf_counter() - t0
-    return outcome
 
 
 LOCAL_WORKER_ENV = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}

@@ -25,8 +25,13 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from rapidds.errors import RapiddsError, StateError
-from rapidds.experiments.ablation import StudyOutcome, _worker_policy
+from rapidds.errors import RapiddsError
+from rapidds.experiments.ablation import (
+    StudyOutcome,
+    TrialCallback,
+    _worker_policy,
+    store_results,
+)
 from rapidds.experiments.study.store import StudyStore
 from rapidds.loop.config import RunConfig
 
@@ -152,17 +157,10 @@ def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
 
 
 # -- client side ---------------------------------------------------------------------------------
-TrialCallback = Callable[[dict[str, Any], int, int], None]
-"""on_trial(result, stored_so_far, total), called after each trial is stored."""
-
-
 def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | None = None,
                    on_start: Callable[[int, int], None] | None = None) -> StudyOutcome:
     """Submit every participant x system not yet stored, store each as it finishes. A failed
     trial stops the study (the others are cancelled; what is stored stays)."""
-    from distributed import as_completed
-    from distributed.scheduler import KilledWorker
-
     todo, total = trials_to_run(store)
     outcome = StudyOutcome(total=total, skipped=total - len(todo))
     outcome.workers = len(client.scheduler_info().get("workers", {}))
@@ -171,35 +169,5 @@ def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | 
     t0 = time.perf_counter()
     futures = {client.submit(run_trial, asdict(t), key=t.key, pure=False, retries=0,
                              priority=len(todo) - k): t for k, t in enumerate(todo)}
-    stored = outcome.skipped
-    try:
-        for fut in as_completed(list(futures)):
-            t = futures.pop(fut)
-            if fut.status == "error":
-                exc = fut.exception()
-                if isinstance(exc, RapiddsError):
-                    raise exc
-                if isinstance(exc, KilledWorker):
-                    raise RapiddsError(f"run {t.run_id} killed its worker repeatedly (out of "
-                                       f"memory?); {stored} runs are stored, rerun to continue"
-                                       ) from exc
-                raise RuntimeError(f"run {t.run_id} failed: {type(exc).__name__}: {exc}; "
-                                   f"{stored} runs are stored") from exc
-            if fut.status == "cancelled":
-                raise RapiddsError(f"run {t.run_id} was cancelled by the Dask scheduler; "
-                                   f"{stored} runs are stored, rerun to continue")
-            result = fut.result()
-            fut.release()
-            if result["run_id"] != t.run_id:  # pragma: no cover - a key collision
-                raise StateError(f"task for {t.run_id} returned {result['run_id']}")
-            if store.record_trial(t.run_id, result["config"], result["records"]):
-                outcome.ran += 1
-                stored += 1
-                outcome.trial_seconds.append(float(result["seconds"]))
-                if on_trial is not None:
-                    on_trial(result, stored, total)
-    finally:
-        if futures:
-            client.cancel(list(futures))
-        outcome.wall_s = time.perf_counter() - t0
+    store_results(client, futures, store, outcome, on_trial, t0, noun="run")
     return outcome
