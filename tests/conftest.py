@@ -1,7 +1,11 @@
-"""Shared fixtures: the fetch world and its bundled policy, small search settings, and the
-tiny test world (``tests/tinyworld.py``) registered by name."""
+"""Shared fixtures: the fetch world and its bundled policy, small search settings, a headless
+Chromium for the browser tests, and the tiny test world (``tests/tinyworld.py``) registered by
+name."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
 import torch
@@ -33,3 +37,16 @@ def fetch_policy(fetch_world: FetchWorld) -> DiffusionPolicy:
 @pytest.fixture()
 def small() -> dict[str, int]:
     return dict(SMALL_SEARCH)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """A headless Chromium of the system's packages, through Playwright's executable_path (the
+    browser tests skip themselves, with the install command, where there is none)."""
+    from browser_helpers import ARGS, CHROMIUM
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield b
+        b.close()

@@ -11,104 +11,33 @@ stops it cleanly.
 from __future__ import annotations
 
 import math
-import os
-import queue
-import shutil
 import signal
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
 from play_bot import RouteBot, keys_for
 
 from rapidds.store import RunStore
 from rapidds.worlds.fetch.world import FetchWorld
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _chromium() -> str | None:
-    for cand in (os.environ.get("RAPIDDS_CHROMIUM"), shutil.which("chromium"),
-                 shutil.which("chromium-browser"), "/usr/bin/chromium"):
-        if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
-            return cand
-    return None
-
-
-CHROMIUM = _chromium()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(CHROMIUM is None, reason="no Chromium found: install Debian's with "
-                       "'apt-get install chromium' (or set RAPIDDS_CHROMIUM); never "
-                       "'playwright install'"),
-]
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+pytestmark = NEEDS_CHROMIUM
 SEARCH = ["--population", "8", "--generations", "4", "--samples", "8", "--particles", "2",
           "--candidates", "4"]
-SHOTS = os.environ.get("RAPIDDS_SCREENSHOTS") == "1"
 RUN_ID = "fetch-player-full-s1"
 
 
-class Server:
+class Server(CliServer):
     """``rapidds play`` in a subprocess on a free port; ``url`` once it listens."""
 
     def __init__(self, out: Path, *extra: str):
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "src"),
-                                                          env.get("PYTHONPATH")]))
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", "from rapidds.cli import main; main()", "play", "fetch",
-             "--port", "0", "--out", str(out), "--cycles", "3", "--seed", "1", *SEARCH, *extra],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.err: list[str] = []
-        threading.Thread(target=self._pump, args=(self.proc.stdout, self.lines.put),
-                         daemon=True).start()
-        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err.append),
-                         daemon=True).start()
-        self.out_lines: list[str] = []
-        self.url = ""
-        end = time.monotonic() + 120
-        while not self.url:
-            try:
-                line = self.lines.get(timeout=max(0.1, end - time.monotonic()))
-            except queue.Empty:
-                self.proc.kill()
-                raise AssertionError("rapidds play printed no address: "
-                                     + "".join(self.err)[-2000:]) from None
-            self.out_lines.append(line)
-            if "open http://" in line:
-                self.url = line.split("open ", 1)[1].split()[0]
-
-    @staticmethod
-    def _pump(stream: Any, put: Any) -> None:
-        for line in stream:
-            put(line)
-
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 60) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        rc = self.proc.wait(timeout)
-        while not self.lines.empty():
-            self.out_lines.append(self.lines.get())
-        return rc
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
-        yield b
-        b.close()
+        super().__init__("play", "fetch", "--port", "0", "--out", str(out), "--cycles", "3",
+                         "--seed", "1", *SEARCH, *extra)
+        line = self.wait_for(lambda line: "open http://" in line)
+        self.url = line.split("open ", 1)[1].split()[0]
 
 
 def _page(browser: Any, url: str) -> Any:

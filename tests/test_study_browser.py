@@ -12,47 +12,21 @@ docs/study-survey.png and docs/study-ranking.png.
 from __future__ import annotations
 
 import json
-import os
-import queue
-import shutil
 import signal
 import socket
-import subprocess
-import sys
-import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
 from study_helpers import make_study
 
 from rapidds.experiments.study.store import StudyStore, study_path
 from rapidds.web.study.tracker import tracker_csv
 from rapidds.worlds.fetch.world import FetchWorld
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _chromium() -> str | None:
-    for cand in (os.environ.get("RAPIDDS_CHROMIUM"), shutil.which("chromium"),
-                 shutil.which("chromium-browser"), "/usr/bin/chromium"):
-        if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
-            return cand
-    return None
-
-
-CHROMIUM = _chromium()
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(CHROMIUM is None, reason="no Chromium found: install Debian's with "
-                       "'apt-get install chromium' (or set RAPIDDS_CHROMIUM); never "
-                       "'playwright install'"),
-]
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
-SHOTS = os.environ.get("RAPIDDS_SCREENSHOTS") == "1"
+pytestmark = NEEDS_CHROMIUM
 WAIT = 120_000  # ms: a page that plans (seconds on a loaded 2-core machine)
 
 
@@ -62,50 +36,13 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-class Server:
+class Server(CliServer):
     """``rapidds study serve DIR --json`` in a subprocess; ``url`` once it listens."""
 
     def __init__(self, folder: Path, port: int):
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "src"),
-                                                          env.get("PYTHONPATH")]))
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", "from rapidds.cli import main; main()", "study", "serve",
-             str(folder), "--port", str(port), "--json"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.err: list[str] = []
-        threading.Thread(target=self._pump, args=(self.proc.stdout, self.lines.put),
-                         daemon=True).start()
-        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err.append),
-                         daemon=True).start()
-        try:
-            self.hello = json.loads(self.lines.get(timeout=120))
-        except queue.Empty:
-            self.proc.kill()
-            raise AssertionError("rapidds study serve printed no address: "
-                                 + "".join(self.err)[-2000:]) from None
+        super().__init__("study", "serve", str(folder), "--port", str(port), "--json")
+        self.hello = json.loads(self.wait_for(lambda line: True))
         self.url = self.hello["url"]
-
-    @staticmethod
-    def _pump(stream: Any, put: Any) -> None:
-        for line in stream:
-            put(line)
-
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 60) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        return self.proc.wait(timeout)
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
-        yield b
-        b.close()
 
 
 def _submit(page: Any) -> None:
@@ -231,7 +168,7 @@ def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
         assert errors == []
         page.close()
         assert server.stop(signal.SIGINT) == 0
-        bye = json.loads(server.lines.get(timeout=30))
+        bye = json.loads(server.out_lines[-1])
         assert bye["stopped"] and bye["next"] == {}
     finally:
         if server.proc.poll() is None:
