@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 import torch
+from cli_helpers import run_main as _main
 
 from rapidds.errors import CheckpointError
 from rapidds.motion.config import DiffusionConfig
@@ -21,23 +22,6 @@ from rapidds.motion.policy import DiffusionPolicy
 from rapidds.motion.steering import steer
 
 RAPIDDS = [sys.executable, "-c", "from rapidds.cli import main; main()"]
-
-
-def _main(capsys, *args: str) -> tuple[int, str, str]:
-    """Run ``rapidds ARGS`` in this process: (exit code, stdout, stderr)."""
-    from rapidds.cli import main
-
-    old = sys.argv
-    sys.argv = ["rapidds", *args]
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    finally:
-        sys.argv = old
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _one_line_error(code: int, err: str, *needles: str) -> None:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main as _main
 
 from rapidds.experiments.study.analyze import analyze_study, round_table
 from rapidds.experiments.study.design import StudyDesign
@@ -21,22 +21,6 @@ from rapidds.worlds.registry import make_world
 
 TINY = ["--population", "6", "--generations", "2", "--samples", "8", "--particles", "1",
         "--candidates", "2"]
-
-
-def _main(capsys, *args: str) -> tuple[int, str, str]:
-    from rapidds.cli import main
-
-    old = sys.argv
-    sys.argv = ["rapidds", *args]
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    finally:
-        sys.argv = old
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _one_line(code: int, err: str, needle: str) -> None:
