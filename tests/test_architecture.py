@@ -5,6 +5,7 @@ CLI. Imports inside functions count too: they are arrows all the same, only late
 from __future__ import annotations
 
 import ast
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -123,23 +124,25 @@ def test_no_import_cycles() -> None:
             pytest.fail("import cycle: " + " -> ".join(cycle))
 
 
+def _loaded_by(argv: list[str], modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh process has imported after ``rapidds ARGV``."""
+    code = ("import json, sys\nfrom rapidds.cli import main\ntry:\n    main()\n"
+            "except SystemExit:\n    pass\nprint('LOADED', json.dumps(sorted(m for m in "
+            f"{modules!r} if m in sys.modules)), file=sys.stderr)")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                         timeout=120)
+    line = [x for x in out.stderr.splitlines() if x.startswith("LOADED ")]
+    assert line, out.stderr[-2000:]
+    return json.loads(line[-1][len("LOADED "):])
+
+
 @pytest.mark.parametrize("argv", [["--help"], ["plan", "fetch", "--seed", "0", "--json"],
                                   ["run", "--help"], ["worlds"], ["case-study", "--help"]])
 def test_light_commands_import_no_heavy_library(argv: list[str]) -> None:
-    code = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n"
-            "    pass\nprint('HEAVY', sorted(m for m in ('torch', 'diffusers', 'distributed', "
-            "'matplotlib', 'mujoco') if m in sys.modules), file=sys.stderr)")
-    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
-                         timeout=120)
-    assert "HEAVY []" in out.stderr, out.stderr[-2000:]
+    assert _loaded_by(argv, ("torch", "diffusers", "distributed", "matplotlib", "mujoco")) == []
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["ablation", "--help"]])
 def test_help_imports_no_numpy(argv: list[str]) -> None:
     """Help is read far more often than anything is run: it lists options without numpy."""
-    code = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\nexcept SystemExit:\n"
-            "    pass\nprint('LOADED', sorted(m for m in ('numpy', 'pandas') if m in sys.modules),"
-            " file=sys.stderr)")
-    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
-                         timeout=120)
-    assert "LOADED []" in out.stderr, out.stderr[-2000:]
+    assert _loaded_by(argv, ("numpy", "pandas")) == []
