@@ -14,8 +14,8 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: list[tuple[str, ...]] = [
-    ("rapidds", "rapidds.errors", "rapidds.fileio", "rapidds.settings", "rapidds.problem",
-     "rapidds.schedule", "rapidds.bundled", "rapidds.store"),
+    ("rapidds", "rapidds.errors", "rapidds.fileio", "rapidds.lazy", "rapidds.settings",
+     "rapidds.problem", "rapidds.schedule", "rapidds.bundled", "rapidds.store"),
     ("rapidds.human",),
     ("rapidds.scheduler", "rapidds.motion"),  # scheduler <-> motion: one layer
     ("rapidds.plots", "rapidds.render"),

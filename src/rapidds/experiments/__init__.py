@@ -8,8 +8,9 @@ Names are imported on first use, so the CLI's ``--help`` does not pay for numpy 
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
     from rapidds.experiments.ablation import (
@@ -35,7 +36,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'rapidds.experiments' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"rapidds.experiments.{_WHERE[name]}"), name)
+__getattr__ = submodule_attributes(__name__, _WHERE)

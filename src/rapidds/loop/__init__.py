@@ -6,8 +6,9 @@ Submodules are imported on first use, so ``from rapidds.loop import RunConfig`` 
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
     from rapidds.loop.config import ADAPT_LEVELS, RunConfig
@@ -28,7 +29,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'rapidds.loop' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"rapidds.loop.{_WHERE[name]}"), name)
+__getattr__ = submodule_attributes(__name__, _WHERE)

@@ -13,9 +13,9 @@ neither, and the genetic search never pays for importing OR-Tools.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from rapidds.lazy import submodule_attributes
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory, diversity, diversity_term
 
@@ -42,7 +42,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _LAZY:
-        raise AttributeError(f"module 'rapidds.scheduler' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"rapidds.scheduler.{_LAZY[name]}"), name)
+__getattr__ = submodule_attributes(__name__, _LAZY)
