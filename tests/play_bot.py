@@ -3,11 +3,14 @@ gives it, it walks the world's human route (home -> via points -> object -> back
 keys towards the next waypoint, and waits at home while its next task is locked.
 
 It reads only what the page gets (the live state message) and answers with held directions,
-so the same bot drives the game in-process (``player.steer``) and in a browser (key presses).
+so the same bot drives the game in-process (``player.steer``) and in a browser (key presses):
+:func:`play_cycle` plays one cycle of a browser page with it.
 """
 
 from __future__ import annotations
 
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -70,3 +73,38 @@ def keys_for(move: tuple[int, int]) -> set[str]:
     if dy:
         out.add(KEYS[0, dy])
     return out
+
+
+def play_cycle(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = None,
+               midcycle_shot: Path | None = None) -> tuple[dict, dict]:
+    """In a browser ``page`` of the game: start ``cycle`` and walk it with the arrow keys until
+    it is over (or until game time ``stop_at``); the plan the page showed and its last state of
+    the cycle."""
+    page.wait_for_function(
+        f"window.rapidds.phase === 'ready' && window.rapidds.plan.cycle === {cycle}",
+        timeout=90_000)
+    plan = page.evaluate("window.rapidds.plan")
+    page.keyboard.press("Enter")
+    held: set[str] = set()
+    last: dict[str, Any] = {}
+    end = time.monotonic() + 90
+    while time.monotonic() < end:
+        st = page.evaluate("window.rapidds.state")
+        if st["cycle"] == cycle:
+            last = st
+            if st["over"] or (stop_at is not None and st["t"] >= stop_at):
+                break
+            if midcycle_shot is not None and st["t"] >= 3.0:
+                page.screenshot(path=str(midcycle_shot))
+                midcycle_shot = None
+        want = keys_for(bot.move(st)) if st["cycle"] == cycle else set()
+        for k in held - want:
+            page.keyboard.up(k)
+        for k in want - held:
+            page.keyboard.down(k)
+        held = want
+        time.sleep(0.015)
+    for k in held:
+        page.keyboard.up(k)
+    assert last.get("over") or stop_at is not None, f"cycle {cycle} did not finish: {last}"
+    return plan, last

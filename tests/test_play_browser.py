@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
-from play_bot import RouteBot, keys_for
+from play_bot import RouteBot, play_cycle
 
 from rapidds.store import RunStore
 from rapidds.worlds.fetch.world import FetchWorld
@@ -50,40 +50,6 @@ def _page(browser: Any, url: str) -> Any:
     return page
 
 
-def _play(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = None,
-          midcycle_shot: Path | None = None) -> tuple[dict, dict]:
-    """Start ``cycle`` and walk it with the arrow keys until it is over (or until game time
-    ``stop_at``); the plan the page showed and its last state of the cycle."""
-    page.wait_for_function(
-        f"window.rapidds.phase === 'ready' && window.rapidds.plan.cycle === {cycle}",
-        timeout=90_000)
-    plan = page.evaluate("window.rapidds.plan")
-    page.keyboard.press("Enter")
-    held: set[str] = set()
-    last: dict[str, Any] = {}
-    end = time.monotonic() + 90
-    while time.monotonic() < end:
-        st = page.evaluate("window.rapidds.state")
-        if st["cycle"] == cycle:
-            last = st
-            if st["over"] or (stop_at is not None and st["t"] >= stop_at):
-                break
-            if midcycle_shot is not None and st["t"] >= 3.0:
-                page.screenshot(path=str(midcycle_shot))
-                midcycle_shot = None
-        want = keys_for(bot.move(st)) if st["cycle"] == cycle else set()
-        for k in held - want:
-            page.keyboard.up(k)
-        for k in want - held:
-            page.keyboard.down(k)
-        held = want
-        time.sleep(0.015)
-    for k in held:
-        page.keyboard.up(k)
-    assert last.get("over") or stop_at is not None, f"cycle {cycle} did not finish: {last}"
-    return plan, last
-
-
 def _human(seq: list[str]) -> list[str]:
     return [t for t in seq if not t.startswith("wait:")]
 
@@ -95,14 +61,14 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
     server = Server(out)
     try:
         page = _page(browser, server.url)
-        plan0, end0 = _play(page, bot, 0)
+        plan0, end0 = play_cycle(page, bot, 0)
         # a second browser for the same run is turned away, politely
         other = _page(browser, server.url)
         other.wait_for_function("window.rapidds.refused !== null", timeout=20_000)
         assert "played elsewhere" in other.inner_text("#instruction")
         other.close()
-        plan1, end1 = _play(page, bot, 1, midcycle_shot=(ROOT / "docs" / "play-midcycle.png"
-                                                         if SHOTS else None))
+        plan1, end1 = play_cycle(page, bot, 1, midcycle_shot=(
+            ROOT / "docs" / "play-midcycle.png" if SHOTS else None))
         page.wait_for_function("window.rapidds.summary && window.rapidds.summary.cycle === 1",
                                timeout=30_000)
         summary = page.evaluate("window.rapidds.summary")
@@ -115,7 +81,7 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
             page.screenshot(path=str(ROOT / "docs" / "play-summary.png"))
             page.uncheck("#heat")
         # the third cycle is under way when the server is killed: it is lost, nothing else
-        _play(page, bot, 2, stop_at=1.5)
+        play_cycle(page, bot, 2, stop_at=1.5)
         server.proc.kill()
         server.proc.wait(30)
         assert page.errors == []
@@ -156,7 +122,7 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
     try:
         assert "cycle 3 of 3" in server.out_lines[-1]
         page = _page(browser, server.url)
-        plan2, _ = _play(page, bot, 2)
+        plan2, _ = play_cycle(page, bot, 2)
         learned1 = recs[1]["belief"]["mean_durations"]
         for t in _human(plan2["sequences"]["human"]):
             s, f = plan2["expected"][t]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import html
 import json
 import logging
 import socket
@@ -41,7 +42,8 @@ from rapidds.errors import RapiddsError
 from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import Gate, Move, Refused, Start, Target
 
-__all__ = ["LOOPBACK", "GameSession", "Hub", "allowed_hosts", "create_app", "listen", "serve"]
+__all__ = ["LOOPBACK", "GameSession", "Hub", "allowed_hosts", "create_app", "game_page", "listen",
+           "refuse_socket", "serve"]
 
 log = logging.getLogger("rapidds.web")
 
@@ -216,8 +218,7 @@ class Hub:
         await ws.accept()
         if self.conn is not None:
             log.warning("refused a second browser: one player per run")
-            await ws.send_text(_dumps({"type": "refused", "reason": _BUSY}))
-            await ws.close(code=4009)
+            await refuse_socket(ws, _BUSY)
             return
         conn = _Connection(ws)
         self.conn = conn
@@ -244,8 +245,23 @@ class Hub:
                     await ws.close()
 
 
+async def refuse_socket(ws: WebSocket, reason: str) -> None:
+    """Accept ``ws`` only to tell the page why it cannot play (shown, never retried), and close
+    it."""
+    if ws.application_state == WebSocketState.CONNECTING:
+        await ws.accept()
+    await ws.send_text(_dumps({"type": "refused", "reason": reason}))
+    await ws.close(code=4009)
+
+
 def _static(name: str) -> str:
     return (files("rapidds.web") / "static" / name).read_text(encoding="utf-8")
+
+
+def game_page(ws_path: str = "/ws") -> str:
+    """The game's page, its WebSocket at ``ws_path`` (a study serves one per participant)."""
+    return _static("index.html").replace(
+        "<body>", f'<body data-ws="{html.escape(ws_path, quote=True)}">', 1)
 
 
 def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI:
@@ -272,7 +288,7 @@ def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI
 
     @app.get("/", response_class=HTMLResponse)
     def index() -> Response:
-        return HTMLResponse(_static("index.html"), headers=headers)
+        return HTMLResponse(game_page(), headers=headers)
 
     app.mount("/static", StaticFiles(packages=[("rapidds.web", "static")]), name="static")
 

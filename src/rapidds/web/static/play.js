@@ -1,5 +1,7 @@
 // The fetch game's page: draws what the server simulates and sends the player's inputs.
 // No simulation happens here. window.rapidds holds the latest messages (for tests and debugging).
+// A study round (rapidds study serve) serves this page with <body data-ws="/p/ID/ws"> and
+// welcome.next, the study page to go on to once the round is recorded (phase "done").
 "use strict";
 
 const R = (window.rapidds = {
@@ -20,7 +22,7 @@ let ws = null, seq = 0, retry = 0, heatImage = null, heatFor = -1;
 // ---------------------------------------------------------------------------- connection
 function connect() {
   const proto = location.protocol === "https:" ? "wss:" : "ws:";
-  ws = new WebSocket(`${proto}//${location.host}/ws`);
+  ws = new WebSocket(`${proto}//${location.host}${document.body.dataset.ws || "/ws"}`);
   ws.onopen = () => { R.connected = true; retry = 0; seq = 0; setConn("on"); };
   ws.onmessage = (ev) => receive(JSON.parse(ev.data));
   ws.onclose = () => {
@@ -43,7 +45,10 @@ function receive(m) {
     case "welcome": R.info = m; R.refused = null; $("run").textContent = `${m.run_id} · ${m.adapt} adaptation`; break;
     case "plan": R.plan = m; break;
     case "summary": R.summary = m; heatFor = -1; showSummary(); break;
-    case "phase": R.phase = m.phase; R.error = m.error; break;
+    case "phase":
+      R.phase = m.phase; R.error = m.error;
+      if (m.phase === "done" && R.info && R.info.next) setTimeout(() => location.assign(R.info.next), 600);
+      break;
     case "refused": R.refused = m.reason; R.phase = "refused"; break;
     case "refused-message": R.lastRefusal = m.reason; console.warn("server refused:", m.reason); break;
   }
@@ -319,6 +324,14 @@ function drawGantt() {
 // ---------------------------------------------------------------------------- side panel
 function instructions() {
   const st = R.state, plan = R.plan, n = R.info ? R.info.cycles : "?";
+  if (document.body.dataset.ws) {  // a study round
+    switch (R.phase) {
+      case "over": return ["Round done", "Recording it…"];
+      case "done": return ["Round recorded", "On to the study's next step…"];
+      case "error": return ["This round was not recorded", R.error || ""];
+      case "refused": return ["This round cannot be played here", R.refused];
+    }
+  }
   switch (R.phase) {
     case "connecting": return ["Connecting…", ""];
     case "disconnected": return ["Connection lost", "Reconnecting… The cycle in progress starts again."];

@@ -18,6 +18,10 @@ is computed at once in that thread, while the browser loads the next page.
 Safety as in the game server: requests for other host names than the server's are refused
 (DNS rebinding), a POST from another site's page (``Origin`` not this server) is refused, and
 submits must be JSON (a cross-site form cannot send it without a preflight we never answer).
+
+Fetch studies also offer the "game" source (:mod:`rapidds.web.study.play`): ``GET /p/{pid}/play``
+is the browser game's page for the participant's current round and ``/p/{pid}/ws`` its
+WebSocket; the game records the round itself when the person's tasks are done.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated, Any, TypeVar
 from urllib.parse import urlsplit
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Request, WebSocket
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -40,7 +44,9 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
+from rapidds.web.server import game_page, refuse_socket
 from rapidds.web.study import pages
+from rapidds.web.study.play import GameRound, open_round
 from rapidds.web.study.runner import InputError, OutOfTurn, StudySession, step_token
 from rapidds.web.study.tracker import MAX_TRACKER_BYTES
 
@@ -125,9 +131,16 @@ def _validation_line(exc: ValidationError) -> str:
 def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
     """The ASGI app of the study ``worker`` serves; ``hosts``: host names it answers to."""
 
+    games: dict[str, GameRound] = {}  # pid -> the round they play (or played last)
+    opening = asyncio.Lock()
+
     @contextlib.asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
-        yield
+        try:
+            yield
+        finally:  # a round in play is dropped, never half stored
+            for game in list(games.values()):
+                await game.close()
 
     app = FastAPI(lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(hosts))
@@ -168,7 +181,9 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
         if step.kind == "round":
             held = await worker.call(lambda s: s.plan(pid))
             assert held is not None
-            return _html(pages.round_page(pid, held[1].as_dict(), tracker_help=_TRACKER_HELP))
+            game = f"/p/{pid}/play" if worker.session.has_game else None
+            return _html(pages.round_page(pid, held[1].as_dict(), tracker_help=_TRACKER_HELP,
+                                          game=game))
         if step.kind == "survey":
             items = await worker.call(lambda s: s.items())
             return _html(pages.survey_page(pid, token, int(step.block or 0), blocks, items))
@@ -181,6 +196,49 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
     @app.get("/p/{pid}/", include_in_schema=False)
     async def participant_slash(pid: str) -> Response:
         return RedirectResponse(f"/p/{pid}", status_code=307)
+
+    @app.get("/p/{pid}/play", response_class=HTMLResponse)
+    async def play(pid: str) -> Response:
+        session = worker.session
+        if not session.has_game:
+            return _html(pages.message_page(
+                "No game in this study", f"the game source is offered for fetch studies only; "
+                f"this study runs on {session.world.name}: record the round on /p/{pid}"), 404)
+        try:
+            _pid(pid)
+            step = await worker.call(lambda s: s.next_step(pid))
+        except StudyDataError as exc:
+            return _html(pages.message_page("Unknown participant", str(exc)), 404)
+        if step.kind != "round":
+            return _html(pages.message_page(
+                "No round to play", f"{pid} has no round to play now: their next step is "
+                f"{step.describe()}. Open /p/{pid} to go on."), 409)
+        token = step_token(step)
+        async with opening:
+            game = games.get(pid)
+            if game is None or game.token != token or not game.open:
+                if game is not None:
+                    await game.close()
+                    del games[pid]
+                try:
+                    games[pid] = await open_round(worker, session.world, pid, token)
+                except OutOfTurn as exc:
+                    return _html(pages.message_page("No round to play", str(exc)), 409)
+        return _html(game_page(f"/p/{pid}/ws"))
+
+    @app.websocket("/p/{pid}/ws")
+    async def play_socket(ws: WebSocket, pid: str) -> None:
+        game = games.get(pid)
+        if game is None or not _PID.fullmatch(pid):
+            await refuse_socket(ws, f"no round of {pid[:64]} is open to play: open /p/"
+                                    f"{pid[:64]} and start the game from there")
+            return
+        step = await worker.call(lambda s: s.next_step(pid))
+        if game.open and step_token(step) != game.token:
+            await refuse_socket(ws, f"this round is over for the study: {pid}'s next step is "
+                                    f"{step.describe()}; open /p/{pid}")
+            return
+        await game.hub.connect(ws)
 
     async def _submit(request: Request, pid: str, kind: str) -> Response:
         origin = request.headers.get("origin")

@@ -86,8 +86,10 @@ def where(pid: str, block: int | None = None, blocks: int | None = None,
     return " · ".join(parts)
 
 
-def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str) -> str:
-    """The plan of the round and the form for what the person did."""
+def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
+               game: str | None = None) -> str:
+    """The plan of the round and the form for what the person did; game: the address where
+    the round can be played in the browser game instead (fetch studies)."""
     human = [t for t in view["human"] if not t.startswith("wait:")]
     seq = lambda items, cls: " → ".join(  # noqa: E731
         f"<span class={cls}>{e(t)}</span>" if not t.startswith("wait:")
@@ -122,7 +124,12 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str) -> str:
         "<h3>Robot motions</h3><table class=grid><tr><th>task</th><th>motion</th></tr>"
         f"{motions}</table><p class='muted small'>Expected makespan "
         f"{view['makespan']:.1f} s.</p></section>"
-        "<section class=card id=input><h2>After the round</h2>"
+        + (f"<section class=card id=game><h2>Play the round</h2><p><a class=play "
+           f"href='{e(game)}'>Play round {view['round']} in the browser game</a></p>"
+           "<p class='muted small'>The game shows this plan; when your tasks are done the "
+           "round is recorded with your times and paths, and the study goes on.</p></section>"
+           if game else "")
+        + "<section class=card id=input><h2>After the round</h2>"
         + _form(f"/api/p/{pid}/round", view["step"], src, "Record the round",
                 "recording and planning the next round…") + "</section>")
     return page(f"{pid} round {view['round']}",

@@ -53,7 +53,8 @@ if TYPE_CHECKING:
 
 __all__ = ["InputError", "OutOfTurn", "StudySession", "View", "step_token"]
 
-SOURCES = ("tracker", "simulated", "typed")
+SOURCES = ("tracker", "simulated", "typed", "game")
+"""Where a round's data come from; "game" (fetch only): played at ``/p/{pid}/play``."""
 
 
 class InputError(RapiddsError):
@@ -247,16 +248,18 @@ class StudySession:
         return step
 
     def submit_round(self, pid: str, token: str, source: str, fields: Mapping[str, str],
-                     tracker: str | None = None) -> dict[str, Any]:
+                     tracker: str | None = None,
+                     played: Mapping[str, HumanExecution] | None = None) -> dict[str, Any]:
         """Record what the person did in their current round (one transaction) and return the
-        cycle's record."""
+        cycle's record. played: what they did in the game (source "game"), as the
+        :class:`~rapidds.web.player.BrowserPlayer` observed it."""
         step = self._turn(pid, token, "round")
         assert step.system is not None
         held = self.plan(pid)
         assert held is not None
         plan, _ = held
         tasks = plan.best.schedule.tasks("human")
-        observed = self._observed(pid, source, fields, tracker, tasks)
+        observed = self._observed(pid, source, fields, tracker, tasks, played)
         run = self._run(pid, step.system)
         try:
             dep = run.execute(plan, observed)
@@ -268,9 +271,12 @@ class StudySession:
                 self._forget(pid, step.system)
 
     def _observed(self, pid: str, source: str, fields: Mapping[str, str], tracker: str | None,
-                  tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
+                  tasks: Sequence[str], played: Mapping[str, HumanExecution] | None
+                  ) -> dict[str, HumanExecution] | None:
         if source not in SOURCES:
             raise InputError(f"choose where the round's data come from: {', '.join(SOURCES)}")
+        if source == "game":
+            return self._played(pid, tasks, played)
         if not tasks:
             return {}
         if source == "tracker":
@@ -303,6 +309,26 @@ class StudySession:
         except StudyDataError as exc:
             raise InputError(f"{exc}: a duration is a positive number of seconds") from None
         return {t: typed_execution(self.world, mate, t, d) for t, d in durations.items()}
+
+    @property
+    def has_game(self) -> bool:
+        """Whether the round can be played in the browser game (the fetch world's)."""
+        from rapidds.worlds.fetch.world import FetchWorld
+
+        return isinstance(self.world, FetchWorld)
+
+    def _played(self, pid: str, tasks: Sequence[str],
+                played: Mapping[str, HumanExecution] | None) -> dict[str, HumanExecution]:
+        if not self.has_game:
+            raise InputError(f"the game source is offered for fetch studies only; this study "
+                             f"runs on {self.world.name}: choose {', '.join(SOURCES[:-1])}")
+        if played is None:
+            raise InputError(f"a game round is recorded by the game itself: open /p/{pid}/play "
+                             "and play the round there")
+        if set(played) != set(tasks):
+            raise InputError(f"the game played {sorted(played)}, the plan gave the person "
+                             f"{sorted(tasks)}")
+        return dict(played)
 
     def submit_survey(self, pid: str, token: str, fields: Mapping[str, str]) -> None:
         step = self._turn(pid, token, "survey")

@@ -1,0 +1,150 @@
+"""The "game" round source of a fetch study: the participant plays their round in the browser
+game (the page and :class:`~rapidds.web.server.Hub` of ``rapidds play``) and what they did is the
+round's data.
+
+``GET /p/{pid}/play`` opens a :class:`GameRound` for the participant's current round: a
+:class:`~rapidds.web.player.BrowserPlayer` showing the plan the round page shows (the study
+session's held plan), a Hub ticking it at 60 Hz on the server's event loop, and a waiter. The
+player's blocking :meth:`~rapidds.web.player.BrowserPlayer.execute` runs in a thread of its own
+(never the study worker's); when the person's tasks are done it returns their observed
+durations and sampled paths, and the waiter hands them to the study worker:
+:meth:`~rapidds.web.study.runner.StudySession.submit_round` with source "game", one store
+transaction like every other source. The page goes on to the study's next step once the round is
+recorded and the cycle on screen is over (the robot finished too).
+
+Safety is the game's: one page per participant round (the Hub turns a second away), origin and
+host checks, every message through the Gate. A round the study has moved past is refused; a
+closed tab puts the cycle back to its start (reopening plays it again); a killed server stores
+nothing of the round, and the restarted one re-plans the same plan from (seed, round).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from typing import TYPE_CHECKING, Any
+
+from rapidds.errors import RapiddsError
+from rapidds.web.player import BrowserPlayer, PlayerGone
+from rapidds.web.server import Hub
+from rapidds.web.session import scene
+from rapidds.web.study.runner import OutOfTurn, StudySession, step_token
+from rapidds.worlds.fetch.world import FetchWorld
+
+if TYPE_CHECKING:
+    from rapidds.loop.run import CyclePlan
+    from rapidds.web.study.app import StudyWorker
+    from rapidds.web.study.runner import View
+
+__all__ = ["GameRound", "open_round"]
+
+log = logging.getLogger("rapidds.web")
+
+
+class GameRound:
+    """One participant round played in the game; a :class:`~rapidds.web.server.GameSession`
+    for the Hub. ``token`` is the round's step (:func:`~rapidds.web.study.runner.step_token`)."""
+
+    summary: dict[str, Any] | None = None  # the study shows no between-cycle summary
+    summary_version = 0
+
+    def __init__(self, worker: StudyWorker, world: FetchWorld, pid: str, token: str,
+                 plan: CyclePlan, view: View):
+        self.worker, self.world, self.pid, self.token = worker, world, pid, token
+        self.plan, self.view = plan, view
+        self.player = BrowserPlayer(world, name=pid)
+        self.player.show(plan)
+        self.hub = Hub(self)
+        self.stored = 0  # 1 once the round is in the store
+        self.error: str | None = None
+        self.timing: dict[str, float] = {}
+        self._tasks: list[asyncio.Task[None]] = []
+
+    # -- GameSession --------------------------------------------------------------------------
+    @property
+    def phase(self) -> str:
+        """The player's phase; "done" once the round is stored and the cycle on screen over
+        (the page then goes on to the study's next step), "error" when it was not stored."""
+        if self.error is not None:
+            return "error"
+        phase = self.player.phase
+        return "done" if self.stored and phase == "over" else phase
+
+    def info(self) -> dict[str, Any]:
+        return {"run_id": f"{self.pid} · system {self.view.block} of {self.view.blocks} · "
+                          f"round {self.view.round} of {self.view.rounds}",
+                "cycles": self.view.rounds, "player": self.pid, "adapt": "study",
+                "hz": self.player.hz, "speed": self.player.speed, "scene": scene(self.world),
+                "next": f"/p/{self.pid}"}
+
+    # -- life cycle ---------------------------------------------------------------------------
+    @property
+    def open(self) -> bool:
+        """Still playable: not stored, not failed."""
+        return not self.stored and self.error is None
+
+    def start(self) -> None:
+        """Start the tick and the waiter on the running event loop."""
+        self._tasks = [asyncio.create_task(self.hub.tick_loop()),
+                       asyncio.create_task(self._wait())]
+
+    async def close(self) -> None:
+        """Stop ticking and waiting; a round not yet stored is dropped (nothing stored)."""
+        self.player.close()
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+
+    async def _wait(self) -> None:
+        tasks = self.plan.best.schedule.tasks("human")
+        try:
+            observed = await asyncio.to_thread(self.player.execute, self.plan.cycle, tasks,
+                                               self.plan.rng)
+        except PlayerGone:
+            return
+        except Exception as exc:
+            log.exception("the game round of %s failed", self.pid)
+            self.error = f"{type(exc).__name__}: {exc}"
+            return
+        t0 = time.perf_counter()
+        pid, token = self.pid, self.token
+        try:
+            await self.worker.call(lambda s: s.submit_round(pid, token, "game", {},
+                                                            played=observed))
+        except OutOfTurn as exc:
+            self.error = str(exc)
+            return
+        except RapiddsError as exc:
+            self.error = f"the round was not recorded: {exc}"
+            return
+        except Exception as exc:
+            log.exception("recording the game round of %s failed", pid)
+            self.error = f"the round was not recorded ({type(exc).__name__}: {exc})"
+            return
+        self.timing["record"] = time.perf_counter() - t0
+        self.stored = 1
+        log.info("%s: %s recorded in %.2f s", pid, token, self.timing["record"])
+        t1 = time.perf_counter()
+        await self.worker.call(lambda s: s.plan(pid))  # the next page's plan, right away
+        self.timing["next_plan"] = time.perf_counter() - t1
+
+
+async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
+                     token: str) -> GameRound:
+    """A started :class:`GameRound` of ``pid``'s current round ``token``, made in the study
+    worker from the plan the round page shows (:meth:`StudySession.plan`)."""
+    def make(s: StudySession) -> GameRound:
+        step = s.next_step(pid)
+        held = s.plan(pid)
+        if held is None or step_token(step) != token:
+            raise OutOfTurn(f"{pid}'s next step is {step.describe()}, not this round: reload "
+                            f"/p/{pid}", step)
+        return GameRound(worker, world, pid, token, *held)
+
+    game = await worker.call(make)
+    game.start()
+    return game
