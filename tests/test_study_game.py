@@ -1,0 +1,140 @@
+"""The study's "game" round source through its HTTP and WebSocket interface (FastAPI's
+TestClient, the real session, store, planner and game on a small study): offered for fetch only,
+the game page plays the plan the round page shows, one page per round, and a round the study has
+moved past is refused with a message. Rounds played through the game in a browser are
+tests/test_study_browser.py's second test."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+from study_helpers import make_study
+
+from rapidds.experiments.study.store import StudyStore, study_path
+from rapidds.loop.run import load_policy
+from rapidds.motion.policy import DiffusionPolicy
+from rapidds.web.study.app import StudyWorker, create_study_app
+from rapidds.web.study.runner import StudySession
+from rapidds.worlds.base import World
+from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.registry import make_world
+
+BASE = "http://127.0.0.1:8000"
+WS = "ws://127.0.0.1:8000"
+
+
+@contextmanager
+def _serve(folder: Path, world: World, policy: DiffusionPolicy
+           ) -> Iterator[tuple[TestClient, str]]:
+    """The study app on ``folder`` (its lifespan running, as under uvicorn) and the
+    participant's id."""
+    worker = StudyWorker(lambda: StudySession(folder, policy=policy, world=world))
+    try:
+        pid = worker.run(lambda s: s.store.participants()[0].id)
+        with TestClient(create_study_app(worker, ["127.0.0.1"]), base_url=BASE) as client:
+            yield client, pid
+    finally:
+        worker.close()
+
+
+def _until(ws: Any, kind: str, limit: int = 2000) -> dict[str, Any]:
+    for _ in range(limit):
+        msg = json.loads(ws.receive_text())
+        if msg["type"] == kind:
+            return msg
+    raise AssertionError(f"no {kind} message")
+
+
+def _step(client: TestClient, pid: str) -> str:
+    page = client.get(f"/p/{pid}")
+    assert page.status_code == 200, page.text
+    return page.text.split("data-step='", 1)[1].split("'", 1)[0]
+
+
+def _rounds(folder: Path) -> int:
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        return len(s.records())
+
+
+def test_the_game_source_is_refused_for_a_study_not_on_fetch(tmp_path: Path) -> None:
+    world = make_world("painting")
+    folder = make_study(tmp_path, world)
+    with _serve(folder, world, load_policy(world)) as (client, pid):
+        assert "/play" not in client.get(f"/p/{pid}").text  # not offered
+        page = client.get(f"/p/{pid}/play")
+        assert page.status_code == 404
+        assert "fetch studies only" in page.text and "painting" in page.text
+        r = client.post(f"/api/p/{pid}/round", json={"step": _step(client, pid),
+                                                     "fields": {"source": "game"}})
+        assert r.status_code == 400 and "fetch studies only" in r.json()["error"]
+        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+            msg = json.loads(ws.receive_text())
+            assert msg["type"] == "refused" and "no round" in msg["reason"]
+    assert _rounds(folder) == 0
+
+
+def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+    folder = make_study(tmp_path, fetch_world)
+    with _serve(folder, fetch_world, fetch_policy) as (client, pid):
+        page = client.get(f"/p/{pid}")
+        assert f"href='/p/{pid}/play'" in page.text
+        step = _step(client, pid)
+        # the game records its rounds itself: a posted "game" round is refused
+        r = client.post(f"/api/p/{pid}/round", json={"step": step,
+                                                     "fields": {"source": "game"}})
+        assert r.status_code == 400 and f"/p/{pid}/play" in r.json()["error"]
+        game = client.get(f"/p/{pid}/play")
+        assert game.status_code == 200 and f'data-ws="/p/{pid}/ws"' in game.text
+        assert "/static/play.js" in game.text
+        held = client.app.state.worker.run(lambda s: s.plan(pid))[1]  # type: ignore[attr-defined]
+        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+            welcome = _until(ws, "welcome")
+            assert welcome["next"] == f"/p/{pid}" and welcome["cycles"] == 2
+            plan = _until(ws, "plan")
+            assert plan["cycle"] == 0 and plan["sequences"]["human"] == held.human
+            assert plan["sequences"]["robot"] == held.robot
+            assert _until(ws, "phase")["phase"] == "ready"
+            # one page per participant round: a second tab is told so
+            with client.websocket_connect(f"{WS}/p/{pid}/ws") as second:
+                msg = json.loads(second.receive_text())
+                assert msg["type"] == "refused" and "another browser" in msg["reason"]
+                with pytest.raises(WebSocketDisconnect) as closed:
+                    second.receive_text()
+                assert closed.value.code == 4009
+            # a page of another site cannot drive the game
+            with pytest.raises(WebSocketDisconnect) as foreign, client.websocket_connect(
+                    f"{WS}/p/{pid}/ws", headers={"origin": "http://evil.example"}) as bad:
+                bad.receive_text()
+            assert foreign.value.code == 1008
+            # the experimenter records the round another way while the game is open
+            r = client.post(f"/api/p/{pid}/round", json={"step": step,
+                                                         "fields": {"source": "simulated"}})
+            assert r.status_code == 200, r.text
+        # the game of the round the study moved past is refused, with what comes next
+        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+            msg = json.loads(ws.receive_text())
+            assert msg["type"] == "refused" and "round is over" in msg["reason"]
+            assert "round 2" in msg["reason"]
+        # the next round gets a game of its own
+        game = client.get(f"/p/{pid}/play")
+        assert game.status_code == 200
+        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+            assert _until(ws, "plan")["cycle"] == 1
+        step = _step(client, pid)
+        assert step.endswith(":1")
+        r = client.post(f"/api/p/{pid}/round", json={"step": step,
+                                                     "fields": {"source": "simulated"}})
+        assert r.status_code == 200, r.text
+        # the survey is next: no round to play
+        page = client.get(f"/p/{pid}/play")
+        assert page.status_code == 409
+        assert "no round to play" in page.text and "survey" in page.text
+    assert _rounds(folder) == 2  # the two simulated rounds; nothing from the games
