@@ -3,23 +3,28 @@
 participant through two systems x two rounds (a tracker file, durations typed in, the simulated
 cell), the survey after each system, the ranking and the demographics form, with a mistake on
 each form shown on the page; the server is killed mid-study and restarted, and the page goes on
-where it stopped with the same plan. The store is checked at the end.
+where it stopped with the same plan. The store is checked at the end. A second participant's
+two rounds are played in the browser game (the "game" source) by a bot pressing arrow keys, and
+stored with what the game observed.
 
 ``RAPIDDS_SCREENSHOTS=1`` also writes docs/study-plan.png, docs/study-input.png,
-docs/study-survey.png and docs/study-ranking.png.
+docs/study-survey.png, docs/study-ranking.png and docs/study-game.png.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import signal
 import socket
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
+from play_bot import RouteBot, play_cycle
 from study_helpers import make_study
 
 from rapidds.experiments.study.store import StudyStore, study_path
@@ -188,3 +193,66 @@ def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
         assert by[(systems[0], items[-1].id)] == 6 and by[(systems[1], items[0].id)] == 3
         assert s.rankings() == {pid: (systems[1], systems[0])}
         assert s.demographics() == {pid: {"age": "27", "handedness": "right"}}
+
+
+def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
+        browser: Any, tmp_path: Path, fetch_world: FetchWorld) -> None:
+    folder = make_study(tmp_path, fetch_world)
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        person = s.participants()[0]
+    pid, system = person.id, person.systems[0]
+    assert system == "full"  # the second round is planned with what the first taught
+    bot = RouteBot(fetch_world, {"t2": "middle", "t3": "outside"})
+    server = Server(folder, _free_port())
+    played: list[tuple[dict[str, Any], dict[str, Any]]] = []
+    waits: list[float] = []
+    try:
+        page = browser.new_page(viewport={"width": 1040, "height": 820}, bypass_csp=True)
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(f"{server.url}p/{pid}")
+        for rnd in (0, 1):
+            assert f"round {rnd + 1} of 2" in _plan(page)["where"]
+            with page.expect_navigation(timeout=WAIT):
+                page.click("a.play")
+            shot = ROOT / "docs" / "study-game.png" if SHOTS and rnd == 0 else None
+            played.append(play_cycle(page, bot, rnd, midcycle_shot=shot))
+            over = time.monotonic()
+            # recorded, and the page goes on to the study's next step by itself
+            page.wait_for_url(f"**/p/{pid}", timeout=WAIT)
+            page.wait_for_selector("#survey" if rnd else "#input", timeout=WAIT)
+            waits.append(time.monotonic() - over)
+        assert errors == []
+        page.close()
+        assert server.stop(signal.SIGINT) == 0
+    finally:
+        if server.proc.poll() is None:
+            server.proc.kill()
+    print(f"from the end of a game round to the next study page: "
+          f"{', '.join(f'{w:.2f}' for w in waits)} s")
+
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        assert s.next_step(pid).kind == "survey"
+        rid = s.run_id(pid, system)
+        recs = s.records(rid)
+        assert [r["cycle"] for r in recs] == [0, 1]
+        for rec, (plan, end) in zip(recs, played, strict=True):
+            assert rec["human"] == plan["sequences"]["human"]
+            human = [t for t in rec["human"] if not t.startswith("wait:")]
+            assert human, "the bot needs tasks to play"
+            arrays = s.arrays(rid, rec["cycle"])
+            for t in human:
+                start, finish = end["times"][t]  # what the page saw, live
+                assert rec["observed"][t] == pytest.approx(finish - start, abs=2e-3)
+                path = arrays[f"human/{t}"]
+                n = math.ceil(rec["observed"][t] / fetch_world.dt - 1e-9) + 1
+                assert path.shape == (n, 2)  # sampled at dt from start to end
+                if t in ("t2", "t3"):  # the bot's route, not the priming group's
+                    assert fetch_world.route_mode(t, path) == bot.modes[t]
+    # the second round's plan is the learned model's, not the prior's
+    learned = recs[0]["belief"]["mean_durations"]
+    for t in [t for t in played[1][0]["sequences"]["human"] if not t.startswith("wait:")]:
+        start, finish = played[1][0]["expected"][t]
+        assert finish - start == pytest.approx(learned[t], abs=2e-3)
+    prior = {t: fetch_world.problem().task(t).human_mean for t in learned}
+    assert any(abs(learned[t] - prior[t]) > 0.3 for t in recs[0]["observed"])

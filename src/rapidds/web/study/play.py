@@ -127,10 +127,14 @@ class GameRound:
             return
         self.timing["record"] = time.perf_counter() - t0
         self.stored = 1
-        log.info("%s: %s recorded in %.2f s", pid, token, self.timing["record"])
         t1 = time.perf_counter()
-        await self.worker.call(lambda s: s.plan(pid))  # the next page's plan, right away
+        with contextlib.suppress(Exception):  # the next page plans (and reports) again
+            await self.worker.call(lambda s: s.plan(pid))  # the next page's plan, right away
         self.timing["next_plan"] = time.perf_counter() - t1
+        state = self.player.snapshot() or {}
+        log.info("%s: %s recorded in %.2f s (game time %.1f s, cycle %s), next plan in %.2f s",
+                 pid, token, self.timing["record"], state.get("t", 0.0),
+                 "over" if state.get("over") else "still running", self.timing["next_plan"])
 
 
 async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
