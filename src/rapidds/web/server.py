@@ -258,10 +258,13 @@ def _static(name: str) -> str:
     return (files("rapidds.web") / "static" / name).read_text(encoding="utf-8")
 
 
-def game_page(ws_path: str = "/ws") -> str:
-    """The game's page, its WebSocket at ``ws_path`` (a study serves one per participant)."""
-    return _static("index.html").replace(
-        "<body>", f'<body data-ws="{html.escape(ws_path, quote=True)}">', 1)
+def game_page(ws_path: str | None = None) -> str:
+    """The game's page; ``ws_path``: a study round's WebSocket (one per participant; the page
+    then speaks of rounds of a study), else ``/ws``."""
+    page = _static("index.html")
+    if ws_path is None:
+        return page
+    return page.replace("<body>", f'<body data-ws="{html.escape(ws_path, quote=True)}">', 1)
 
 
 def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI:
