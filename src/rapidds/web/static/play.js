@@ -18,6 +18,8 @@ const map = $("map"), mctx = map.getContext("2d");
 const gantt = $("gantt"), gctx = gantt.getContext("2d");
 const curve = $("curve"), cctx = curve.getContext("2d");
 let ws = null, seq = 0, retry = 0, heatImage = null, heatFor = -1;
+const UNIT = document.body.dataset.ws ? "round" : "cycle";  // a study plays rounds
+const Unit = UNIT[0].toUpperCase() + UNIT.slice(1);
 
 // ---------------------------------------------------------------------------- connection
 function connect() {
@@ -42,7 +44,7 @@ function send(obj) {
 function receive(m) {
   switch (m.type) {
     case "state": R.state = m; R.frames += 1; break;
-    case "welcome": R.info = m; R.refused = null; $("run").textContent = `${m.run_id} · ${m.adapt} adaptation`; break;
+    case "welcome": R.info = m; R.refused = null; $("run").textContent = m.adapt ? `${m.run_id} · ${m.adapt} adaptation` : m.run_id; break;
     case "plan": R.plan = m; break;
     case "summary": R.summary = m; heatFor = -1; showSummary(); break;
     case "phase":
@@ -279,7 +281,7 @@ function drawGantt() {
   if (live) end = Math.max(end, live.t);
   end = Math.max(4, Math.ceil((end + 0.5) / 2) * 2);
   const X = (t) => x0 + (x1 - x0) * t / end;
-  c.fillStyle = "#0f172a"; c.fillText(`cycle ${plan.cycle + 1} plan`, 8, 11);
+  c.fillStyle = "#0f172a"; c.fillText(`${UNIT} ${plan.cycle + 1} plan`, 8, 11);
   c.fillStyle = "#64748b"; c.font = "11px system-ui, sans-serif";
   c.fillText(`expected makespan ${plan.expected_makespan.toFixed(1)} s · bars: expected (light), actual (solid)`, 120, 11);
   for (let t = 0; t <= end; t += end > 20 ? 4 : 2) {
@@ -340,7 +342,7 @@ function instructions() {
     case "done": return ["All cycles played. Thank you!", `The run is stored; ${R.info ? R.info.run_id : ""}.`];
     case "waiting": return [R.summary ? "The robot is planning the next cycle…" : "The robot is planning cycle 1…", "This takes a moment."];
     case "over": return ["Cycle done", "The robot is planning the next one…"];
-    case "ready": return [`Cycle ${plan.cycle + 1} of ${n}: ready`, "Look at the plan below, then press Start (or Enter)."];
+    case "ready": return [`${Unit} ${plan.cycle + 1} of ${n}: ready`, "Look at the plan below, then press Start (or Enter)."];
   }
   if (!st || !plan) return ["", ""];
   const cur = st.cur;
@@ -364,7 +366,7 @@ function lockedBy(task) {
 
 function render() {
   const plan = R.plan, st = R.state, n = R.info ? R.info.cycles : "?";
-  $("cycle").textContent = plan ? `cycle ${plan.cycle + 1} / ${n}` : R.phase;
+  $("cycle").textContent = plan ? `${UNIT} ${plan.cycle + 1} / ${n}` : R.phase;
   const [big, small] = instructions();
   $("instruction").textContent = big; $("detail").textContent = small || "";
   const playing = R.phase === "playing";
@@ -372,7 +374,7 @@ function render() {
   $("expected").textContent = plan ? `· planned ${plan.expected_makespan.toFixed(1)} s` : "";
   // plan card
   const mine = plan ? plan.sequences.human.filter((x) => !x.startsWith("wait:")) : [];
-  $("plan-title").textContent = plan ? `Cycle ${plan.cycle + 1}: your tasks, in order` : "Your tasks";
+  $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in order` : "Your tasks";
   const ol = $("mytasks"); ol.innerHTML = "";
   for (const t of mine) {
     const li = document.createElement("li"), s = st && st.cycle === plan.cycle ? st.tasks[t] : "queued";
@@ -387,13 +389,13 @@ function render() {
   const between = ["ready", "over", "waiting", "done"].includes(R.phase) && R.summary;
   btn.classList.toggle("hidden", !(R.phase === "ready" || (between && R.phase !== "done")));
   btn.disabled = R.phase !== "ready";
-  btn.textContent = R.phase === "ready" ? `Start cycle ${plan.cycle + 1} ▶` : "The robot is planning…";
+  btn.textContent = R.phase === "ready" ? `Start ${UNIT} ${plan.cycle + 1} ▶` : "The robot is planning…";
   $("summary").classList.toggle("hidden", !R.summary || playing);
   // between cycles the summary takes the status card's place (the banner says what to do)
   $("status").classList.toggle("hidden", !!R.summary && ["ready", "waiting", "over"].includes(R.phase));
   const banner = $("banner");
   banner.classList.toggle("hidden", !["ready", "waiting", "over", "done", "refused", "disconnected", "error"].includes(R.phase));
-  banner.textContent = R.phase === "ready" ? `Press Enter to start cycle ${plan.cycle + 1}` : big;
+  banner.textContent = R.phase === "ready" ? `Press Enter to start ${UNIT} ${plan.cycle + 1}` : big;
 }
 
 function showHeatLegend() {

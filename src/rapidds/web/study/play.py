@@ -75,7 +75,7 @@ class GameRound:
     def info(self) -> dict[str, Any]:
         return {"run_id": f"{self.pid} · system {self.view.block} of {self.view.blocks} · "
                           f"round {self.view.round} of {self.view.rounds}",
-                "cycles": self.view.rounds, "player": self.pid, "adapt": "study",
+                "cycles": self.view.rounds, "player": self.pid, "adapt": "",  # blind
                 "hz": self.player.hz, "speed": self.player.speed, "scene": scene(self.world),
                 "next": f"/p/{self.pid}"}
 
