@@ -1,6 +1,7 @@
 """The study's "game" round source through its HTTP and WebSocket interface (FastAPI's
 TestClient, the real session, store, planner and game on a small study): offered for fetch only,
-the game page plays the plan the round page shows, one page per round, and a round the study has
+the game page plays the plan the round page shows, one page per round, a closed tab restarts the
+round, and a round the study has
 moved past is refused with a message. Rounds played through the game in a browser are
 tests/test_study_browser.py's second test."""
 
@@ -109,6 +110,14 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
                 with pytest.raises(WebSocketDisconnect) as closed:
                     second.receive_text()
                 assert closed.value.code == 4009
+            # a closed tab mid-round: the round starts again for the next page
+            ws.send_text(json.dumps({"type": "start", "seq": 1, "cycle": 0}))
+            ws.send_text(json.dumps({"type": "move", "seq": 2, "dx": 1, "dy": 0}))
+            while _until(ws, "state")["t"] < 0.3:
+                pass
+        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+            assert _until(ws, "phase")["phase"] == "ready"
+            assert _until(ws, "state")["t"] == 0
             # a page of another site cannot drive the game
             with pytest.raises(WebSocketDisconnect) as foreign, client.websocket_connect(
                     f"{WS}/p/{pid}/ws", headers={"origin": "http://evil.example"}) as bad:

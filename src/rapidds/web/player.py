@@ -112,12 +112,27 @@ class BrowserPlayer:
                 c, obs = self._observed.get(timeout=0.05)
             except queue.Empty:
                 continue
-            if c != cycle:
-                continue  # a cycle that was restarted after it had been reported: stale
-            if set(obs) != set(tasks):
-                raise RuntimeError(f"cycle {cycle}: played tasks {sorted(obs)}, the plan gave "
-                                   f"the person {sorted(tasks)}")
-            return obs
+            if c == cycle:  # else a cycle restarted after it had been reported: stale
+                return self._checked(cycle, tasks, obs)
+
+    def played(self, cycle: int, tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
+        """:meth:`execute` without blocking: what the person did in ``cycle`` once they have
+        done ``tasks``, else None (for a caller on an event loop: the study's game rounds)."""
+        while True:
+            try:
+                c, obs = self._observed.get_nowait()
+            except queue.Empty:
+                return None
+            if c == cycle:
+                return self._checked(cycle, tasks, obs)
+
+    @staticmethod
+    def _checked(cycle: int, tasks: Sequence[str],
+                 obs: dict[str, HumanExecution]) -> dict[str, HumanExecution]:
+        if set(obs) != set(tasks):
+            raise RuntimeError(f"cycle {cycle}: played tasks {sorted(obs)}, the plan gave "
+                               f"the person {sorted(tasks)}")
+        return obs
 
     def close(self) -> None:
         """Wake a blocked :meth:`execute` with :class:`PlayerGone` (the server is stopping)."""

@@ -4,10 +4,12 @@ round's data.
 
 ``GET /p/{pid}/play`` opens a :class:`GameRound` for the participant's current round: a
 :class:`~rapidds.web.player.BrowserPlayer` showing the plan the round page shows (the study
-session's held plan), a Hub ticking it at 60 Hz on the server's event loop, and a waiter. The
-player's blocking :meth:`~rapidds.web.player.BrowserPlayer.execute` runs in a thread of its own
-(never the study worker's); when the person's tasks are done it returns their observed
-durations and sampled paths, and the waiter hands them to the study worker:
+session's held plan), a Hub ticking it at 60 Hz on the server's event loop, and a waiter on the
+same loop. The waiter never blocks (neither the loop nor the study worker, and it holds no thread
+while the person plays): it looks every 20 ms for what the player reports when the person's
+tasks are done (:meth:`~rapidds.web.player.BrowserPlayer.played`: their observed durations and
+sampled paths, what :meth:`~rapidds.web.player.BrowserPlayer.execute` would return) and hands
+it to the study worker:
 :meth:`~rapidds.web.study.runner.StudySession.submit_round` with source "game", one store
 transaction like every other source. The page goes on to the study's next step once the round is
 recorded and the cycle on screen is over (the robot finished too).
@@ -27,7 +29,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError
-from rapidds.web.player import BrowserPlayer, PlayerGone
+from rapidds.web.player import BrowserPlayer
 from rapidds.web.server import Hub
 from rapidds.web.session import scene
 from rapidds.web.study.runner import OutOfTurn, StudySession, step_token
@@ -41,6 +43,7 @@ if TYPE_CHECKING:
 __all__ = ["GameRound", "open_round"]
 
 log = logging.getLogger("rapidds.web")
+_POLL = 0.02  # s between looks for the person's finished part (a dict lookup on the event loop)
 
 
 class GameRound:
@@ -92,7 +95,6 @@ class GameRound:
 
     async def close(self) -> None:
         """Stop ticking and waiting; a round not yet stored is dropped (nothing stored)."""
-        self.player.close()
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -102,10 +104,8 @@ class GameRound:
     async def _wait(self) -> None:
         tasks = self.plan.best.schedule.tasks("human")
         try:
-            observed = await asyncio.to_thread(self.player.execute, self.plan.cycle, tasks,
-                                               self.plan.rng)
-        except PlayerGone:
-            return
+            while (observed := self.player.played(self.plan.cycle, tasks)) is None:
+                await asyncio.sleep(_POLL)
         except Exception as exc:
             log.exception("the game round of %s failed", self.pid)
             self.error = f"{type(exc).__name__}: {exc}"
