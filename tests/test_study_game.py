@@ -1,9 +1,8 @@
 """The study's "game" round source through its HTTP and WebSocket interface (FastAPI's
 TestClient, the real session, store, planner and game on a small study): offered for fetch only,
 the game page plays the plan the round page shows, one page per round, a closed tab restarts the
-round, and a round the study has
-moved past is refused with a message. Rounds played through the game in a browser are
-tests/test_study_browser.py's second test."""
+round, and a round the study has moved past is refused with a message. Rounds played through the
+game in a browser are tests/test_study_browser.py's second test."""
 
 from __future__ import annotations
 
