@@ -31,9 +31,10 @@ def serve_cmd(
     verbose: bool = typer.Option(False, help="Log every request that failed."),
 ) -> None:
     """Serve the study in FOLDER in a browser: the robot's plan of each round, what the person
-    did (tracker file, simulated cell or durations typed in), the survey after each system, the
-    ranking and the demographics form. Every submit is stored at once; stop with Ctrl-C and
-    start again to continue where each participant stopped."""
+    did (tracker file, simulated cell, durations typed in, or on fetch the round played in the
+    browser game), the survey after each system, the ranking and the demographics form. Every
+    submit is stored at once; stop with Ctrl-C and start again to continue where each
+    participant stopped."""
     from rapidds.cli.run import set_threads
     from rapidds.experiments.study.store import STORE_NAME, study_path
     from rapidds.web.server import LOOPBACK, allowed_hosts, listen

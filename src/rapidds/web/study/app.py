@@ -49,6 +49,7 @@ from rapidds.web.study import pages
 from rapidds.web.study.play import GameRound, open_round
 from rapidds.web.study.runner import InputError, OutOfTurn, StudySession, step_token
 from rapidds.web.study.tracker import MAX_TRACKER_BYTES
+from rapidds.worlds.fetch.world import FetchWorld
 
 __all__ = ["MAX_BODY", "StudyWorker", "create_study_app"]
 
@@ -199,11 +200,11 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
 
     @app.get("/p/{pid}/play", response_class=HTMLResponse)
     async def play(pid: str) -> Response:
-        session = worker.session
-        if not session.has_game:
+        world = worker.session.world
+        if not isinstance(world, FetchWorld):
             return _html(pages.message_page(
                 "No game in this study", f"the game source is offered for fetch studies only; "
-                f"this study runs on {session.world.name}: record the round on /p/{pid}"), 404)
+                f"this study runs on {world.name}: record the round on /p/{pid}"), 404)
         try:
             _pid(pid)
             step = await worker.call(lambda s: s.next_step(pid))
@@ -221,7 +222,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
                     await game.close()
                     del games[pid]
                 try:
-                    games[pid] = await open_round(worker, session.world, pid, token)
+                    games[pid] = await open_round(worker, world, pid, token)
                 except OutOfTurn as exc:
                     return _html(pages.message_page("No round to play", str(exc)), 409)
         return _html(game_page(f"/p/{pid}/ws"))
