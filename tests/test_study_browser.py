@@ -202,8 +202,9 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
         person = s.participants()[0]
     pid, system = person.id, person.systems[0]
     assert system == "full"  # the second round is planned with what the first taught
-    bot = RouteBot(fetch_world, {"t2": "middle", "t3": "outside"})
-    server = Server(folder, _free_port())
+    modes = {"t2": "middle", "t3": "outside"}
+    port = _free_port()
+    server = Server(folder, port)
     played: list[tuple[dict[str, Any], dict[str, Any]]] = []
     waits: list[float] = []
     try:
@@ -216,7 +217,20 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
             with page.expect_navigation(timeout=WAIT):
                 page.click("a.play")
             shot = ROOT / "docs" / "study-game.png" if SHOTS and rnd == 0 else None
-            played.append(play_cycle(page, bot, rnd, midcycle_shot=shot))
+            if rnd == 1:  # the server is killed mid-round: the round is lost, nothing else
+                before, _ = play_cycle(page, RouteBot(fetch_world, modes), rnd, stop_at=1.0)
+                server.proc.kill()
+                server.proc.wait(30)
+                with StudyStore.open_readonly(study_path(folder)) as s:
+                    assert len(s.records()) == 1
+                server = Server(folder, port)  # the page reconnects by itself
+            played.append(play_cycle(page, RouteBot(fetch_world, modes), rnd,
+                                     midcycle_shot=shot))
+            if rnd == 1:  # and plays the same plan again
+                after = played[-1][0]
+                assert after["sequences"] == before["sequences"]
+                for t, span in before["expected"].items():
+                    assert after["expected"][t] == pytest.approx(span, abs=1e-6)
             over = time.monotonic()
             # recorded, and the page goes on to the study's next step by itself
             page.wait_for_url(f"**/p/{pid}", timeout=WAIT)
@@ -248,7 +262,7 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
                 n = math.ceil(rec["observed"][t] / fetch_world.dt - 1e-9) + 1
                 assert path.shape == (n, 2)  # sampled at dt from start to end
                 if t in ("t2", "t3"):  # the bot's route, not the priming group's
-                    assert fetch_world.route_mode(t, path) == bot.modes[t]
+                    assert fetch_world.route_mode(t, path) == modes[t]
     # the second round's plan is the learned model's, not the prior's
     learned = recs[0]["belief"]["mean_durations"]
     for t in [t for t in played[1][0]["sequences"]["human"] if not t.startswith("wait:")]:

@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
@@ -74,9 +75,9 @@ def test_the_game_source_is_refused_for_a_study_not_on_fetch(tmp_path: Path) -> 
         r = client.post(f"/api/p/{pid}/round", json={"step": _step(client, pid),
                                                      "fields": {"source": "game"}})
         assert r.status_code == 400 and "fetch studies only" in r.json()["error"]
-        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={_step(client, pid)}") as ws:
             msg = json.loads(ws.receive_text())
-            assert msg["type"] == "refused" and "no round" in msg["reason"]
+            assert msg["type"] == "refused" and "fetch studies only" in msg["reason"]
     assert _rounds(folder) == 0
 
 
@@ -92,10 +93,10 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
                                                      "fields": {"source": "game"}})
         assert r.status_code == 400 and f"/p/{pid}/play" in r.json()["error"]
         game = client.get(f"/p/{pid}/play")
-        assert game.status_code == 200 and f'data-ws="/p/{pid}/ws"' in game.text
+        assert game.status_code == 200 and f'data-ws="/p/{pid}/ws?step=' in game.text
         assert "/static/play.js" in game.text
         held = client.app.state.worker.run(lambda s: s.plan(pid))[1]  # type: ignore[attr-defined]
-        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
             welcome = _until(ws, "welcome")
             assert welcome["next"] == f"/p/{pid}" and welcome["cycles"] == 2
             plan = _until(ws, "plan")
@@ -103,7 +104,7 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
             assert plan["sequences"]["robot"] == held.robot
             assert _until(ws, "phase")["phase"] == "ready"
             # one page per participant round: a second tab is told so
-            with client.websocket_connect(f"{WS}/p/{pid}/ws") as second:
+            with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as second:
                 msg = json.loads(second.receive_text())
                 assert msg["type"] == "refused" and "another browser" in msg["reason"]
                 with pytest.raises(WebSocketDisconnect) as closed:
@@ -114,12 +115,13 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
             ws.send_text(json.dumps({"type": "move", "seq": 2, "dx": 1, "dy": 0}))
             while _until(ws, "state")["t"] < 0.3:
                 pass
-        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
             assert _until(ws, "phase")["phase"] == "ready"
             assert _until(ws, "state")["t"] == 0
             # a page of another site cannot drive the game
+            evil = {"origin": "http://evil.example"}
             with pytest.raises(WebSocketDisconnect) as foreign, client.websocket_connect(
-                    f"{WS}/p/{pid}/ws", headers={"origin": "http://evil.example"}) as bad:
+                    f"{WS}/p/{pid}/ws?step={step}", headers=evil) as bad:
                 bad.receive_text()
             assert foreign.value.code == 1008
             # the experimenter records the round another way while the game is open
@@ -127,17 +129,28 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
                                                          "fields": {"source": "simulated"}})
             assert r.status_code == 200, r.text
         # the game of the round the study moved past is refused, with what comes next
-        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
             msg = json.loads(ws.receive_text())
             assert msg["type"] == "refused" and "round is over" in msg["reason"]
             assert "round 2" in msg["reason"]
         # the next round gets a game of its own
-        game = client.get(f"/p/{pid}/play")
-        assert game.status_code == 200
-        with client.websocket_connect(f"{WS}/p/{pid}/ws") as ws:
-            assert _until(ws, "plan")["cycle"] == 1
         step = _step(client, pid)
         assert step.endswith(":1")
+        game = client.get(f"/p/{pid}/play")
+        assert game.status_code == 200
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
+            plan1 = _until(ws, "plan")
+            assert plan1["cycle"] == 1
+    # a server restarted mid-round: the page reconnects and plays the same plan again
+    with _serve(folder, fetch_world, fetch_policy) as (client, pid):
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
+            again = _until(ws, "plan")
+        assert again["cycle"] == 1 and again["sequences"] == plan1["sequences"]
+        assert again["routes"] == plan1["routes"] and again["owner"] == plan1["owner"]
+        for t, (start, finish) in plan1["expected"].items():
+            assert again["expected"][t] == pytest.approx([start, finish], abs=1e-6)
+        for t, path in plan1["robot_paths"].items():
+            assert np.allclose(again["robot_paths"][t], path, atol=1e-6)
         r = client.post(f"/api/p/{pid}/round", json={"step": step,
                                                      "fields": {"source": "simulated"}})
         assert r.status_code == 200, r.text

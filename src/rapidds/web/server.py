@@ -27,7 +27,7 @@ import logging
 import socket
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from importlib.resources import files
 from typing import Any, Protocol
 from urllib.parse import urlsplit
@@ -43,7 +43,7 @@ from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import Gate, Move, Refused, Start, Target
 
 __all__ = ["LOOPBACK", "GameSession", "Hub", "allowed_hosts", "create_app", "game_page", "listen",
-           "refuse_socket", "serve"]
+           "refuse_socket", "same_origin", "serve"]
 
 log = logging.getLogger("rapidds.web")
 
@@ -81,6 +81,13 @@ def allowed_hosts(host: str) -> list[str]:
     if host in ("", "0.0.0.0", "::"):
         return ["*"]
     return sorted({*LOOPBACK, host.lower().strip("[]")})
+
+
+def same_origin(headers: Mapping[str, str]) -> bool:
+    """Whether a request comes from this server's own pages (or names no origin: not a
+    browser page of another site)."""
+    origin = headers.get("origin")
+    return origin is None or urlsplit(origin).netloc == headers.get("host")
 
 
 def _dumps(obj: Any) -> str:
@@ -210,9 +217,9 @@ class Hub:
             conn.control({"type": "refused-message", "reason": str(exc)})
 
     async def connect(self, ws: WebSocket) -> None:
-        origin, host = ws.headers.get("origin"), ws.headers.get("host")
-        if origin is not None and urlsplit(origin).netloc != host:
-            log.warning("refused a WebSocket from origin %s (this server is %s)", origin, host)
+        if not same_origin(ws.headers):
+            log.warning("refused a WebSocket from origin %s (this server is %s)",
+                        ws.headers.get("origin"), ws.headers.get("host"))
             await ws.close(code=1008)
             return
         await ws.accept()

@@ -34,7 +34,7 @@ import re
 from collections.abc import AsyncIterator, Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated, Any, TypeVar
-from urllib.parse import urlsplit
+from urllib.parse import quote
 
 from fastapi import FastAPI, Request, WebSocket
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
@@ -44,7 +44,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
-from rapidds.web.server import game_page, refuse_socket
+from rapidds.web.server import game_page, refuse_socket, same_origin
 from rapidds.web.study import pages
 from rapidds.web.study.play import GameRound, open_round
 from rapidds.web.study.runner import InputError, OutOfTurn, StudySession, step_token
@@ -198,6 +198,19 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
     async def participant_slash(pid: str) -> Response:
         return RedirectResponse(f"/p/{pid}", status_code=307)
 
+    async def _game(world: FetchWorld, pid: str, token: str) -> GameRound:
+        """The game of ``pid``'s current round ``token``: the open one, or a new one (the first
+        page, a failed one, or a server restarted meanwhile). OutOfTurn when the study has
+        moved on."""
+        async with opening:
+            game = games.get(pid)
+            if game is None or game.token != token or not game.open:
+                if game is not None:
+                    await game.close()
+                    del games[pid]
+                games[pid] = await open_round(worker, world, pid, token)
+            return games[pid]
+
     @app.get("/p/{pid}/play", response_class=HTMLResponse)
     async def play(pid: str) -> Response:
         world = worker.session.world
@@ -215,35 +228,43 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
                 "No round to play", f"{pid} has no round to play now: their next step is "
                 f"{step.describe()}. Open /p/{pid} to go on."), 409)
         token = step_token(step)
-        async with opening:
-            game = games.get(pid)
-            if game is None or game.token != token or not game.open:
-                if game is not None:
-                    await game.close()
-                    del games[pid]
-                try:
-                    games[pid] = await open_round(worker, world, pid, token)
-                except OutOfTurn as exc:
-                    return _html(pages.message_page("No round to play", str(exc)), 409)
-        return _html(game_page(f"/p/{pid}/ws"))
+        try:
+            await _game(world, pid, token)
+        except OutOfTurn as exc:
+            return _html(pages.message_page("No round to play", str(exc)), 409)
+        return _html(game_page(f"/p/{pid}/ws?step={quote(token)}"))
 
     @app.websocket("/p/{pid}/ws")
-    async def play_socket(ws: WebSocket, pid: str) -> None:
-        game = games.get(pid)
-        if game is None or not _PID.fullmatch(pid):
-            await refuse_socket(ws, f"no round of {pid[:64]} is open to play: open /p/"
-                                    f"{pid[:64]} and start the game from there")
+    async def play_socket(ws: WebSocket, pid: str, step: str = "") -> None:
+        """The game page's socket; ``step``: the round the page plays (a page of a round the
+        study moved past is refused; after a restart the round's game is opened again)."""
+        if not same_origin(ws.headers):
+            await ws.close(code=1008)  # another site's page: nothing said, nothing opened
             return
-        step = await worker.call(lambda s: s.next_step(pid))
-        if game.open and step_token(step) != game.token:
+        world = worker.session.world
+        if not isinstance(world, FetchWorld):
+            await refuse_socket(ws, "the game source is offered for fetch studies only")
+            return
+        try:
+            _pid(pid)
+            now = await worker.call(lambda s: s.next_step(pid))
+        except StudyDataError as exc:
+            await refuse_socket(ws, str(exc))
+            return
+        if now.kind != "round" or step_token(now) != step:
             await refuse_socket(ws, f"this round is over for the study: {pid}'s next step is "
-                                    f"{step.describe()}; open /p/{pid}")
+                                    f"{now.describe()}; open /p/{pid}")
+            return
+        try:
+            game = await _game(world, pid, step)
+        except OutOfTurn as exc:
+            await refuse_socket(ws, str(exc))
             return
         await game.hub.connect(ws)
 
     async def _submit(request: Request, pid: str, kind: str) -> Response:
-        origin = request.headers.get("origin")
-        if origin is not None and urlsplit(origin).netloc != request.headers.get("host"):
+        if not same_origin(request.headers):
+            origin = request.headers.get("origin", "")
             return _error(403, f"a submit from another site ({origin[:80]}) is refused")
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if ctype != "application/json":
