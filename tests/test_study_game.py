@@ -128,6 +128,9 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
             r = client.post(f"/api/p/{pid}/round", json={"step": step,
                                                          "fields": {"source": "simulated"}})
             assert r.status_code == 200, r.text
+            # the page still open on the old round is told when the next round's game opens
+            assert client.get(f"/p/{pid}/play").status_code == 200
+            assert "moved on" in _until(ws, "refused")["reason"]
         # the game of the round the study moved past is refused, with what comes next
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
             msg = json.loads(ws.receive_text())

@@ -206,7 +206,8 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
             game = games.get(pid)
             if game is None or game.token != token or not game.open:
                 if game is not None:
-                    await game.close()
+                    await game.close(f"{pid}'s round was opened again elsewhere, or the study "
+                                     f"moved on: open /p/{pid}")
                     del games[pid]
                 games[pid] = await open_round(worker, world, pid, token)
             return games[pid]

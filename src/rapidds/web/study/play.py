@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError
 from rapidds.web.player import BrowserPlayer
-from rapidds.web.server import Hub
+from rapidds.web.server import Hub, refuse_socket
 from rapidds.web.session import scene
 from rapidds.web.study.runner import OutOfTurn, StudySession, step_token
 from rapidds.worlds.fetch.world import FetchWorld
@@ -93,8 +93,14 @@ class GameRound:
         self._tasks = [asyncio.create_task(self.hub.tick_loop()),
                        asyncio.create_task(self._wait())]
 
-    async def close(self) -> None:
-        """Stop ticking and waiting; a round not yet stored is dropped (nothing stored)."""
+    async def close(self, reason: str | None = None) -> None:
+        """Stop ticking and waiting; a round not yet stored is dropped (nothing stored).
+        reason: told to a page still connected, which then stops (none when the server stops:
+        the page reconnects to the restarted one)."""
+        conn = self.hub.conn
+        if reason is not None and conn is not None:
+            with contextlib.suppress(Exception):
+                await refuse_socket(conn.ws, reason)
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
