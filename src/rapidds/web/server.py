@@ -155,7 +155,12 @@ class Hub:
                     deadline = loop.time()
                 # catching up: still let the senders run, so every tick's state goes out
                 await asyncio.sleep(0)
-            self.tick()
+            try:
+                self.tick()
+            except Exception:  # e.g. news that cannot be sent: logged, and the game goes on
+                if not self._tick_failed:
+                    log.exception("a tick failed")
+                    self._tick_failed = True
 
     def tick(self) -> None:
         """One tick: advance the game, hand the state and any news to the page."""
