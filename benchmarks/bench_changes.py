@@ -16,9 +16,11 @@ other tasks by the same ratio: ``--whole-person``), ``person-ask`` (that, asking
 Per run: belief error at cycle c = mean over the human tasks the person did after the change of
 |learned mean - true mean| / true mean (the truth of cycle c); cycles to learn = cycles after
 the change until the error is below 10 % and stays there; cost over oracle = mean realised cost
-over cycles at+4 .. end over the oracle's, same seed; false alarms = resets or questions about a
-change before the true one (any, for ``none``); person-level moves are not counted as alarms
-(they follow one).
+over cycles at+4 .. end over the oracle's, same seed; plan cost over oracle = the same with each
+cycle's plan cost (its schedule and motions scored under the person's true model, 256 duration
+samples: the paper's Figure 5 measure, without the luck of one cycle's durations); false
+alarms = resets or questions about a change before the true one (any, for ``none``);
+person-level moves are not counted as alarms (they follow one).
 
     .venv/bin/python benchmarks/bench_changes.py --seeds 0-3 --workers 2 [--update-docs]
 
@@ -90,6 +92,7 @@ def one(job: tuple[str, str, int, int, int]) -> dict[str, Any]:
     alarms = [(r["cycle"], a) for r in recs for a in r.get("changes", []) if "task" in a]
     return {"kind": kind, "model": model, "seed": seed, "cycles": cycles, "at": at, "error": err,
             "cost": [r["realised"]["cost"] for r in recs],
+            "plan_cost": [r["plan_cost"]["cost"] for r in recs],
             "false_alarms": sum(1 for c, a in alarms if kind == "none" or a["since_cycle"] < at),
             "alarms": len(alarms),
             "seconds": float(sum(r["seconds"]["total"] for r in recs))}
@@ -104,10 +107,22 @@ def _learned_after(err: list[float], at: int) -> int:
     return len(tail) + 1
 
 
+def _over(runs: list[dict[str, Any]], by: dict[tuple[str, str, int], dict[str, Any]],
+          key: str, at: int) -> list[float]:
+    """Per run: mean ``key`` over cycles at+4.. over the oracle's of the same seed, minus 1."""
+    out = []
+    for r in runs:
+        o = by.get((r["kind"], "oracle", r["seed"]))
+        if o is not None:
+            out.append(float(np.mean(r[key][at + 4:]) / np.mean(o[key][at + 4:]) - 1))
+    return out
+
+
 def summarise(results: list[dict[str, Any]], at: int, cycles: int) -> str:
     lines = ["| change | model | cycles to learn (median, max) | belief error at end "
-             "| cost over oracle, cycles " f"{at + 4}-{cycles - 1} | false alarms / runs |",
-             "|---|---|---|---|---|---|"]
+             f"| realised cost over oracle, cycles {at + 4}-{cycles - 1} (per seed) "
+             "| plan cost over oracle (mean ± s.e.) | false alarms / runs |",
+             "|---|---|---|---|---|---|---|"]
     by = {(r["kind"], r["model"], r["seed"]): r for r in results}
     seeds = sorted({r["seed"] for r in results})
     for kind in KINDS:
@@ -118,18 +133,16 @@ def summarise(results: list[dict[str, Any]], at: int, cycles: int) -> str:
             if not runs:
                 continue
             learn = [_learned_after(r["error"], at) for r in runs]
-            over = []
-            for r in runs:
-                o = by.get((kind, "oracle", r["seed"]))
-                if o is not None:
-                    over.append(np.mean(r["cost"][at + 4:]) / np.mean(o["cost"][at + 4:]) - 1)
+            over, plan = _over(runs, by, "cost", at), _over(runs, by, "plan_cost", at)
             never = cycles - at + 1
             fmt = [("never" if x >= never else str(x)) for x in (int(np.median(learn)),
                                                                max(learn))]
+            se = np.std(plan, ddof=1) / np.sqrt(len(plan)) if len(plan) > 1 else float("nan")
             lines.append(f"| {kind} | {model} | {fmt[0]}, {fmt[1]} | "
                          f"{100 * np.mean([r['error'][-1] for r in runs]):.1f} % | "
-                         f"{100 * np.mean(over):+.1f} % (per seed "
-                         f"{', '.join(f'{100 * x:+.1f}' for x in over)}) | "
+                         f"{100 * np.mean(over):+.1f} % "
+                         f"({', '.join(f'{100 * x:+.1f}' for x in over)}) | "
+                         f"{100 * np.mean(plan):+.1f} ± {100 * se:.1f} % | "
                          f"{sum(r['false_alarms'] for r in runs)} / {len(runs)} |")
     return "\n".join(lines)
 
@@ -140,24 +153,25 @@ def figure(results: list[dict[str, Any]], at: int, kind: str = "fatigue") -> Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig, (a, b, c) = plt.subplots(1, 3, figsize=(15, 3.8))
     for model in MODELS:
         runs = [r for r in results if r["kind"] == kind and r["model"] == model]
         if not runs:
             continue
         x = np.arange(len(runs[0]["cost"]))
+        ls = "--" if model == "oracle" else "-"
         if model != "oracle":
             a.plot(x, 100 * np.nanmean([r["error"] for r in runs], axis=0), label=model)
-        b.plot(x, np.mean([r["cost"] for r in runs], axis=0), label=model,
-               ls="--" if model == "oracle" else "-")
-    for ax in (a, b):
+        b.plot(x, np.mean([r["cost"] for r in runs], axis=0), label=model, ls=ls)
+        c.plot(x, np.mean([r["plan_cost"] for r in runs], axis=0), label=model, ls=ls)
+    for ax in (a, b, c):
         ax.axvline(at - 0.5, color="k", lw=0.8, ls=":")
         ax.set_xlabel("cycle")
+        ax.legend(fontsize=7)
     a.axhline(10, color="grey", lw=0.8)
     a.set_ylabel("belief error of mean durations [%]")
     b.set_ylabel("realised cost (makespan + γ·spatial)")
-    a.legend()
-    b.legend()
+    c.set_ylabel("plan cost under the true person")
     fig.suptitle(f"fetch, {kind}: {KINDS[kind]['human']} -> "
                  f"{KINDS[kind].get('change', '').split('@')[0]} at cycle {at} "
                  f"(mean of {len({r['seed'] for r in results})} seeds)")
