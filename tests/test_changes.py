@@ -168,7 +168,7 @@ def _strip(rec: dict) -> dict:
 
 
 CHANGING = dict(human="fast-outside", change="slow-outside@4", cycles=6, forgetting=0.8,
-                detect=True, ask=True, reexplore=1, seed=4, **SMALL)
+                detect=True, ask=True, whole_person=True, reexplore=1, seed=4, **SMALL)
 
 
 @pytest.mark.slow
@@ -189,6 +189,8 @@ def test_a_resumed_run_with_forgetting_and_detection_equals_an_uninterrupted_one
     assert any(r["changes"] for r in whole), "the planted change went unnoticed"
     alarm = next(a for r in whole for a in r["changes"])
     assert alarm["answer"] is True and alarm["action"] == "reset" and alarm["since_cycle"] >= 4
+    person = next(a for r in whole for a in r["changes"] if "person" in a)
+    assert person["answer"] is True and person["action"] == "moved" and person["tasks"]
     with pytest.raises(StateError, match=r"forgetting=0\.8"):
         AdaptiveRun(cfg.replace(forgetting=0.9), fetch_policy, RunStore(tmp_path / "run.sqlite"))
 
@@ -197,10 +199,64 @@ def test_a_run_stored_before_these_settings_existed_still_resumes(fetch_policy, 
                                                                    tmp_path):
     cfg = RunConfig(cycles=2, **SMALL)
     new = ("change", "drift", "drift_from", "forgetting", "detect", "hazard",
-           "detect_threshold", "ask", "reexplore")
+           "detect_threshold", "ask", "whole_person", "reexplore")
     old = {k: v for k, v in cfg.resolved(fetch_world).model_dump().items() if k not in new}
     store = RunStore(tmp_path / "run.sqlite")
     store.create_run(cfg.resolved(fetch_world).run_id, old)
     AdaptiveRun(cfg, fetch_policy, store)  # the defaults are what the old run ran with
     with pytest.raises(StateError, match="forgetting"):
         AdaptiveRun(cfg.replace(forgetting=0.5), fetch_policy, store)
+
+
+# -- a change of the whole person -----------------------------------------------------------
+def test_whole_person_needs_detection_and_a_segment_base_round_trips():
+    with pytest.raises(ConfigError, match=r"--whole-person.*--detect"):
+        RunConfig(whole_person=True)
+    xs = [4.1, 4.6, 8.0, 8.3]
+    plain = DurationModel(PRIOR, xs)
+    assert "base" not in plain.to_dict()  # the paper's model stores what it always stored
+    base = NIGPrior.from_moments(8.0, 0.8)
+    moved = DurationModel(PRIOR, xs, start=2, base=base)
+    assert moved.posterior == base.update(8.0).update(8.3)
+    assert DurationModel.from_dict(moved.to_dict()).posterior == moved.posterior
+
+
+FATIGUE = dict(human="fast-outside", change="slow-outside@5", cycles=8, seed=1, **SMALL)
+
+
+@pytest.mark.slow
+def test_a_fatigue_change_moves_the_tasks_not_seen_changing(fetch_policy):
+    """The person becomes ~1.9x slower on every task. Detection alone resets the tasks seen
+    changing and leaves the others at the old person; with --whole-person the others start
+    a new segment at the change from their old belief times the observed ratio, as confident
+    as the population prior (nu 1, alpha 2), and the beliefs land near the new person. Off
+    (no detection) nothing of it happens: the paper's model, every observation believed."""
+    paper = AdaptiveRun(RunConfig(**FATIGUE), fetch_policy)
+    paper.run()
+    for dm in paper.model.temporal.models.values():
+        assert dm.start == 0 and dm.base is None and dm.posterior == dm.fold(dm.observations)
+    detect = AdaptiveRun(RunConfig(**FATIGUE, detect=True), fetch_policy)
+    detect.run()
+    run = AdaptiveRun(RunConfig(**FATIGUE, detect=True, whole_person=True), fetch_policy)
+    recs = run.run()
+    person = [a for r in recs for a in r["changes"] if "person" in a]
+    assert len(person) == 1, "one person-level change expected"
+    p = person[0]
+    old, new = run.teammate.at(4).true_mean_durations(), run.teammate.at(7).true_mean_durations()
+    truth = float(np.exp(np.mean([np.log(new[t] / old[t]) for t in old])))
+    assert p["ratio"] == pytest.approx(truth, rel=0.15)
+    cycles = run.model.changes.cycles
+    unalarmed = [t for t in p["tasks"] if t not in p["from_tasks"]]
+    assert unalarmed, "no task was left for the person-level move"
+    for t in unalarmed:
+        dm, dd = run.model.temporal.models[t], detect.model.temporal.models[t]
+        index = next((i for i, c in enumerate(cycles[t]) if c >= p["since_cycle"]),
+                     len(cycles[t]))
+        before = dm.fold(dm.observations[:index])
+        assert dm.start == index and dm.base is not None
+        assert dm.base.mu == pytest.approx(p["ratio"] * before.mu)
+        assert dm.base.nu == 1 and dm.base.alpha == 2
+        # detection alone kept the old person's belief of the task; moved, it is much nearer
+        # the new person (as near as the old belief was to the old person allows)
+        kept, now = abs(dd.mean() / new[t] - 1), abs(dm.mean() / new[t] - 1)
+        assert kept > 0.3 and now < kept / 2, (t, kept, now)

@@ -211,6 +211,9 @@ def run_cmd(
                                  "one observation (with --detect)."),
     ask: bool = typer.Option(False, help="On a detected change, ask the teammate (a simulated "
                              "one answers truthfully); a denial keeps the belief."),
+    whole_person: bool = typer.Option(False, help="With --detect: a change seen on some tasks "
+                                      "moves the beliefs of the others by the same ratio "
+                                      "(fatigue, practice); with --ask, if the teammate agrees."),
     reexplore: int = typer.Option(0, help="Cycles planned with lambda again after a detected "
                                   "change."),
 ) -> None:
@@ -222,7 +225,7 @@ def run_cmd(
                     generations=generations, samples=samples, particles=particles,
                     candidates=candidates, surrogate=surrogate, change=change, drift=drift,
                     drift_from=drift_from, forgetting=forgetting, detect=detect, hazard=hazard,
-                    ask=ask, reexplore=reexplore)
+                    ask=ask, whole_person=whole_person, reexplore=reexplore)
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 

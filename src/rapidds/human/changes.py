@@ -54,15 +54,16 @@ def _logpred(mu: np.ndarray, nu: np.ndarray, alpha: np.ndarray, beta: np.ndarray
 def run_length_posterior(model: DurationModel, xs: Sequence[float], hazard: float) -> np.ndarray:
     """P(r = k | xs) for k = 0..n (index k), n = len(xs); entry 0 is 0 once n >= 1.
 
-    ``model`` supplies the prior and the forgetting of each run's belief (the updates of
+    ``model`` supplies the prior a new run starts from, the belief the whole segment starts
+    from (its ``origin``) and the forgetting of each run's belief (the updates of
     :meth:`NIGPrior.discounted` and :meth:`NIGPrior.update`, on arrays: one per run length).
     """
     if not 0 < hazard < 1:
         raise ValueError(f"hazard must be in (0, 1), got {hazard}")
-    p, f = model.prior, model.forgetting
+    p, o, f = model.prior, model.origin, model.forgetting
     logp = np.array([0.0])          # log P(r = k), k = 0..len
-    mu, nu = np.array([p.mu]), np.array([p.nu])        # belief of run length k
-    alpha, beta = np.array([p.alpha]), np.array([p.beta])
+    mu, nu = np.array([o.mu]), np.array([o.nu])        # belief of run length k
+    alpha, beta = np.array([o.alpha]), np.array([o.beta])
     lh, l1h = math.log(hazard), math.log1p(-hazard)
     for x in xs:
         pred = _logpred(mu, nu, alpha, beta, float(x))
@@ -115,6 +116,6 @@ def detect_change(model: DurationModel, *, hazard: float, threshold: float,
         return None
     r = 1 + int(np.argmax(inside))
     index = len(model.observations) - r
-    before = model.fold(model.observations[model.start:index]).mu
+    before = model.fold(model.observations[model.start:index], model.base).mu
     after = model.fold(model.observations[index:]).mu
     return Change(index, p, before, after)

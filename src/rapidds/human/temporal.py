@@ -23,7 +23,8 @@ changes and never becomes more certain than that. The prior is forgotten too, so
 the exponentially weighted mean of the observations, with no pull towards the population (a
 "stabilised" variant that keeps the prior biased a settled belief by ~1/6 of the way back to
 it at f = 0.8). f = 1 is the paper's update exactly. ``start`` drops the observations before
-a detected change.
+a detected change; ``base`` (None: the prior) is the belief that segment starts from, e.g. the
+old person's belief moved by a person-level change seen on other tasks.
 
 Durations are physical, so every sample is clipped at :data:`MIN_DURATION` (a Normal or
 Student-t has mass below zero; a negative duration would let a schedule finish before it
@@ -219,13 +220,15 @@ class DurationModel:
 
     forgetting: factor f in (0, 1] of :meth:`NIGPrior.discounted` applied before each update
     (1: the paper's model). start: observations before this index are no longer believed (a
-    detected change reset the belief); they stay listed as what happened.
+    detected change reset the belief); they stay listed as what happened. base: the belief the
+    observations from ``start`` on update (None: ``prior``).
     """
 
     prior: NIGPrior
     observations: list[float] = field(default_factory=list)
     forgetting: float = 1.0
     start: int = 0
+    base: NIGPrior | None = None
     posterior: NIGPrior = field(init=False)
 
     def __post_init__(self) -> None:
@@ -234,11 +237,17 @@ class DurationModel:
         self.observations = [float(x) for x in self.observations]
         if not 0 <= self.start <= len(self.observations):
             raise ValueError(f"start {self.start} outside 0..{len(self.observations)}")
-        self.posterior = self.fold(self.observations[self.start:])
+        self.posterior = self.fold(self.observations[self.start:], self.origin)
 
-    def fold(self, xs: Iterable[float]) -> NIGPrior:
-        """The belief after ``xs`` starting from the prior, with this model's forgetting."""
-        post = self.prior
+    @property
+    def origin(self) -> NIGPrior:
+        """The belief the current segment starts from."""
+        return self.prior if self.base is None else self.base
+
+    def fold(self, xs: Iterable[float], base: NIGPrior | None = None) -> NIGPrior:
+        """The belief after ``xs`` starting from ``base`` (None: the prior), with this model's
+        forgetting."""
+        post = self.prior if base is None else base
         for x in xs:
             post = self._step(post, x)
         return post
@@ -250,12 +259,13 @@ class DurationModel:
         self.posterior = self._step(self.posterior, duration)
         self.observations.append(float(duration))
 
-    def restart(self, start: int) -> None:
-        """Believe only the observations from index ``start`` on (0 <= start <= len)."""
+    def restart(self, start: int, base: NIGPrior | None = None) -> None:
+        """Believe only the observations from index ``start`` on (0 <= start <= len), starting
+        from ``base`` (None: the prior)."""
         if not 0 <= start <= len(self.observations):
             raise ValueError(f"start {start} outside 0..{len(self.observations)}")
-        self.start = int(start)
-        self.posterior = self.fold(self.observations[self.start:])
+        self.start, self.base = int(start), base
+        self.posterior = self.fold(self.observations[self.start:], base)
 
     def mean(self) -> float:
         return self.posterior.mu
@@ -274,6 +284,7 @@ class DurationModel:
             "observations": list(self.observations),
             "forgetting": self.forgetting,
             "start": self.start,
+            **({} if self.base is None else {"base": self.base.to_dict()}),
             "posterior": self.posterior.to_dict(),
         }
 
@@ -281,7 +292,8 @@ class DurationModel:
     def from_dict(cls, d: Mapping[str, Any]) -> DurationModel:
         """Rebuild by replaying the observations on the prior; the stored posterior must agree."""
         model = cls(NIGPrior.from_dict(d["prior"]), [float(x) for x in d["observations"]],
-                    float(d.get("forgetting", 1.0)), int(d.get("start", 0)))
+                    float(d.get("forgetting", 1.0)), int(d.get("start", 0)),
+                    NIGPrior.from_dict(d["base"]) if "base" in d else None)
         if "posterior" in d:
             stored = NIGPrior.from_dict(d["posterior"])
             for name in ("mu", "nu", "alpha", "beta"):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
 
 from rapidds.settings import Settings
 
@@ -56,6 +56,8 @@ class RunConfig(Settings):
         probability of a change at one observation; detect_threshold: posterior probability
         of a change that raises an alarm.
     ask: on an alarm, ask the person whether they changed; a denial keeps the old belief.
+    whole_person: (with detect) a change acted on in some tasks is the whole person's: the
+        other tasks' beliefs move by the same duration ratio (with ask: if the person says so).
     reexplore: cycles after a detected change planned with the exploration weight lambda again.
     """
 
@@ -87,6 +89,7 @@ class RunConfig(Settings):
     hazard: Annotated[float, Field(gt=0, lt=1)] = 0.05
     detect_threshold: Annotated[float, Field(gt=0, lt=1)] = 0.5
     ask: bool = False
+    whole_person: bool = False
     reexplore: Annotated[int, Field(ge=0)] = 0
 
     @field_validator("change")
@@ -96,6 +99,13 @@ class RunConfig(Settings):
             from rapidds.worlds.changes import parse_changes  # numpy: not at `--help`
 
             parse_changes(v)
+        return v
+
+    @field_validator("whole_person")
+    @classmethod
+    def _check_whole_person(cls, v: bool, info: ValidationInfo) -> bool:
+        if v and not info.data.get("detect"):
+            raise ValueError("needs --detect (it acts on detected changes)")
         return v
 
     def resolved(self, world: World) -> RunConfig:

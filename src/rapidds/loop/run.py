@@ -24,6 +24,7 @@ import numpy as np
 from rapidds.errors import CheckpointError, RapiddsError, StateError
 from rapidds.human.changes import detect_change
 from rapidds.human.spatial import SpatialModel
+from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIGPrior
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment, deploy
@@ -375,6 +376,7 @@ class AdaptiveRun:
         person) the task's beliefs restart from the observations since it. What happened goes
         into the cycle's record."""
         cfg, log, out = self.config, self.model.changes, []
+        olds: dict[str, NIGPrior] = {}  # the old person's belief of each reset task
         for task, ex in deployment.human.items():
             dm = self.model.temporal.models[task]
             ch = detect_change(dm, hazard=cfg.hazard, threshold=cfg.detect_threshold)
@@ -395,6 +397,7 @@ class AdaptiveRun:
                     entry["action"] = "kept"
                     out.append(entry)
                     continue
+            olds[task] = dm.fold(dm.observations[dm.start:ch.index], dm.base)
             dm.restart(ch.index)
             if learn_space:  # older paths are not kept: restart from the latest one
                 self.model.spatial[task].reset()
@@ -402,7 +405,74 @@ class AdaptiveRun:
             log.last_change = cycle
             entry["action"] = "reset"
             out.append(entry)
+        if cfg.whole_person and olds:
+            out.append(self._person_change(cycle, olds, [e for e in out
+                                                          if e["action"] == "reset"]))
         return out
+
+    def _person_change(self, cycle: int, olds: dict[str, NIGPrior],
+                       resets: list[dict[str, Any]]) -> dict[str, Any]:
+        """The change on the tasks just reset (``olds``: their beliefs of the old person) taken
+        as the whole person's (fatigue, practice). Their durations scaled by a ratio r: each
+        reset task's r_i is the mean of what the new person did on it over the old belief's
+        mean (not the reset belief's, which the population prior pulls back). Every other task
+        with observations of the old person starts a new segment at the change from its old
+        belief moved by r = the geometric mean of the r_i (mean and spread times r), as
+        confident as the population prior of a new person (nu, alpha), updated with the
+        task's observations since; a reset task does the same with the other reset tasks' r
+        when there are any (so no observation counts twice). With ``ask`` the person is asked
+        first; a denial leaves it at the per-task resets."""
+        log, models = self.model.changes, self.model.temporal.models
+        since = min(e["since_cycle"] for e in resets)
+        logr = {t: math.log(float(np.mean(models[t].observations[models[t].start:])) / b.mu)
+                for t, b in olds.items()}
+        ratio = math.exp(float(np.mean(list(logr.values()))))
+        entry: dict[str, Any] = {"person": True, "since_cycle": since, "ratio": ratio,
+                                 "from_tasks": sorted(olds)}
+        if self.config.ask:
+            entry["question"] = (f"you seem {'slower' if ratio > 1 else 'faster'} overall since "
+                                 f"cycle {since} (durations x{ratio:.2f} on "
+                                 f"{', '.join(sorted(olds))}): on your other tasks too?")
+            entry["answer"] = answer = self._answer_person(since - 1, cycle, ratio)
+            if answer is False:
+                entry["action"] = "kept"
+                return entry
+
+        def moved(old: NIGPrior, dm: DurationModel, r: float) -> NIGPrior:
+            var = old.expected_variance
+            std = math.sqrt(var if math.isfinite(var) else dm.prior.expected_variance)
+            return NIGPrior.from_moments(r * old.mu, r * std, DEFAULT_NU, DEFAULT_ALPHA)
+
+        out = []
+        for task, dm in models.items():
+            if task in olds:
+                others = [v for t, v in logr.items() if t != task]
+                if others:
+                    dm.restart(dm.start, moved(olds[task], dm, math.exp(float(np.mean(others)))))
+                    out.append(task)
+                continue
+            seen = log.cycles.get(task, [])
+            index = next((i for i, c in enumerate(seen) if c >= since), len(seen))
+            if index <= dm.start:  # its segment holds nothing of the old person
+                continue
+            dm.restart(index, moved(dm.fold(dm.observations[dm.start:index], dm.base), dm, ratio))
+            out.append(task)
+        entry["tasks"] = out
+        entry["action"] = "moved"
+        return entry
+
+    def _answer_person(self, then: int, now: int, ratio: float) -> bool | None:
+        """The person's answer to "are you slower (ratio > 1) or faster on all your tasks now
+        than in cycle ``then``?": a simulated person answers truthfully (every task's true mean
+        moved by more than 10 % that way); a live one through ``confirm_person_change(then)``
+        if they offer it, else None (the detector is trusted)."""
+        if isinstance(self.teammate, SimulatedTeammate):
+            before = self.teammate.at(then).true_mean_durations()
+            after = self.teammate.at(now).true_mean_durations()
+            moved = [after[t] / before[t] for t in self.model.temporal.models]
+            return all(m > 1.1 for m in moved) if ratio > 1 else all(m < 1 / 1.1 for m in moved)
+        confirm = getattr(self.teammate, "confirm_person_change", None)
+        return None if confirm is None else bool(confirm(then))
 
     def _answer(self, task: str, then: int, now: int) -> bool | None:
         """The person's answer to "are you different on ``task`` now than in cycle ``then``
