@@ -89,10 +89,15 @@ def play_cycle(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = 
     last: dict[str, Any] = {}
     end = time.monotonic() + 90
     while time.monotonic() < end:
-        st = page.evaluate("window.rapidds.state")
+        # the cycle's last state from the page's record of ended cycles: on screen, "over" may
+        # last one tick (the next plan replaces it), shorter than a poll on a loaded machine
+        st, ended = page.evaluate(f"[window.rapidds.state, window.rapidds.ended[{cycle}]]")
+        if ended is not None:
+            last = ended
+            break
         if st["cycle"] == cycle:
             last = st
-            if st["over"] or (stop_at is not None and st["t"] >= stop_at):
+            if stop_at is not None and st["t"] >= stop_at:
                 break
             if midcycle_shot is not None and st["t"] >= 3.0:
                 page.screenshot(path=str(midcycle_shot))

@@ -7,6 +7,7 @@
 const R = (window.rapidds = {
   connected: false, refused: null, phase: "connecting", info: null, plan: null, state: null,
   summary: null, lastRefusal: null, frames: 0, error: null,
+  ended: {},  // cycle -> its last state: the next cycle replaces "over" on screen a tick later
 });
 
 const COLORS = {
@@ -43,7 +44,7 @@ function send(obj) {
 
 function receive(m) {
   switch (m.type) {
-    case "state": R.state = m; R.frames += 1; break;
+    case "state": R.state = m; R.frames += 1; if (m.over) R.ended[m.cycle] = m; break;
     case "welcome": R.info = m; R.refused = null; $("run").textContent = m.adapt ? `${m.run_id} · ${m.adapt} adaptation` : m.run_id; break;
     case "plan": R.plan = m; break;
     case "summary": R.summary = m; heatFor = -1; showSummary(); break;
