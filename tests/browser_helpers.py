@@ -41,6 +41,19 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
 SHOTS = os.environ.get("RAPIDDS_SCREENSHOTS") == "1"
 
 
+def open_page(browser: Any, url: str | None = None, *, width: int = 1040,
+              height: int = 820) -> Any:
+    """A new page (at ``url``) whose uncaught script errors collect in ``page.errors``.
+    bypass_csp: the pages forbid eval, which Playwright's wait_for_function uses."""
+    page = browser.new_page(viewport={"width": width, "height": height}, bypass_csp=True)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.errors = errors
+    if url is not None:
+        page.goto(url)
+    return page
+
+
 class CliServer:
     """``rapidds ARGS`` in a subprocess (this checkout's sources first on the path); stdout lines
     arrive in ``lines`` (those read are kept in ``out_lines``), stderr in ``err``."""

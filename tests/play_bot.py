@@ -9,13 +9,31 @@ so the same bot drives the game in-process (``player.steer``) and in a browser (
 
 from __future__ import annotations
 
+import json
+import math
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from rapidds.worlds.fetch.world import FetchWorld
+
+
+def human_tasks(seq: list[str]) -> list[str]:
+    """A stored or planned human sequence without its wait tokens."""
+    return [t for t in seq if not t.startswith("wait:")]
+
+
+def until(ws: Any, kind: str, limit: int = 2000) -> dict[str, Any]:
+    """The next message of type ``kind`` on a game socket (a TestClient WebSocket)."""
+    for _ in range(limit):
+        msg = json.loads(ws.receive_text())
+        if msg["type"] == kind:
+            return msg
+    raise AssertionError(f"no {kind!r} message in {limit}")
+
 
 KEYS = {(1, 0): "ArrowRight", (-1, 0): "ArrowLeft", (0, 1): "ArrowUp", (0, -1): "ArrowDown"}
 
@@ -113,3 +131,39 @@ def play_cycle(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = 
         page.keyboard.up(k)
     assert last.get("over") or stop_at is not None, f"cycle {cycle} did not finish: {last}"
     return plan, last
+
+
+def check_played(store: Any, run_id: str, played: list[tuple[dict, dict]], world: FetchWorld,
+                 modes: dict[str, str]) -> list[dict[str, Any]]:
+    """The store (a run or study store) holds the ``played`` cycles (plan, last state, as
+    :func:`play_cycle` returns them) as the page saw them: the plan's human sequence, the
+    page's durations, paths sampled at dt from home to the object and back, on the bot's
+    routes (``modes``). Their records."""
+    recs = store.records(run_id)
+    assert [r["cycle"] for r in recs] == list(range(len(played)))
+    for rec, (plan, end) in zip(recs, played, strict=True):
+        assert rec["human"] == plan["sequences"]["human"]
+        human = human_tasks(rec["human"])
+        assert human, "the bot needs tasks to play"
+        arrays = store.arrays(run_id, rec["cycle"])
+        for t in human:
+            s, f = end["times"][t]  # what the page saw, live
+            assert rec["observed"][t] == pytest.approx(f - s, abs=2e-3)
+            path = arrays[f"human/{t}"]
+            n = math.ceil(rec["observed"][t] / world.dt - 1e-9) + 1
+            assert path.shape == (n, 2)  # sampled at dt from start to end
+            assert np.linalg.norm(path[-1] - world.home("human")) <= 0.5
+            assert np.linalg.norm(path - world.object_position(t), axis=1).min() \
+                <= 0.5 + 4.5 * world.dt
+            if t in modes:  # the bot's route, not a simulated person's
+                assert world.route_mode(t, path) == modes[t]
+    return recs
+
+
+def check_planned_with(plan: dict[str, Any], rec: dict[str, Any]) -> None:
+    """``plan`` (as the page showed it) expects the human's durations that ``rec``'s cycle
+    learned."""
+    learned = rec["belief"]["mean_durations"]
+    for t in human_tasks(plan["sequences"]["human"]):
+        s, f = plan["expected"][t]
+        assert f - s == pytest.approx(learned[t], abs=2e-3)

@@ -10,16 +10,13 @@ stops it cleanly.
 
 from __future__ import annotations
 
-import math
 import signal
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import pytest
-from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
-from play_bot import RouteBot, play_cycle
+from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer, open_page
+from play_bot import RouteBot, check_planned_with, check_played, play_cycle
 
 from rapidds.store import RunStore
 from rapidds.worlds.fetch.world import FetchWorld
@@ -40,30 +37,16 @@ class Server(CliServer):
         self.url = line.split("open ", 1)[1].split()[0]
 
 
-def _page(browser: Any, url: str) -> Any:
-    # bypass_csp: the page forbids eval, which Playwright's wait_for_function uses
-    page = browser.new_page(viewport={"width": 1040, "height": 820}, bypass_csp=True)
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.errors = errors
-    page.goto(url)
-    return page
-
-
-def _human(seq: list[str]) -> list[str]:
-    return [t for t in seq if not t.startswith("wait:")]
-
-
 def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
         browser: Any, tmp_path: Path, fetch_world: FetchWorld) -> None:
     out = tmp_path / "play"
     bot = RouteBot(fetch_world, {"t2": "middle", "t3": "outside"})
     server = Server(out)
     try:
-        page = _page(browser, server.url)
+        page = open_page(browser, server.url)
         plan0, end0 = play_cycle(page, bot, 0)
         # a second browser for the same run is turned away, politely
-        other = _page(browser, server.url)
+        other = open_page(browser, server.url)
         other.wait_for_function("window.rapidds.refused !== null", timeout=20_000)
         assert "played elsewhere" in other.inner_text("#instruction")
         other.close()
@@ -91,42 +74,21 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
             server.proc.kill()
 
     with RunStore(out / "run.sqlite") as store:
-        recs = store.records(RUN_ID)
-        assert [r["cycle"] for r in recs] == [0, 1]
-        for rec, plan, end in ((recs[0], plan0, end0), (recs[1], plan1, end1)):
-            assert rec["human"] == plan["sequences"]["human"]
-            human = _human(rec["human"])
-            assert human, "the bot needs tasks to play"
-            arrays = store.arrays(RUN_ID, rec["cycle"])
-            for t in human:
-                s, f = end["times"][t]  # what the page saw, live
-                assert rec["observed"][t] == pytest.approx(f - s, abs=2e-3)
-                path = arrays[f"human/{t}"]
-                n = math.ceil(rec["observed"][t] / fetch_world.dt - 1e-9) + 1
-                assert path.shape == (n, 2)  # sampled at dt from start to end
-                assert np.linalg.norm(path[-1] - fetch_world.home("human")) <= 0.5
-                assert np.linalg.norm(path - fetch_world.object_position(t), axis=1).min() \
-                    <= 0.5 + 4.5 * fetch_world.dt
-                if t in ("t2", "t3"):
-                    assert fetch_world.route_mode(t, path) == bot.modes[t]
+        recs = check_played(store, RUN_ID, [(plan0, end0), (plan1, end1)], fetch_world,
+                            bot.modes)
     # the second plan was made with the learned belief, not the prior
+    check_planned_with(plan1, recs[0])
     learned = recs[0]["belief"]["mean_durations"]
     prior = {t: fetch_world.problem().task(t).human_mean for t in learned}
-    for t in _human(plan1["sequences"]["human"]):
-        s, f = plan1["expected"][t]
-        assert f - s == pytest.approx(learned[t], abs=2e-3)
     assert any(abs(learned[t] - prior[t]) > 0.3 for t in recs[0]["observed"])
 
     # resume: the lost cycle is planned again from the stored model, and played
     server = Server(out, "--resume")
     try:
         assert "cycle 3 of 3" in server.out_lines[-1]
-        page = _page(browser, server.url)
+        page = open_page(browser, server.url)
         plan2, _ = play_cycle(page, bot, 2)
-        learned1 = recs[1]["belief"]["mean_durations"]
-        for t in _human(plan2["sequences"]["human"]):
-            s, f = plan2["expected"][t]
-            assert f - s == pytest.approx(learned1[t], abs=2e-3)
+        check_planned_with(plan2, recs[1])
         page.wait_for_function("window.rapidds.phase === 'done'", timeout=60_000)
         assert "All cycles played" in page.inner_text("#instruction")
         assert page.errors == []

@@ -7,10 +7,10 @@ import json
 import logging
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from play_bot import until
 from starlette.websockets import WebSocketDisconnect
 
 from rapidds.loop.config import RunConfig
@@ -41,13 +41,6 @@ def client(tmp_path_factory: pytest.TempPathFactory, fetch_world: FetchWorld,
         session.stop()
 
 
-def _until(ws: Any, kind: str, limit: int = 2000) -> dict[str, Any]:
-    for _ in range(limit):
-        msg = json.loads(ws.receive_text())
-        if msg["type"] == kind:
-            return msg
-    raise AssertionError(f"no {kind!r} message in {limit}")
-
 
 def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
     page = client.get("/")
@@ -60,13 +53,13 @@ def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
 
 def test_a_page_gets_the_scene_the_plan_and_the_live_state(client: TestClient) -> None:
     with client.websocket_connect(WS) as ws:
-        welcome = _until(ws, "welcome")
+        welcome = until(ws, "welcome")
         assert welcome["run_id"] == "fetch-web-full-s0" and welcome["hz"] == 60
         assert len(welcome["scene"]["walls"]) == 4
-        plan = _until(ws, "plan")
+        plan = until(ws, "plan")
         assert plan["cycle"] == 0 and set(plan["owner"]) == {"t0", "t1", "t2", "t3"}
-        assert _until(ws, "phase")["phase"] == "ready"
-        state = _until(ws, "state")
+        assert until(ws, "phase")["phase"] == "ready"
+        state = until(ws, "state")
         assert state["h"] == [2.2, 7.0] and not state["started"]
 
 
@@ -84,43 +77,43 @@ def test_bad_messages_are_refused_and_logged_and_the_game_goes_on(
     ]
     with caplog.at_level(logging.WARNING, logger="rapidds.web"), \
             client.websocket_connect(WS) as ws:
-        _until(ws, "welcome")
+        until(ws, "welcome")
         for raw in bad:
             ws.send_text(raw)
-            assert _until(ws, "refused-message")["reason"]
+            assert until(ws, "refused-message")["reason"]
         ws.send_bytes(b"\x00\x01")
-        assert "binary" in _until(ws, "refused-message")["reason"]
+        assert "binary" in until(ws, "refused-message")["reason"]
         ws.send_text(json.dumps({"type": "move", "seq": 10, "dx": 1, "dy": 0}))
         ws.send_text(json.dumps({"type": "move", "seq": 10, "dx": 1, "dy": 0}))  # replayed
-        assert "replayed" in _until(ws, "refused-message")["reason"]
+        assert "replayed" in until(ws, "refused-message")["reason"]
         ws.send_text(json.dumps({"type": "move", "seq": 9, "dx": 0, "dy": 0}))  # out of order
-        assert "out of order" in _until(ws, "refused-message")["reason"]
+        assert "out of order" in until(ws, "refused-message")["reason"]
         ws.send_text(json.dumps({"type": "start", "seq": 11, "cycle": 0}))
         for _ in range(600):
-            state = _until(ws, "state")
+            state = until(ws, "state")
             if state["t"] > 0.5:
                 break
         assert state["started"] and state["h"][0] > 2.2 + 0.5 * 4.5 * 0.8  # walked right
         ws.send_text(json.dumps({"type": "start", "seq": 12, "cycle": 0}))  # a replayed start
-        assert "not ready" in _until(ws, "refused-message")["reason"]
+        assert "not ready" in until(ws, "refused-message")["reason"]
     refusals = [r for r in caplog.records if "refused a message" in r.getMessage()]
     assert len(refusals) == len(bad) + 4
     # leaving mid-cycle puts the cycle back to its start for the next page
     with client.websocket_connect(WS) as ws:
-        assert _until(ws, "phase")["phase"] == "ready"
-        assert _until(ws, "state")["t"] == 0
+        assert until(ws, "phase")["phase"] == "ready"
+        assert until(ws, "state")["t"] == 0
 
 
 def test_one_player_per_run_and_same_origin_only(client: TestClient) -> None:
     with client.websocket_connect(WS) as first:
-        _until(first, "welcome")
+        until(first, "welcome")
         with client.websocket_connect(WS) as second:
             msg = json.loads(second.receive_text())
             assert msg["type"] == "refused" and "another browser" in msg["reason"]
             with pytest.raises(WebSocketDisconnect) as closed:
                 second.receive_text()
             assert closed.value.code == 4009
-        _until(first, "state")  # the first one plays on
+        until(first, "state")  # the first one plays on
     with pytest.raises(WebSocketDisconnect) as refused, client.websocket_connect(
             WS, headers={"origin": "http://evil.example"}) as ws:
         ws.receive_text()

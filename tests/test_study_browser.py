@@ -14,7 +14,6 @@ docs/study-survey.png, docs/study-ranking.png and docs/study-game.png.
 from __future__ import annotations
 
 import json
-import math
 import signal
 import socket
 import time
@@ -23,8 +22,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer
-from play_bot import RouteBot, play_cycle
+from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer, open_page
+from play_bot import RouteBot, check_planned_with, check_played, play_cycle
 from study_helpers import make_study
 
 from rapidds.experiments.study.store import StudyStore, study_path
@@ -91,10 +90,7 @@ def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
     assert server.hello["participants"] == 1 and server.hello["unfinished"] == 1
     observed: dict[int, dict[str, float]] = {}
     try:
-        page = browser.new_page(viewport={"width": 1000, "height": 900}, bypass_csp=True)
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(server.url)
+        page = open_page(browser, server.url, width=1000, height=900)
         assert "order of systems" in page.inner_text("#overview")
         with page.expect_navigation(timeout=WAIT):
             page.click(f"a[href='/p/{pid}']")
@@ -170,7 +166,7 @@ def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
         page.fill("input[name=handedness]", "right")
         _submit(page)
         assert "has finished every part" in page.inner_text("#done")
-        assert errors == []
+        assert page.errors == []
         page.close()
         assert server.stop(signal.SIGINT) == 0
         bye = json.loads(server.out_lines[-1])
@@ -208,10 +204,7 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
     played: list[tuple[dict[str, Any], dict[str, Any]]] = []
     waits: list[float] = []
     try:
-        page = browser.new_page(viewport={"width": 1040, "height": 820}, bypass_csp=True)
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(f"{server.url}p/{pid}")
+        page = open_page(browser, f"{server.url}p/{pid}")
         for rnd in (0, 1):
             assert f"round {rnd + 1} of 2" in _plan(page)["where"]
             with page.expect_navigation(timeout=WAIT):
@@ -236,7 +229,7 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
             page.wait_for_url(f"**/p/{pid}", timeout=WAIT)
             page.wait_for_selector("#survey" if rnd else "#input", timeout=WAIT)
             waits.append(time.monotonic() - over)
-        assert errors == []
+        assert page.errors == []
         page.close()
         assert server.stop(signal.SIGINT) == 0
     finally:
@@ -247,26 +240,9 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
 
     with StudyStore.open_readonly(study_path(folder)) as s:
         assert s.next_step(pid).kind == "survey"
-        rid = s.run_id(pid, system)
-        recs = s.records(rid)
-        assert [r["cycle"] for r in recs] == [0, 1]
-        for rec, (plan, end) in zip(recs, played, strict=True):
-            assert rec["human"] == plan["sequences"]["human"]
-            human = [t for t in rec["human"] if not t.startswith("wait:")]
-            assert human, "the bot needs tasks to play"
-            arrays = s.arrays(rid, rec["cycle"])
-            for t in human:
-                start, finish = end["times"][t]  # what the page saw, live
-                assert rec["observed"][t] == pytest.approx(finish - start, abs=2e-3)
-                path = arrays[f"human/{t}"]
-                n = math.ceil(rec["observed"][t] / fetch_world.dt - 1e-9) + 1
-                assert path.shape == (n, 2)  # sampled at dt from start to end
-                if t in ("t2", "t3"):  # the bot's route, not the priming group's
-                    assert fetch_world.route_mode(t, path) == modes[t]
+        recs = check_played(s, s.run_id(pid, system), played, fetch_world, modes)
     # the second round's plan is the learned model's, not the prior's
+    check_planned_with(played[1][0], recs[0])
     learned = recs[0]["belief"]["mean_durations"]
-    for t in [t for t in played[1][0]["sequences"]["human"] if not t.startswith("wait:")]:
-        start, finish = played[1][0]["expected"][t]
-        assert finish - start == pytest.approx(learned[t], abs=2e-3)
     prior = {t: fetch_world.problem().task(t).human_mean for t in learned}
     assert any(abs(learned[t] - prior[t]) > 0.3 for t in recs[0]["observed"])

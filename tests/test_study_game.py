@@ -10,11 +10,11 @@ import json
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from play_bot import until
 from starlette.websockets import WebSocketDisconnect
 from study_helpers import make_study
 
@@ -44,13 +44,6 @@ def _serve(folder: Path, world: World, policy: DiffusionPolicy
     finally:
         worker.close()
 
-
-def _until(ws: Any, kind: str, limit: int = 2000) -> dict[str, Any]:
-    for _ in range(limit):
-        msg = json.loads(ws.receive_text())
-        if msg["type"] == kind:
-            return msg
-    raise AssertionError(f"no {kind} message")
 
 
 def _step(client: TestClient, pid: str) -> str:
@@ -97,12 +90,12 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
         assert "/static/play.js" in game.text
         held = client.app.state.worker.run(lambda s: s.plan(pid))[1]  # type: ignore[attr-defined]
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
-            welcome = _until(ws, "welcome")
+            welcome = until(ws, "welcome")
             assert welcome["next"] == f"/p/{pid}" and welcome["cycles"] == 2
-            plan = _until(ws, "plan")
+            plan = until(ws, "plan")
             assert plan["cycle"] == 0 and plan["sequences"]["human"] == held.human
             assert plan["sequences"]["robot"] == held.robot
-            assert _until(ws, "phase")["phase"] == "ready"
+            assert until(ws, "phase")["phase"] == "ready"
             # one page per participant round: a second tab is told so
             with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as second:
                 msg = json.loads(second.receive_text())
@@ -113,11 +106,11 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
             # a closed tab mid-round: the round starts again for the next page
             ws.send_text(json.dumps({"type": "start", "seq": 1, "cycle": 0}))
             ws.send_text(json.dumps({"type": "move", "seq": 2, "dx": 1, "dy": 0}))
-            while _until(ws, "state")["t"] < 0.3:
+            while until(ws, "state")["t"] < 0.3:
                 pass
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
-            assert _until(ws, "phase")["phase"] == "ready"
-            assert _until(ws, "state")["t"] == 0
+            assert until(ws, "phase")["phase"] == "ready"
+            assert until(ws, "state")["t"] == 0
             # a page of another site cannot drive the game
             evil = {"origin": "http://evil.example"}
             with pytest.raises(WebSocketDisconnect) as foreign, client.websocket_connect(
@@ -130,7 +123,7 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
             assert r.status_code == 200, r.text
             # the page still open on the old round is told when the next round's game opens
             assert client.get(f"/p/{pid}/play").status_code == 200
-            assert "moved on" in _until(ws, "refused")["reason"]
+            assert "moved on" in until(ws, "refused")["reason"]
         # the game of the round the study moved past is refused, with what comes next
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
             msg = json.loads(ws.receive_text())
@@ -142,12 +135,12 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
         game = client.get(f"/p/{pid}/play")
         assert game.status_code == 200
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
-            plan1 = _until(ws, "plan")
+            plan1 = until(ws, "plan")
             assert plan1["cycle"] == 1
     # a server restarted mid-round: the page reconnects and plays the same plan again
     with _serve(folder, fetch_world, fetch_policy) as (client, pid):
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
-            again = _until(ws, "plan")
+            again = until(ws, "plan")
         assert again["cycle"] == 1 and again["sequences"] == plan1["sequences"]
         assert again["routes"] == plan1["routes"] and again["owner"] == plan1["owner"]
         for t, (start, finish) in plan1["expected"].items():
