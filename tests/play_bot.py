@@ -18,12 +18,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from rapidds.schedule import Wait, parse_item
 from rapidds.worlds.fetch.world import FetchWorld
 
 
 def human_tasks(seq: list[str]) -> list[str]:
     """A stored or planned human sequence without its wait tokens."""
-    return [t for t in seq if not t.startswith("wait:")]
+    return [t for t in seq if not isinstance(parse_item(t), Wait)]
 
 
 def until(ws: Any, kind: str, limit: int = 2000) -> dict[str, Any]:

@@ -41,7 +41,6 @@ def client(tmp_path_factory: pytest.TempPathFactory, fetch_world: FetchWorld,
         session.stop()
 
 
-
 def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
     page = client.get("/")
     assert page.status_code == 200 and '<canvas id="map"' in page.text

@@ -45,7 +45,6 @@ def _serve(folder: Path, world: World, policy: DiffusionPolicy
         worker.close()
 
 
-
 def _step(client: TestClient, pid: str) -> str:
     page = client.get(f"/p/{pid}")
     assert page.status_code == 200, page.text
