@@ -158,7 +158,6 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     """The person's ``tasks`` of one round from a tracker file's bytes (format: module
     docstring); :class:`TrackerError` names the first problem. ``at_most``: the longest a task
     may take, s (default: the world's bound, :func:`world_task_bound`)."""
-    limit = world_task_bound(world) if at_most is None else at_most
     if len(data) > MAX_TRACKER_BYTES:
         raise TrackerError(f"the tracker file is larger than {MAX_TRACKER_BYTES // 2**20} MiB")
     try:
@@ -208,6 +207,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     if extra:
         raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
                            f"does not do this round (their tasks: {', '.join(wanted)})")
+    limit = world_task_bound(world) if at_most is None else at_most
     out: dict[str, HumanExecution] = {}
     for task in wanted:
         rows = names == task
