@@ -8,12 +8,15 @@ import json
 import os
 import subprocess
 import sys
+import urllib.error
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from browser_helpers import CliServer
 from fastapi.testclient import TestClient
 from study_helpers import SEARCH, make_study
 
@@ -378,3 +381,30 @@ def test_the_study_answers_on_the_ipv6_loopback(study: Study) -> None:
     assert r.status_code == 200, r.text
     assert study.stored() == (1, 0, 0, 0)
     assert c.get(f"/p/{pid}", headers={"host": "rebind.example"}).status_code == 400
+
+
+def test_study_serve_on_the_ipv6_loopback_prints_addresses_that_work(
+        tmp_path: Path, fetch_world: FetchWorld) -> None:
+    """``rapidds study serve --host ::1`` end to end: the participant address it prints answers,
+    the overview answers to the experimenter's address it prints and to nothing else."""
+    folder = make_study(tmp_path, fetch_world)
+    server = CliServer("study", "serve", str(folder), "--host", "::1", "--port", "0", "--json")
+    try:
+        hello = json.loads(server.wait_for(lambda line: True, timeout=300))
+        assert hello["url"].startswith("http://[::1]:") and hello["overview"].startswith(
+            hello["url"] + "?token=")
+
+        def get(url: str) -> tuple[int, str]:
+            try:
+                with urllib.request.urlopen(url, timeout=300) as r:
+                    return r.status, r.read().decode()
+            except urllib.error.HTTPError as exc:
+                return exc.code, exc.read().decode()
+
+        status, page = get(hello["url"] + "p/P01")
+        assert status == 200 and "Round 1: the robot's plan" in page
+        assert get(hello["url"])[0] == 403
+        status, page = get(hello["overview"])
+        assert status == 200 and "order of systems" in page
+    finally:
+        assert server.stop() == 0, "".join(server.err)[-2000:]
