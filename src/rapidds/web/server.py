@@ -114,11 +114,12 @@ def request_host(headers: Mapping[str, str]) -> str | None:
     if not raw or any(c in raw for c in "/?#@ \\"):
         return None
     try:
-        name = urlsplit("//" + raw).hostname
-        urlsplit("//" + raw).port  # noqa: B018 - raises on a bad port
-    except ValueError:
+        parts = urlsplit("//" + raw)
+        if parts.port is None and raw.endswith(":"):
+            return None
+    except ValueError:  # a bad port or IPv6 literal
         return None
-    return name or None
+    return parts.hostname or None
 
 
 class HostCheck:
@@ -167,7 +168,6 @@ class _Connection:
         self.sent_summary = -1
         self.sent_phase: str | None = None
         self.turn: tuple[object, ...] | None = None
-
         self.overflow = False  # the page stopped reading: the receiver drops it
 
     def control(self, obj: dict[str, Any]) -> None:
