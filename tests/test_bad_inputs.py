@@ -91,6 +91,13 @@ CASES: list[tuple[str, str]] = [
     ("case-study fetch --out {tmp}/cs", "no case study for world 'fetch'"),
     ("case-study painting --out {tmp}/cs --cycles 0", "Invalid value for '--cycles'"),
     ("case-study painting", "Missing option '--out'"),
+    # study (issue 27: the flag a user can type, bounds on a task's duration)
+    ("study design --out {tmp}/s --participants 15", "--allow-unbalanced"),
+    ("study design --out {tmp}/s --participants 16 --max-task-seconds 0",
+     "max_task_s: Input should be greater than 0"),
+    ("study design --out {tmp}/s --participants 16 --max-task-seconds 1e9",
+     "max_task_s: Input should be less than or equal to 3600"),
+    ("study serve {tmp}", "holds no study"),
     # the others
     ("demo --cycles 0", "--cycles: Input should be greater than or equal to 1"),
     ("demo --world moon", "unknown world 'moon'"),

@@ -8,12 +8,15 @@ import json
 import os
 import subprocess
 import sys
+import urllib.error
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from browser_helpers import CliServer
 from fastapi.testclient import TestClient
 from study_helpers import SEARCH, make_study
 
@@ -22,6 +25,7 @@ from rapidds.experiments.study.store import StudyStore, create_study, study_path
 from rapidds.loop.config import RunConfig
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.store import RunStore
+from rapidds.web.server import allowed_hosts
 from rapidds.web.study.app import MAX_BODY, StudyWorker, create_study_app
 from rapidds.web.study.runner import StudySession
 from rapidds.web.study.tracker import tracker_csv
@@ -42,6 +46,11 @@ class Study:
         self.worker = StudyWorker(lambda: StudySession(self.folder, policy=self.policy,
                                                        world=self.world))
         self.client = TestClient(create_study_app(self.worker, HOSTS), base_url=BASE)
+
+    @property
+    def token(self) -> str:
+        """The experimenter's key to the overview."""
+        return str(self.client.app.state.token)  # type: ignore[attr-defined]
 
     def restart(self) -> None:
         self.close()
@@ -90,7 +99,7 @@ def _human_tasks(study: Study, pid: str) -> list[str]:
 
 def test_a_round_page_shows_the_plan_and_each_submit_stores_one_round(study: Study) -> None:
     pid = _pid(study)
-    overview = study.client.get("/")
+    overview = study.client.get("/", params={"token": study.token})
     assert overview.status_code == 200 and f"/p/{pid}" in overview.text
     page = study.client.get(f"/p/{pid}")
     assert page.status_code == 200
@@ -98,6 +107,8 @@ def test_a_round_page_shows_the_plan_and_each_submit_stores_one_round(study: Stu
     assert "system 1 of 2" in page.text and "round 1 of 2" in page.text
     for name in ("full", "none"):  # the participant's pages never name the system
         assert f"'{name}'" not in page.text
+    for source in ("tracker", "simulated", "typed"):  # the group names a simulated person
+        assert f"value={source}" in page.text
     step = study.step(pid)
     assert step.startswith("round:") and step.endswith(":0")
     # the simulated cell: the priming group's simulated person does the tasks
@@ -133,7 +144,7 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
     person = study.worker.run(lambda s: s.teammate(pid))
     done = person.execute(0, tasks, np.random.default_rng(7))
     text = tracker_csv(done, study.world.dt, t0=50.0)
-    r = study.post(pid, "round", step, {"source": "tracker", "tracker_file": ""}, tracker=text)
+    r = study.post(pid, "round", step, {"source": "tracker"}, tracker=text)
     assert r.status_code == 200, r.text
     with StudyStore.open_readonly(study_path(study.folder)) as s:
         rid = s.run_id(pid, s.participant(pid).systems[0])
@@ -156,6 +167,18 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
     ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0,0,1,1\n*,0,1,900,1\n"},
      "metres"),
     ({"source": "teleport"}, {}, "choose where"),
+    # issue 27: bounds that no real task exceeds (fetch: 180 s), never a 500
+    ({"source": "typed", "d:*": "4500"}, {}, "longer than any task of this study (180 s"),
+    ({"source": "typed", "d:*": "1e12"}, {}, "longer than any task"),
+    ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0,0,1,1\n*,0,1e12,1,1\n"},
+     "longer than any task"),
+    ({"source": "tracker"}, {"tracker": "[" * 100_000}, "nested too deeply"),
+    ({"source": "tracker"}, {"tracker": "task,point,t,x,y," + ",".join(
+        f"c{i}" for i in range(100_000)) + "\n*,0,0,1,1\n"}, "100005 columns"),
+    ({"source": "tracker"}, {"tracker": json.dumps([{f"c{i}": 1 for i in range(40)}])},
+     "has 40 fields"),
+    ({"source": "simulated", "d:mix_r": "3"}, {}, "unknown field(s) in the round: d:mix_r"),
+    ({"source": "tracker", "launch": "1"}, {}, "unknown field(s) in the round: launch"),
 ])
 def test_bad_round_input_is_refused_with_a_message_and_nothing_stored(
         study: Study, fields: dict[str, str], extra: dict[str, str], message: str) -> None:
@@ -179,6 +202,7 @@ def test_malformed_requests_get_4xx_never_500(study: Study) -> None:
     step = study.step(pid)
     c = study.client
     url = f"/api/p/{pid}/round"
+    json_type = {"content-type": "application/json"}
     cases = [
         (c.post(url, content=b"{not json", headers={"content-type": "application/json"}), 422),
         (c.post(url, content=b"step=x", headers={"content-type": "text/plain"}), 415),
@@ -196,6 +220,10 @@ def test_malformed_requests_get_4xx_never_500(study: Study) -> None:
         (c.post(f"/api/p/{pid}/survey", json={"step": step, "fields": {}}), 409),
         (c.get("/p/P99"), 404),
         (c.get("/", headers={"host": "rebind.example"}), 400),
+        (c.post(url, content=b"[" * 100_000, headers=json_type), 422),  # RecursionError
+        (c.post(url, content=b'{"step": "\\ud800", "fields": {}}', headers=json_type), 422),
+        (c.post(url, content=b'{"step": "x", "fields": {"\\udfff": "1"}}', headers=json_type),
+         422),
     ]
     for response, status in cases:
         assert response.status_code == status, (response.request.url, response.text)
@@ -290,6 +318,9 @@ def test_a_group_without_a_simulated_person_needs_a_tracker_file(
         for source in ("simulated", "typed"):
             r = study.post(pid, "round", step, {"source": source, "d:t0": "3"})
             assert r.status_code == 400 and "upload a tracker file" in r.json()["error"]
+        page = study.client.get(f"/p/{pid}").text  # offers only what can work for them
+        assert "value=tracker checked" in page
+        assert "value=simulated" not in page and "value=typed" not in page
         tasks = _human_tasks(study, pid)
         done = fetch_world.teammate("slow-middle").execute(0, tasks, np.random.default_rng(1))
         r = study.post(pid, "round", step, {"source": "tracker"},
@@ -313,3 +344,67 @@ def test_serve_refuses_a_folder_without_a_study_in_one_line(tmp_path: Path) -> N
             env={**os.environ, "PYTHONPATH": env_path})
         assert out.returncode == 2, out.stderr
         assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
+def test_the_overview_is_the_experimenters_only_and_no_participant_page_links_to_it(
+        study: Study) -> None:
+    """The blind: the overview lists each participant's systems by name, so it needs the
+    experimenter's token, and no page a participant sees leads to it."""
+    pid = _pid(study)
+    order = " → ".join(study.worker.run(lambda s: s.store.participant(pid).systems))
+    for params in ({}, {"token": ""}, {"token": "guess"}, {"token": study.token[:-1]}):
+        r = study.client.get("/", params=params)
+        assert r.status_code == 403 and "experimenter" in r.text, params
+        assert order not in r.text and f"/p/{pid}" not in r.text
+    ok = study.client.get("/", params={"token": study.token})
+    assert ok.status_code == 200 and order in ok.text
+    seen = [study.client.get(f"/p/{pid}").text, study.client.get("/p/P99").text]
+    _finish_rounds(study, pid)
+    seen.append(study.client.get(f"/p/{pid}").text)  # the survey
+    assert "Think of the first system" in seen[-1]
+    for text in seen:
+        assert "href='/'" not in text and 'href="/"' not in text and "overview" not in text
+        assert study.token not in text and order not in text
+
+
+def test_the_study_answers_on_the_ipv6_loopback(study: Study) -> None:
+    """--host ::1: the address the server prints, http://[::1]:PORT/, works."""
+    c = TestClient(create_study_app(study.worker, allowed_hosts("::1"), token="k"),
+                   base_url="http://[::1]:8000")
+    pid = _pid(study)
+    assert c.get("/", params={"token": "k"}).status_code == 200
+    page = c.get(f"/p/{pid}")
+    assert page.status_code == 200 and "Round 1: the robot's plan" in page.text
+    r = c.post(f"/api/p/{pid}/round", json={"step": study.step(pid),
+                                             "fields": {"source": "simulated"}},
+               headers={"origin": "http://[::1]:8000"})
+    assert r.status_code == 200, r.text
+    assert study.stored() == (1, 0, 0, 0)
+    assert c.get(f"/p/{pid}", headers={"host": "rebind.example"}).status_code == 400
+
+
+def test_study_serve_on_the_ipv6_loopback_prints_addresses_that_work(
+        tmp_path: Path, fetch_world: FetchWorld) -> None:
+    """``rapidds study serve --host ::1`` end to end: the participant address it prints answers,
+    the overview answers to the experimenter's address it prints and to nothing else."""
+    folder = make_study(tmp_path, fetch_world)
+    server = CliServer("study", "serve", str(folder), "--host", "::1", "--port", "0", "--json")
+    try:
+        hello = json.loads(server.wait_for(lambda line: True, timeout=300))
+        assert hello["url"].startswith("http://[::1]:") and hello["overview"].startswith(
+            hello["url"] + "?token=")
+
+        def get(url: str) -> tuple[int, str]:
+            try:
+                with urllib.request.urlopen(url, timeout=300) as r:
+                    return r.status, r.read().decode()
+            except urllib.error.HTTPError as exc:
+                return exc.code, exc.read().decode()
+
+        status, page = get(hello["url"] + "p/P01")
+        assert status == 200 and "Round 1: the robot's plan" in page
+        assert get(hello["url"])[0] == 403
+        status, page = get(hello["overview"])
+        assert status == 200 and "order of systems" in page
+    finally:
+        assert server.stop() == 0, "".join(server.err)[-2000:]

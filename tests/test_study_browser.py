@@ -90,8 +90,8 @@ def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
     assert server.hello["participants"] == 1 and server.hello["unfinished"] == 1
     observed: dict[int, dict[str, float]] = {}
     try:
-        page = open_page(browser, server.url, width=1000, height=900)
-        assert "order of systems" in page.inner_text("#overview")
+        page = open_page(browser, server.hello["overview"], width=1000, height=900)
+        assert "order of systems" in page.inner_text("#overview")  # the experimenter's address
         with page.expect_navigation(timeout=WAIT):
             page.click(f"a[href='/p/{pid}']")
 

@@ -68,6 +68,21 @@ def test_design_bad_input_is_one_line(tmp_path, capsys, args, needle):
     assert not (tmp_path / "s" / "study.sqlite").exists()
 
 
+def test_a_fetch_design_primes_fetchs_groups_and_keeps_its_own_task_bound(tmp_path, capsys):
+    out = tmp_path / "f"
+    code, _, err = _main(capsys, "study", "design", "--world", "fetch", "--participants", "16",
+                         "--max-task-seconds", "45", "--out", str(out), "--json")
+    assert code == 0, err
+    with StudyStore.open_readonly(study_path(out)) as st:
+        groups = {p.group for p in st.participants()}
+        assert groups == set(make_world("fetch").teammate_names)  # fast-middle ..., no left-fast
+        assert st.design.factors == {"speed": ("fast", "slow"), "route": ("middle", "outside")}
+        assert st.design.max_task_s == 45.0
+    code, _, err = _main(capsys, "study", "design", "--world", "fetch", "--participants", "16",
+                         "--out", str(out))
+    _one_line(code, err, "already holds a different study design")  # another bound
+
+
 def test_design_with_own_items_and_foreign_store(tmp_path, capsys):
     items = tmp_path / "items.yaml"
     items.write_text("items:\n  - {id: calm, text: I felt calm.}\n")

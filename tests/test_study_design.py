@@ -9,6 +9,8 @@ import pytest
 
 from rapidds.errors import RapiddsError, StudyDesignError
 from rapidds.experiments.study import SYSTEMS, StudyDesign, cell_sequence, williams_square
+from rapidds.experiments.study.design import priming_factors, world_task_bound
+from rapidds.worlds.registry import make_world
 
 
 def neighbour_pairs(orders):
@@ -120,6 +122,45 @@ def test_unbalanced_count_is_refused_with_what_is_needed():
     assert "\n" not in str(exc.value)
     with pytest.raises(StudyDesignError, match="multiple of 24"):
         StudyDesign(participants=32, systems=("a", "b", "c"))
+
+
+def test_the_balance_error_names_the_flag_a_user_can_type():
+    with pytest.raises(StudyDesignError, match="--allow-unbalanced") as exc:
+        StudyDesign(participants=30)
+    assert "require_balance: false" not in str(exc.value)
+
+
+@pytest.mark.parametrize("world", ["painting", "fetch"])
+def test_priming_groups_are_the_worlds_simulated_teammates(world):
+    """Each group of a world's design names one of its simulated people (fetch: fast-middle
+    ..., not painting's left-fast ...), so the simulated cell and typed-in rounds can work."""
+    w = make_world(world)
+    groups = set(StudyDesign(participants=16, factors=priming_factors(w)).assign()["group"])
+    assert groups == set(w.teammate_names)
+
+
+def test_a_world_without_listed_factors_primes_by_its_teammates():
+    class Other:
+        name, teammate_names = "other", ("calm", "hasty")
+
+    assert priming_factors(Other()) == {"teammate": ("calm", "hasty")}  # type: ignore[arg-type]
+
+
+def test_task_bounds_are_per_world_and_the_design_can_set_its_own():
+    fetch, painting = make_world("fetch"), make_world("painting")
+    assert world_task_bound(fetch) == 180.0 and world_task_bound(painting) == 120.0
+    for w in (fetch, painting):  # far beyond any task the world's prior knows
+        longest = max(t.human_mean + 5 * t.human_std for t in w.problem().tasks
+                      if t.human_mean is not None)
+        assert world_task_bound(w) > 5 * longest
+    d = StudyDesign(participants=16)
+    assert d.task_bound(fetch) == 180.0 and "max_task_s" not in d.model_dump_json()
+    own = StudyDesign(participants=16, max_task_s=30)
+    assert own.task_bound(fetch) == own.task_bound(painting) == 30.0
+    assert StudyDesign(**own.model_dump()) == own  # stored and read back
+    for bad in (0, -1, float("nan"), 1e6):
+        with pytest.raises(StudyDesignError, match="max_task_s"):
+            StudyDesign(participants=16, max_task_s=bad)
 
 
 def test_near_balance_when_allowed():

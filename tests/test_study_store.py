@@ -201,6 +201,13 @@ def test_durations_are_positive_finite_and_complete():
             validate_durations(bad, ["brush"])
     with pytest.raises(StudyDataError, match="missing secure_piece; not the person's: mix_l"):
         validate_durations({"brush": 3.0, "mix_l": 2.0}, ["brush", "secure_piece"])
+    # a bound no real task exceeds: the study's (here 120 s), else an hour at most
+    assert validate_durations({"brush": "120"}, ["brush"], at_most=120.0) == {"brush": 120.0}
+    for d, at_most in (("4500", 120.0), (120.01, 120.0), (1e12, 3600.0)):
+        with pytest.raises(StudyDataError, match=r"'brush': .* s is longer than any task"):
+            validate_durations({"brush": d}, ["brush"], at_most=at_most)
+    with pytest.raises(StudyDataError, match="3600 s"):
+        validate_durations({"brush": 1e7}, ["brush"])
 
 
 def test_simulated_trials_are_stored_whole(tmp_path):

@@ -5,6 +5,7 @@ file refused with a line that says what to fix."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -73,12 +74,27 @@ def test_samples_off_the_grid_are_interpolated_at_the_worlds_rows(painting) -> N
     (lambda s: s + s.split("\n")[-2] + "\n", "same t"),
     (lambda s: "[1, 2]", "list of objects"),
     (lambda s: "{oops", "not valid JSON"),
+    # issue 27: bounded before anything is allocated or parsed column by column
+    (lambda s: re.sub(r"brush,0,[^,]+,", "brush,0,1e12,", s, count=1), "longer than any task "
+     "of this study (120 s"),
+    (lambda s: "[" * 100_000, "nested too deeply"),
+    (lambda s: "task,point,t,x,y,z," + ",".join(f"c{i}" for i in range(100_000)) + "\n",
+     "100006 columns; at most 32"),
+    (lambda s: json.dumps([{f"c{i}": 0 for i in range(33)}]), "object 1 has 33 fields"),
 ])
 def test_a_bad_tracker_file_is_refused_in_one_line(painting, done, edit, message) -> None:  # type: ignore[no-untyped-def]
     text = edit(tracker_csv(done, painting.dt))
     with pytest.raises(TrackerError, match=None) as err:
         parse_tracker(text.encode(), painting, TASKS)
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_studys_own_bound_replaces_the_worlds(painting, done) -> None:  # type: ignore[no-untyped-def]
+    text = tracker_csv(done, painting.dt).encode()
+    longest = max(ex.duration for ex in done.values())
+    assert set(parse_tracker(text, painting, TASKS, at_most=longest + 0.01)) == set(TASKS)
+    with pytest.raises(TrackerError, match=rf"than any task of this study \({longest - 1:g} s"):
+        parse_tracker(text, painting, TASKS, at_most=longest - 1)
 
 
 def test_a_file_that_is_not_text_is_refused(painting) -> None:  # type: ignore[no-untyped-def]

@@ -32,8 +32,10 @@ def play_cmd(
                               f"{', '.join(a for a in ADAPT_LEVELS if a != 'oracle')}."),
     cycles: int = typer.Option(10, help="Cycles to play."),
     port: int = typer.Option(8765, min=0, max=65535, help="Port (0: any free one)."),
-    host: str = typer.Option("127.0.0.1", help="Address to listen on; anything but a loopback "
-                             "address lets other machines play."),
+    host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
+                             "address lets other machines play; a wildcard (0.0.0.0, ::) listens "
+                             "on every interface and answers to this machine's own names and "
+                             "addresses (bind one address to be reached by it)."),
     out: Path = typer.Option(Path("runs/play"), help="Folder for run.sqlite and the pictures."),
     resume: bool = typer.Option(False, help="Continue the run stored in --out with its learned "
                                 "models."),
@@ -69,7 +71,7 @@ def play_cmd(
                     seed=seed, population=population, generations=generations, samples=samples,
                     particles=particles, candidates=candidates)
 
-    from rapidds.web.server import listen, serve
+    from rapidds.web.server import LOOPBACK, allowed_hosts, listen, serve
     from rapidds.web.session import STORE_NAME
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
@@ -87,9 +89,9 @@ def play_cmd(
                 typer.echo(f"rapidds play: open {url} (run {session.run_id}, cycle "
                            f"{session.stored + 1} of {cycles}; Ctrl-C stops, finished cycles "
                            f"are kept in {out / STORE_NAME})")
-                if host not in ("127.0.0.1", "localhost", "::1"):
+                if host not in LOOPBACK:
                     typer.echo(f"rapidds play: listening on {host}: other machines can reach "
-                               "it", err=True)
+                               f"it by the names {', '.join(allowed_hosts(bound[0]))}", err=True)
                 sys.stdout.flush()
 
             # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop

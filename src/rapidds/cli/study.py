@@ -55,6 +55,10 @@ _PARTICLES = typer.Option(2, help="Steered samples per motion request B (2 x 4 a
                           "ablation: 2.5x faster than the loop's 4 x 8 on painting).")
 _CANDIDATES = typer.Option(4, help="SVDD candidates M per step.")
 _JSON = typer.Option(False, "--json", help="Print a JSON summary on stdout.")
+_MAX_TASK = typer.Option(None, "--max-task-seconds", help="Longest a person's task may take; "
+                         "a longer typed duration or tracked task is refused (default: the "
+                         "world's bound, 20 x its longest mean task: painting 120 s, fetch "
+                         "180 s). Stored with the design.")
 _UNBALANCED = typer.Option(False, "--allow-unbalanced", help="Accept a participant count that "
                            "cannot balance order rows x priming groups (near-balance; pilots, "
                            "tests).")
@@ -62,16 +66,19 @@ _UNBALANCED = typer.Option(False, "--allow-unbalanced", help="Accept a participa
 
 def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
            gamma: float | None, seed: int, items: Path | None, search: dict[str, int],
-           unbalanced: bool = False) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
-    """Validate every option before anything is written: design, world, run settings, items."""
-    from rapidds.experiments.study.design import StudyDesign
+           unbalanced: bool = False, max_task_s: float | None = None
+           ) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
+    """Validate every option before anything is written: design, world, run settings, items.
+    The priming groups are the world's (painting hand x speed, fetch speed x route)."""
+    from rapidds.experiments.study.design import StudyDesign, priming_factors
     from rapidds.experiments.study.store import SurveyItems
     from rapidds.loop.config import RunConfig
     from rapidds.worlds.registry import make_world
 
-    design = StudyDesign(participants=participants, systems=_split(systems), rounds=rounds,
-                         seed=seed, require_balance=not unbalanced)
     w = make_world(world, variant)
+    design = StudyDesign(participants=participants, systems=_split(systems), rounds=rounds,
+                         seed=seed, require_balance=not unbalanced, max_task_s=max_task_s,
+                         factors=priming_factors(w))
     run = RunConfig(world=world, variant=w.variant, gamma=gamma, cycles=rounds, **search)
     survey = SurveyItems.load(items) if items is not None else None
     return design, run.resolved(w), survey
@@ -96,7 +103,8 @@ def design_cmd(
     variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
     seed: int = _SEED, items: Path | None = _ITEMS, population: int = _POP,
     generations: int = _GEN, samples: int = _SAMPLES, particles: int = _PARTICLES,
-    candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED, as_json: bool = _JSON,
+    candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED,
+    max_task_seconds: float | None = _MAX_TASK, as_json: bool = _JSON,
 ) -> None:
     """Counterbalanced design (Williams squares, priming groups balanced across orders) written
     to DIR/design.csv and DIR/study.sqlite. The same design again changes nothing; a different
@@ -106,7 +114,8 @@ def design_cmd(
     design, run, survey = _build(participants, systems, world, variant, rounds, gamma, seed,
                                  items, dict(population=population, generations=generations,
                                              samples=samples, particles=particles,
-                                             candidates=candidates), allow_unbalanced)
+                                             candidates=candidates), allow_unbalanced,
+                                 max_task_seconds)
     with create_study(out, design, run, survey, lock_as="rapidds study design") as store:
         summary = _summary(store, out)
     if as_json:
@@ -127,7 +136,7 @@ def simulate_cmd(
     variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
     seed: int = _SEED, population: int = _POP, generations: int = _GEN,
     samples: int = _SAMPLES, particles: int = _PARTICLES, candidates: int = _CANDIDATES,
-    allow_unbalanced: bool = _UNBALANCED,
+    allow_unbalanced: bool = _UNBALANCED, max_task_seconds: float | None = _MAX_TASK,
     workers: int | None = typer.Option(None, help="Local Dask worker processes (default: one "
                                        f"per CPU, {os.cpu_count()} here)."),
     scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
@@ -146,7 +155,7 @@ def simulate_cmd(
     design, run, _ = _build(participants, systems, world, variant, rounds, gamma, seed, None,
                             dict(population=population, generations=generations,
                                  samples=samples, particles=particles, candidates=candidates),
-                            allow_unbalanced)
+                            allow_unbalanced, max_task_seconds)
     if scheduler:
         check_scheduler_address(scheduler)
     err = Console(stderr=True, soft_wrap=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import secrets
 import sys
 from pathlib import Path
 
@@ -20,8 +21,11 @@ from rapidds.cli.study import study_app
 @study_app.command("serve")
 def serve_cmd(
     folder: Path = typer.Argument(..., help="The study's folder (from 'rapidds study design')."),
-    host: str = typer.Option("127.0.0.1", help="Address to listen on; anything but a loopback "
-                             "address lets other machines open the study."),
+    host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
+                             "address lets other machines open the study; a wildcard (0.0.0.0, "
+                             "::) listens on every interface and answers to this machine's own "
+                             "names and addresses (bind one address to be reached by it). The "
+                             "overview needs the experimenter's address printed at start."),
     port: int = typer.Option(8000, min=0, max=65535, help="Port (0: any free one)."),
     policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
                                        "bundled one)."),
@@ -56,26 +60,31 @@ def serve_cmd(
             bound = sock.getsockname()
             shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
             url = f"http://{shown}:{bound[1]}/"
+            key = secrets.token_urlsafe(18)  # the overview's: new at every start
+            overview = f"{url}?token={key}"
             steps = worker.run(lambda s: s.store.progress())
             worker.background(lambda s: s.prior())  # while the experimenter opens the page
             waiting = sum(s.kind != "done" for s in steps.values())
 
-            app = create_study_app(worker, allowed_hosts(str(bound[0])))
+            hosts = allowed_hosts(str(bound[0]))
+            app = create_study_app(worker, hosts, token=key)
             server = uvicorn.Server(uvicorn.Config(
                 app, log_level="warning", lifespan="on", timeout_graceful_shutdown=3,
                 access_log=False))
 
             def ready() -> None:
                 if as_json:
-                    typer.echo(json.dumps({"url": url, "study": str(study_path(folder)),
+                    typer.echo(json.dumps({"url": url, "overview": overview,
+                                           "study": str(study_path(folder)),
                                            "participants": len(steps), "unfinished": waiting}))
                 else:
-                    typer.echo(f"rapidds study serve: open {url} ({len(steps)} participants, "
-                               f"{waiting} unfinished; Ctrl-C stops, every submit is kept in "
-                               f"{study_path(folder)})")
+                    typer.echo(f"rapidds study serve: the experimenter's overview is {overview} "
+                               f"(participants open {url}p/ID, no link leads there; "
+                               f"{len(steps)} participants, {waiting} unfinished; Ctrl-C stops, "
+                               f"every submit is kept in {study_path(folder)})")
                 if host not in LOOPBACK:
                     typer.echo(f"rapidds study serve: listening on {host}: other machines can "
-                               "reach it", err=True)
+                               f"reach it by the names {', '.join(hosts)}", err=True)
                 sys.stdout.flush()
 
             ready()

@@ -8,7 +8,9 @@ summaries and phase changes go out on the same socket when they change.
 
 A slow page never slows the tick: each connection has its own sender task that sends the queued
 control messages and then only the newest state (older ones are dropped, not queued), except
-that a state where the cycle turns (started, the person's part done, over) is always sent.
+that a state where the cycle turns (started, the person's part done, over) is always sent. The
+queue holds :data:`MAX_OUTBOX` messages at most: a page that floods the socket and never reads
+the replies is disconnected (close code 1008).
 
 Safety: one player per run (a second page is told so and closed); a WebSocket from another
 origin (a page of another site trying to drive the game) is refused, and so is a request for
@@ -35,21 +37,30 @@ from urllib.parse import urlsplit
 from fastapi import FastAPI, WebSocket
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
-from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.datastructures import Headers
+from starlette.responses import PlainTextResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocketState
 
 from rapidds.errors import RapiddsError
 from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import Gate, Move, Refused, Start, Target
 
-__all__ = ["LOOPBACK", "GameSession", "Hub", "allowed_hosts", "create_app", "game_page", "listen",
-           "refuse_socket", "same_origin", "serve"]
+__all__ = ["LOOPBACK", "WILDCARDS", "GameSession", "HostCheck", "Hub", "allowed_hosts",
+           "create_app", "game_page", "listen", "machine_names", "refuse_socket", "same_origin",
+           "serve"]
 
 log = logging.getLogger("rapidds.web")
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
+WILDCARDS = ("", "0.0.0.0", "::")
+"""Bind addresses that listen on every interface of the machine."""
 WS_MAX_BYTES = 4096  # uvicorn closes the socket on a larger frame (the gate refuses > 256 B)
 _LOGGED_REFUSALS = 20  # per connection; then every 100th, so a flood cannot flood the log
+MAX_OUTBOX = 256
+"""Messages queued for one page at most (replies to refused messages, turns of the cycle): a
+page that reads keeps a handful; one that floods the socket and never reads is disconnected
+here instead of growing the server's memory without bound."""
 _BUSY = ("another browser is already playing this run; close it (or its tab) and reload this "
          "page")
 
@@ -75,12 +86,61 @@ class GameSession(Protocol):
 
 
 def allowed_hosts(host: str) -> list[str]:
-    """Host names the server answers to: the loopback names and the address it listens on, so
-    a page of another site cannot reach a local server by DNS rebinding; any name when it
-    listens on every interface (the user opened it with --host)."""
-    if host in ("", "0.0.0.0", "::"):
-        return ["*"]
-    return sorted({*LOOPBACK, host.lower().strip("[]")})
+    """Host names the server answers to (as a Host header names them, IPv6 without brackets):
+    the loopback names and the address it listens on, so a page of another site cannot reach a
+    local server by DNS rebinding. A wildcard bind (0.0.0.0, ::) answers to the machine's own
+    names and addresses (:func:`machine_names`), still not to any name."""
+    names = {*LOOPBACK, host.lower().strip("[]")} - {""}
+    if host.strip("[]") in WILDCARDS:  # 0.0.0.0 too: the address the server prints
+        names |= machine_names()
+    return sorted(names)
+
+
+def machine_names() -> set[str]:
+    """This machine's host name, its fully qualified name and the addresses they resolve to
+    (no traffic but the resolver's)."""
+    names = {socket.gethostname().lower(), socket.getfqdn().lower()} - {""}
+    for name in list(names):
+        with contextlib.suppress(OSError, UnicodeError):
+            names |= {str(info[4][0]).split("%")[0].lower()
+                      for info in socket.getaddrinfo(name, None)}
+    return names
+
+
+def request_host(headers: Mapping[str, str]) -> str | None:
+    """The host name a request's Host header names (IPv6 without brackets, no port), None when
+    it is missing or malformed."""
+    raw = headers.get("host")
+    if not raw or any(c in raw for c in "/?#@ \\"):
+        return None
+    try:
+        parts = urlsplit("//" + raw)
+        if parts.port is None and raw.endswith(":"):
+            return None
+    except ValueError:  # a bad port or IPv6 literal
+        return None
+    return parts.hostname or None
+
+
+class HostCheck:
+    """ASGI middleware: requests and sockets for another host name than ``hosts`` get 400 with
+    one line (DNS rebinding). Unlike Starlette's TrustedHostMiddleware it reads IPv6 literals
+    (``Host: [::1]:8000``) the same on every Starlette version."""
+
+    def __init__(self, app: ASGIApp, hosts: Sequence[str]):
+        self.app, self.hosts = app, frozenset(h.lower().strip("[]") for h in hosts)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            name = request_host(Headers(scope=scope))
+            if name not in self.hosts:
+                shown = ", ".join(sorted(self.hosts)[:8])
+                await PlainTextResponse(
+                    f"this server answers to the host names {shown}, not "
+                    f"{(name or 'a missing or malformed Host header')[:80]!s}",
+                    status_code=400)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 def same_origin(headers: Mapping[str, str]) -> bool:
@@ -108,9 +168,17 @@ class _Connection:
         self.sent_summary = -1
         self.sent_phase: str | None = None
         self.turn: tuple[object, ...] | None = None
+        self.overflow = False  # the page stopped reading: the receiver drops it
 
     def control(self, obj: dict[str, Any]) -> None:
-        self.outbox.append(_dumps(obj))
+        self.queue(_dumps(obj))
+
+    def queue(self, text: str) -> None:
+        """Send ``text`` after what is queued; a full queue marks the page as not reading."""
+        if len(self.outbox) >= MAX_OUTBOX:
+            self.overflow = True
+            return
+        self.outbox.append(text)
         self.wake.set()
 
     async def sender(self) -> None:
@@ -181,7 +249,7 @@ class Hub:
             turn = (state["cycle"], state["started"], state["human_done"], state["over"])
             if turn != conn.turn:  # a state where the cycle turns is queued, never dropped
                 conn.turn = turn
-                conn.outbox.append(text)
+                conn.queue(text)
             else:
                 conn.state = text
         conn.wake.set()
@@ -244,6 +312,10 @@ class Hub:
                     break
                 raw = event.get("text")
                 self.handle(conn, raw if raw is not None else (event.get("bytes") or b""))
+                if conn.overflow:
+                    log.warning("dropped a page that sends but does not read (%d messages "
+                                "waiting for it)", len(conn.outbox))
+                    break
         finally:
             sender.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -253,8 +325,9 @@ class Hub:
             if self.player.restart():
                 log.info("the player left mid-cycle: the cycle starts again when they return")
             if ws.application_state != WebSocketState.DISCONNECTED:
+                # bounded: a page that does not read may never take the close frame
                 with contextlib.suppress(Exception):
-                    await ws.close()
+                    await asyncio.wait_for(ws.close(code=1008 if conn.overflow else 1000), 2.0)
 
 
 async def refuse_socket(ws: WebSocket, reason: str) -> None:
@@ -295,7 +368,7 @@ def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI
                 await task
 
     app = FastAPI(lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(hosts))
+    app.add_middleware(HostCheck, hosts=list(hosts))
     app.state.hub = hub
     headers = {"Cache-Control": "no-store", "X-Content-Type-Options": "nosniff",
                "Content-Security-Policy": "default-src 'self'; connect-src 'self'; "

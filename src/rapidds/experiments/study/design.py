@@ -22,7 +22,7 @@ import json
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -30,8 +30,10 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SerializerFunctionWrapHandler,
     ValidationError,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -39,12 +41,40 @@ from rapidds.errors import StudyDesignError
 from rapidds.experiments.study.systems import SYSTEMS
 from rapidds.fileio import atomic_write_text
 
+if TYPE_CHECKING:
+    from rapidds.worlds.base import World
+
 HEADER = "# rapidds study design: "
 """First line of a design CSV; the design's JSON follows it on the same line."""
 TABLE_COLUMNS: tuple[str, ...] = ("participant", "row", "order", "group")
 """Columns of :meth:`StudyDesign.assign` before the one column per priming factor."""
 _NAME = r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$"  # no separators: names go into CSV cells and group names
 _ORDER_SEP = ";"
+PRIMING: dict[str, dict[str, tuple[str, ...]]] = {
+    "painting": {"hand": ("left", "right"), "speed": ("fast", "slow")},
+    "fetch": {"speed": ("fast", "slow"), "route": ("middle", "outside")},
+}
+"""Priming factors per world. Their factorial names the world's simulated teammates (painting
+``left-fast`` ..., fetch ``fast-middle`` ...), so a group's simulated cell and typed-in rounds
+have a person to act; a world not listed gets one factor ``teammate`` (:func:`priming_factors`)."""
+MAX_TASK_S_LIMIT = 3600.0
+"""The largest ``max_task_s`` a design may set: an hour, far beyond a task of any world here,
+and still a small path (24 000 rows at painting's dt)."""
+
+
+def priming_factors(world: World) -> dict[str, tuple[str, ...]]:
+    """The priming factors of a study on ``world``: :data:`PRIMING`, else one factor
+    ``teammate`` whose levels are the world's simulated teammates."""
+    return dict(PRIMING.get(world.name, {"teammate": tuple(world.teammate_names)}))
+
+
+def world_task_bound(world: World) -> float:
+    """Seconds no real task of ``world`` can take: 20 x the longest mean human duration of its
+    prior, rounded up to 10 s, at least 60 s (fetch 180 s, painting 120 s). A typed duration or
+    a tracked task longer than this is a typo or a wrong file (4500 for 4.5), and refusing it
+    also bounds the path the loop allocates (duration / dt rows)."""
+    means = [t.human_mean for t in world.problem().tasks if t.human_mean is not None]
+    return max(60.0, 10.0 * math.ceil(2.0 * max(means, default=0.0)))
 
 
 def williams_square(n: int) -> list[tuple[int, ...]]:
@@ -92,6 +122,24 @@ class StudyDesign(BaseModel):
     require_balance: bool = Field(
         True, description="refuse participant counts that cannot balance rows x groups"
     )
+    max_task_s: float | None = Field(
+        None, gt=0, le=MAX_TASK_S_LIMIT, allow_inf_nan=False,
+        description="longest a person's task may take, seconds (None: the world's bound, "
+        "world_task_bound)",
+    )
+
+    @model_serializer(mode="wrap")
+    def _without_unset_bound(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """An unset ``max_task_s`` is left out, so a design stored before the field existed
+        reads back, and compares, exactly as before."""
+        data = handler(self)
+        if data.get("max_task_s") is None:
+            data.pop("max_task_s", None)
+        return data
+
+    def task_bound(self, world: World) -> float:
+        """Seconds a person's task may take in this study: ``max_task_s`` or the world's."""
+        return self.max_task_s if self.max_task_s is not None else world_task_bound(world)
 
     def __init__(self, **data: Any) -> None:
         try:
@@ -132,7 +180,7 @@ class StudyDesign(BaseModel):
                 f"{n} participants cannot balance {rows} order rows ({why}, {len(self.systems)}"
                 f" systems) x {groups} priming groups: every (row, group) pair must occur"
                 f" equally often, so participants must be a multiple of {block} (e.g. {near});"
-                " set require_balance: false to accept near-balance"
+                " --allow-unbalanced (require_balance=False) accepts near-balance"
             )
         return self
 

@@ -31,8 +31,7 @@ API (all writes one transaction each; readers never block the writer):
   and allowed only as the participant's next step; the identical submit again (a browser
   re-posting) changes nothing and returns False. Bad input raises StudyDataError, a submit out
   of turn StateError, each with one line.
-* ``validate_durations(durations, tasks)``: typed-in or tracked task durations checked (positive,
-  finite, the tasks expected) before they reach the loop.
+* ``validate_durations(durations, tasks, at_most)``: durations checked before the loop sees them.
 * Folders: ``create_study(out, design, run, items)`` writes ``out/design.csv`` and
   ``out/study.sqlite`` (refusing a folder that holds a different design);
   ``study_path(out)`` is the store's path.
@@ -56,7 +55,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import ConfigError, StateError, StudyDataError, StudyDesignError
-from rapidds.experiments.study.design import StudyDesign
+from rapidds.experiments.study.design import MAX_TASK_S_LIMIT, StudyDesign
 from rapidds.experiments.study.systems import ADAPTATION
 from rapidds.loop.config import RunConfig
 from rapidds.store import DEFAULT_TIMEOUT, RunStore
@@ -197,7 +196,7 @@ def _first(exc: ValidationError) -> str:
 
 # -- submissions -------------------------------------------------------------------------------
 Likert = Annotated[int, Field(ge=LIKERT[0], le=LIKERT[1])]
-_Duration = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+_Duration = Annotated[float, Field(gt=0, allow_inf_nan=False)]  # at most: validate_durations
 
 
 class _Survey(BaseModel):
@@ -227,9 +226,10 @@ def _validated(model: type[BaseModel], what: str, **data: Any) -> Any:
         raise StudyDataError(f"{what}{where}: {err['msg']}{got}") from None
 
 
-def validate_durations(durations: Mapping[str, Any], tasks: Iterable[str]) -> dict[str, float]:
-    """What a person did, per task, in seconds: every task of ``tasks`` exactly, each a positive
-    finite number (a string of one is accepted, as a form sends it). StudyDataError otherwise."""
+def validate_durations(durations: Mapping[str, Any], tasks: Iterable[str],
+                       at_most: float = MAX_TASK_S_LIMIT) -> dict[str, float]:
+    """Seconds per task: every task of ``tasks`` once, each positive, finite, at most ``at_most``
+    (``StudyDesign.task_bound``; a string of a number is accepted). StudyDataError otherwise."""
     want = list(tasks)
     got = _validated(_Durations, "duration of task", durations=dict(durations)).durations
     missing = [t for t in want if t not in got]
@@ -239,6 +239,9 @@ def validate_durations(durations: Mapping[str, Any], tasks: Iterable[str]) -> di
             "durations must name exactly the person's tasks " + ", ".join(want)
             + (f"; missing {', '.join(missing)}" if missing else "")
             + (f"; not the person's: {', '.join(extra)}" if extra else ""))
+    if long := [t for t in want if got[t] > at_most]:
+        raise StudyDataError(f"duration of task '{long[0]}': {got[long[0]]:g} s is longer than "
+                             f"any task of this study ({at_most:g} s; the design's max_task_s)")
     return {t: float(got[t]) for t in want}
 
 

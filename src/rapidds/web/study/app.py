@@ -1,14 +1,17 @@
 """The study app: FastAPI pages for the experimenter and the participant, JSON submits.
 
-``GET /`` the experimenter's overview; ``GET /p/{pid}`` the participant's current step (the
-round's plan and input form, the survey, the ranking, the demographics form, or "done"): one
-address per participant, so a reload, a reopened browser or a restarted server shows exactly
-where they stand. ``POST /api/p/{pid}/{round|survey|ranking|demographics}`` takes
-``{"step": token, "fields": {name: text}, "tracker": text?}`` and answers ``{"next": url}``
-(200) or ``{"error": message}``: 400 for input the page must fix, 404 for an unknown
-participant, 409 for a page that answers a step already done (the message says what comes
-next), 413 for a body over :data:`MAX_BODY`, 415/422 for a request no page of ours sends. Never
-500 for what a client sends.
+``GET /?token=KEY`` the experimenter's overview (the key ``rapidds study serve`` prints: the
+overview names each participant's systems, and no participant page links to it);
+``GET /p/{pid}`` the participant's current step (the round's plan and input form, the survey,
+the ranking, the demographics form, or "done"): one address per participant, so a reload, a
+reopened browser or a restarted server shows exactly where they stand.
+``POST /api/p/{pid}/{round|survey|ranking|demographics}`` takes ``{"step": token, "fields":
+{name: text}, "tracker": text?}`` and answers ``{"next": url}`` (200) or ``{"error": message}``:
+400 for input the page must fix (a duration longer than any task of the study, an unknown
+field, a tracker file too wide or too long), 404 for an unknown participant, 409 for a page
+that answers a step already done (the message says what comes next), 413 for a body over
+:data:`MAX_BODY`, 415/422 for a request no page of ours sends (not JSON, nested too deeply).
+Never 500 for what a client sends.
 
 All study work (SQLite, planning) runs in one worker thread that owns the
 :class:`~rapidds.web.study.runner.StudySession`, so requests are served one at a time in
@@ -28,9 +31,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
 import json
 import logging
 import re
+import secrets
 from collections.abc import AsyncIterator, Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated, Any, TypeVar
@@ -41,10 +46,9 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
-from rapidds.web.server import game_page, refuse_socket, same_origin
+from rapidds.web.server import HostCheck, game_page, refuse_socket, same_origin
 from rapidds.web.study import pages
 from rapidds.web.study.play import GameRound, open_round
 from rapidds.web.study.runner import InputError, OutOfTurn, StudySession, step_token
@@ -129,8 +133,12 @@ def _validation_line(exc: ValidationError) -> str:
     return f"{loc}: {err['msg']}"
 
 
-def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
-    """The ASGI app of the study ``worker`` serves; ``hosts``: host names it answers to."""
+def create_study_app(worker: StudyWorker, hosts: Sequence[str],
+                     token: str | None = None) -> FastAPI:
+    """The ASGI app of the study ``worker`` serves; ``hosts``: host names it answers to;
+    ``token``: the experimenter's key to the overview (``/?token=...``; default a new random
+    one, ``app.state.token``)."""
+    key = token or secrets.token_urlsafe(18)
 
     games: dict[str, GameRound] = {}  # pid -> the round they play (or played last)
     opening = asyncio.Lock()
@@ -144,8 +152,9 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
                 await game.close()
 
     app = FastAPI(lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(hosts))
+    app.add_middleware(HostCheck, hosts=list(hosts))
     app.state.worker = worker
+    app.state.token = key
     app.mount("/static", StaticFiles(packages=[("rapidds.web", "static")]), name="static")
 
     @app.exception_handler(StarletteHTTPException)
@@ -160,7 +169,12 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
         return pid
 
     @app.get("/", response_class=HTMLResponse)
-    async def overview() -> Response:
+    async def overview(token: str = "") -> Response:
+        if not hmac.compare_digest(token.encode("utf-8", "replace"), key.encode("utf-8")):
+            return _html(pages.message_page(
+                "Experimenters only", "The overview names each participant's systems, so it "
+                "needs the experimenter's address that 'rapidds study serve' printed at start "
+                "(/?token=...). A participant's page is /p/ID."), 403)
         rows = await worker.call(lambda s: s.overview())
         design = await worker.call(lambda s: s.store.design)
         base = await worker.call(lambda s: s.store.base_config)
@@ -183,8 +197,9 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
             held = await worker.call(lambda s: s.plan(pid))
             assert held is not None
             game = f"/p/{pid}/play" if worker.session.has_game else None
+            sources = await worker.call(lambda s: s.sources(pid))
             return _html(pages.round_page(pid, held[1].as_dict(), tracker_help=_TRACKER_HELP,
-                                          game=game))
+                                          game=game, sources=sources))
         if step.kind == "survey":
             items = await worker.call(lambda s: s.items())
             return _html(pages.survey_page(pid, token, int(step.block or 0), blocks, items))
@@ -280,8 +295,13 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str]) -> FastAPI:
                 return _error(413, f"the request is larger than {MAX_BODY // 2**20} MiB")
         try:
             raw = json.loads(body)
+            json.dumps(raw, ensure_ascii=False).encode("utf-8")  # no lone surrogate (\ud800)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             return _error(422, f"the body is not valid JSON ({exc})")
+        except UnicodeEncodeError:
+            return _error(422, "the body holds text that is not valid Unicode (a lone surrogate)")
+        except RecursionError:  # e.g. 100 000 '[': no page sends more than two levels
+            return _error(422, "the body's JSON is nested too deeply")
         try:
             sub = Submit.model_validate(raw)
         except ValidationError as exc:

@@ -51,8 +51,9 @@ def page(title: str, where: str, body: str) -> str:
         f"<title>{e(title)} · rapidds study</title>"
         "<link rel=stylesheet href='/static/study.css'>"
         "<script src='/static/study.js' defer></script></head><body>"
+        # no link to the overview: it names each participant's systems (the blind)
         f"<header><span class=brand>rapidds study</span><span class=where>{where}</span>"
-        "<a class=pill href='/'>overview</a></header>"
+        "</header>"
         f"<main>{body}</main></body></html>")
 
 
@@ -87,9 +88,11 @@ def where(pid: str, block: int | None = None, blocks: int | None = None,
 
 
 def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
-               game: str | None = None) -> str:
+               game: str | None = None,
+               sources: Sequence[str] = ("tracker", "simulated", "typed")) -> str:
     """The plan of the round and the form for what the person did; game: the address where
-    the round can be played in the browser game instead (fetch studies)."""
+    the round can be played in the browser game instead (fetch studies); sources: the form's
+    choices that can work for this participant (a tracker file always)."""
     human = [t for t in view["human"] if not t.startswith("wait:")]
     seq = lambda items, cls: " → ".join(  # noqa: E731
         f"<span class={cls}>{e(t)}</span>" if not t.startswith("wait:")
@@ -100,22 +103,27 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
         f"<tr><td class=human>{e(t)}</td><td><input type=number name='d:{e(t)}' step=any "
         f"min=0 placeholder='seconds' aria-label='duration of {e(t)} in seconds'></td>"
         f"<td class='muted small'>planned {view['expected'][t]:.1f} s</td></tr>" for t in human)
-    src = (
-        "<fieldset><legend>What the person did</legend>"
-        "<label class=choice><input type=radio name=source value=tracker checked> "
-        "a tracker file (CSV or JSON)</label>"
-        f"<div class=source data-source=tracker><input type=file name=tracker_file "
-        f"accept='.csv,.json,text/csv,application/json'><p class='muted small'>{tracker_help}"
-        "</p></div>"
-        "<label class=choice><input type=radio name=source value=simulated> "
-        "the simulated cell (the priming group's simulated person does the tasks)</label>"
-        "<div class=source data-source=simulated><p class='muted small'>No input: the world's "
-        "simulated teammate of this participant's priming group performs the tasks.</p></div>"
-        "<label class=choice><input type=radio name=source value=typed> durations typed in"
-        "</label><div class=source data-source=typed><table class=grid>"
-        f"{typed}</table><p class='muted small'>The path is the priming group's nominal path of "
-        "each task, stretched to the duration: timing adapts to the person, paths to the "
-        "group.</p></div></fieldset>")
+    offered = {
+        "tracker": (
+            "a tracker file (CSV or JSON)",
+            "<input type=file name=tracker_file accept='.csv,.json,text/csv,application/json'>"
+            f"<p class='muted small'>{tracker_help}</p>"),
+        "simulated": (
+            "the simulated cell (the priming group's simulated person does the tasks)",
+            "<p class='muted small'>No input: the world's simulated teammate of this "
+            "participant's priming group performs the tasks.</p>"),
+        "typed": (
+            "durations typed in",
+            f"<table class=grid>{typed}</table><p class='muted small'>The path is the priming "
+            "group's nominal path of each task, stretched to the duration: timing adapts to the "
+            "person, paths to the group.</p>"),
+    }
+    shown = [k for k in offered if k in sources]
+    src = ("<fieldset><legend>What the person did</legend>" + "".join(
+        f"<label class=choice><input type=radio name=source value={k}"
+        f"{' checked' if k == shown[0] else ''}> {offered[k][0]}</label>"
+        f"<div class=source data-source={k}>{offered[k][1]}</div>" for k in shown)
+        + "</fieldset>")
     body = (
         f"<section class=card id=plan><h2>Round {view['round']}: the robot's plan</h2>"
         f"<img class=gantt alt='Gantt chart of the plan' src='{view['gantt']}'>"

@@ -164,6 +164,20 @@ class StudySession:
     def items(self) -> list[dict[str, Any]]:
         return [{"id": i.id, "text": i.text} for i in self.store.items.items]
 
+    @property
+    def task_bound(self) -> float:
+        """Seconds a person's task may take in this study (the design's ``max_task_s`` or the
+        world's bound): longer typed durations and tracked tasks are refused."""
+        return self.store.design.task_bound(self.world)
+
+    def sources(self, pid: str) -> tuple[str, ...]:
+        """The sources ``pid``'s round page offers: a tracker file always; the simulated cell and
+        typed-in durations when their priming group names a simulated teammate of the world;
+        the game on fetch."""
+        group = self.store.participant(pid).group in self.world.teammate_names
+        return tuple(s for s in SOURCES if s == "tracker" or (s == "game" and self.has_game)
+                     or (s in ("simulated", "typed") and group))
+
     def teammate(self, pid: str) -> SimulatedTeammate:
         """The simulated person of ``pid``'s priming group (TrackerError if the world has none
         of that name)."""
@@ -275,6 +289,10 @@ class StudySession:
                   ) -> dict[str, HumanExecution] | None:
         if source not in SOURCES:
             raise InputError(f"choose where the round's data come from: {', '.join(SOURCES)}")
+        unknown = sorted(set(fields) - {f"d:{t}" for t in tasks})
+        if unknown:  # e.g. the duration of a robot task: the page never sends one
+            raise InputError(f"unknown field(s) in the round: {', '.join(unknown[:5])[:200]} (the "
+                             f"person's tasks: {', '.join(tasks) or 'none'})")
         if source == "game":
             return self._played(pid, tasks, played)
         if not tasks:
@@ -283,7 +301,8 @@ class StudySession:
             if not tracker:
                 raise InputError("choose the tracker file of this round (CSV or JSON)")
             try:
-                return parse_tracker(tracker.encode("utf-8"), self.world, tasks)
+                return parse_tracker(tracker.encode("utf-8"), self.world, tasks,
+                                     self.task_bound)
             except TrackerError as exc:
                 raise InputError(str(exc)) from None
         try:
@@ -305,9 +324,9 @@ class StudySession:
                 raise InputError(f"duration of {t}: {v[:40]!r} is not a positive number of "
                                  "seconds")
         try:
-            durations = validate_durations(typed, tasks)
-        except StudyDataError as exc:
-            raise InputError(f"{exc}: a duration is a positive number of seconds") from None
+            durations = validate_durations(typed, tasks, self.task_bound)
+        except StudyDataError as exc:  # longer than any task: a typo (4500 for 4.5)
+            raise InputError(str(exc)) from None
         return {t: typed_execution(self.world, mate, t, d) for t, d in durations.items()}
 
     @property

@@ -39,9 +39,11 @@ import numpy as np
 import pandas as pd
 
 from rapidds.errors import RapiddsError
+from rapidds.experiments.study.design import world_task_bound
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
 
 __all__ = [
+    "MAX_COLUMNS",
     "MAX_TRACKER_BYTES",
     "TrackerError",
     "group_teammate",
@@ -53,6 +55,9 @@ __all__ = [
 
 MAX_TRACKER_BYTES = 8 * 1024 * 1024
 """Largest tracker file accepted (about 200 000 rows of CSV)."""
+MAX_COLUMNS = 32
+"""Most columns (CSV) or fields per object (JSON) a tracker file may have: the format needs 6;
+a header of 100 000 columns kept the study's one worker busy for 11 s."""
 _AXES = ("x", "y", "z")
 _NOMINAL_ROWS = 401  # phases of a nominal path before it is stretched to a typed duration
 
@@ -115,12 +120,23 @@ def _table(data: bytes) -> tuple[pd.DataFrame, int]:
         except json.JSONDecodeError as exc:
             raise TrackerError(f"the tracker file is not valid JSON: {exc.msg} (line "
                                f"{exc.lineno})") from None
+        except RecursionError:
+            raise TrackerError("the tracker file's JSON is nested too deeply; it must be a list "
+                               "of objects") from None
         if isinstance(obj, dict) and isinstance(obj.get("rows"), list):
             obj = obj["rows"]
         if not isinstance(obj, list) or not all(isinstance(r, dict) for r in obj):
             raise TrackerError("a JSON tracker file must be a list of objects with fields task, "
                                "point, t, x, y(, z)")
+        wide = next((i for i, r in enumerate(obj) if len(r) > MAX_COLUMNS), None)
+        if wide is not None:
+            raise TrackerError(f"tracker file object {wide + 1} has {len(obj[wide])} fields; "
+                               f"at most {MAX_COLUMNS} (task, point, t, x, y, z are needed)")
         return pd.DataFrame.from_records(obj), 1
+    columns = text.partition("\n")[0].count(",") + 1  # before pandas reads every one of them
+    if columns > MAX_COLUMNS:
+        raise TrackerError(f"the tracker file's header has {columns} columns; at most "
+                           f"{MAX_COLUMNS} (task, point, t, x, y, z are needed)")
     try:
         return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True), 2
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
@@ -137,9 +153,11 @@ def _numbers(table: pd.DataFrame, column: str, line0: int) -> np.ndarray:
     return values
 
 
-def parse_tracker(data: bytes, world: World, tasks: Sequence[str]) -> dict[str, HumanExecution]:
+def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
+                  at_most: float | None = None) -> dict[str, HumanExecution]:
     """The person's ``tasks`` of one round from a tracker file's bytes (format: module
-    docstring); :class:`TrackerError` names the first problem."""
+    docstring); :class:`TrackerError` names the first problem. ``at_most``: the longest a task
+    may take, s (default: the world's bound, :func:`world_task_bound`)."""
     if len(data) > MAX_TRACKER_BYTES:
         raise TrackerError(f"the tracker file is larger than {MAX_TRACKER_BYTES // 2**20} MiB")
     try:
@@ -189,6 +207,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str]) -> dict[str, 
     if extra:
         raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
                            f"does not do this round (their tasks: {', '.join(wanted)})")
+    limit = world_task_bound(world) if at_most is None else at_most
     out: dict[str, HumanExecution] = {}
     for task in wanted:
         rows = names == task
@@ -199,6 +218,10 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str]) -> dict[str, 
         if not t1 > t0:
             raise TrackerError(f"task {task}: all samples have t = {t0:g}; a task needs samples "
                                "at two times at least")
+        if t1 - t0 > limit:  # before its path of (t1 - t0) / dt rows is allocated
+            raise TrackerError(f"task {task}: its samples span {t1 - t0:g} s, longer than any "
+                               f"task of this study ({limit:g} s): are t in seconds, one "
+                               "round per file?")
         grid = _rows_of(world, t1 - t0)
         path = np.empty((len(grid), k, dim))
         for j in range(k):
