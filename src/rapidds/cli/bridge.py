@@ -111,25 +111,26 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
-    store = RunStore(run_dir / STORE, lock_as="rapidds observe")
-    try:
-        ids = store.run_ids()
-        if not ids and config is None:
-            raise RapiddsError(f"{run_dir} holds no run; start one with --config RUN.yaml "
-                               "(run settings: world, cycles, seed, ...)")
-        if ids:
-            if config is not None:
-                raise RapiddsError(f"{run_dir} holds a run already; --config starts a new one")
-            cfg = RunConfig(**(store.run_config(_run_id(store, run_id)) or {}))
-        else:
-            cfg = _new_config(config)  # type: ignore[arg-type]
-        world = make_world(cfg.world, cfg.variant)
-        maps = default_mapping(world) if mapping is None else load_mapping(mapping).check(world)
-        recorded = read_cycle(bag, world, maps)
-        usable = [t for t, v in recorded.tasks.items() if v[0] == "human"]
-        if not usable:
-            raise RapiddsError(f"{bag}: no complete human task (start and end events on "
-                               "/rapidds/events) to learn from")
+    path = run_dir / STORE
+    ids: list[str] = []
+    if path.exists():
+        with RunStore.open_readonly(path) as store:
+            ids = store.run_ids()
+            stored = store.run_config(_run_id(store, run_id)) if ids else None
+    if ids and config is not None:
+        raise RapiddsError(f"{run_dir} holds a run already; --config starts a new one")
+    if not ids and config is None:
+        raise RapiddsError(f"{run_dir} holds no run; start one with --config RUN.yaml "
+                           "(run settings: world, cycles, seed, ...)")
+    cfg = RunConfig(**(stored or {})) if ids else _new_config(config)  # type: ignore[arg-type]
+    world = make_world(cfg.world, cfg.variant)
+    maps = default_mapping(world) if mapping is None else load_mapping(mapping).check(world)
+    recorded = read_cycle(bag, world, maps)
+    if not any(agent == "human" for agent, _, _ in recorded.tasks.values()):
+        raise RapiddsError(f"{bag}: no complete human task (start and end events on "
+                           "/rapidds/events) to learn from")
+    # the store is written only now, with a usable bag in hand
+    with RunStore(path, lock_as="rapidds observe") as store:
         run = AdaptiveRun(cfg, load_policy(world, policy), store, world,
                           teammate=RecordedTeammate({}))
         plan = run.plan()
@@ -137,8 +138,6 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
         dep = run.execute(plan, observed=observed)
         run.learn(plan, dep)
         return run.record(plan, dep)
-    finally:
-        store.close()
 
 
 @app.command("observe")
