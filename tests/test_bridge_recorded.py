@@ -183,3 +183,47 @@ def test_observe_refuses_what_it_cannot_use(tmp_path: Path,
         errors = [x for x in err.splitlines() if x.startswith("rapidds: error:")]
         assert code == 2 and len(errors) == 1, err
         assert not Path(args[0]).exists()  # nothing written for an unusable bag
+
+
+def _line(a: np.ndarray, b: np.ndarray, duration: float, t: float) -> np.ndarray:
+    return a + (b - a) * min(max(t / duration, 0.0), 1.0)
+
+
+def test_robot_demonstrations_from_bags_train_a_policy(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Joint states at 100 Hz (the world's joints in another order, plus one more) cut into
+    tasks by the robot's events, sampled at dt and held at the end to the horizon."""
+    from rapidds.bridge.recorded import robot_demonstrations
+    from rapidds.motion.policy import DiffusionPolicy
+
+    world = make_world("fetch")
+    names = [*reversed(joint_names(world)), "gripper"]
+    moves = {"t0": (1 * S, 3.0, np.array([1.0, 2.0]), np.array([4.0, 1.0])),
+             "t1": (5 * S, 2.0, np.array([4.0, 1.0]), np.array([2.0, 6.0]))}
+    msgs = []
+    for task, (start, dur, *_) in moves.items():
+        msgs += [_event(task, "start", start, "robot"),
+                 _event(task, "end", start + round(dur * S), "robot")]
+    for k in range(0, 701):  # 100 Hz from 0 to 7 s
+        at = k * S // 100
+        task = "t0" if at < 4.5 * S else "t1"
+        start, dur, a, b = moves[task]
+        x, y = _line(a, b, dur, (at - start) / S)
+        msgs.append(BagMessage(ros2.JOINT_STATE_TOPIC, "sensor_msgs/msg/JointState", at,
+                               ros2.joint_state(names, np.array([y, x, 0.5]), stamp_ns=at)))
+    (tmp_path / "bags").mkdir()
+    write_bag(tmp_path / "bags" / "demo.mcap", msgs)
+    demos = robot_demonstrations(tmp_path / "bags", world)
+    robot_tasks = tuple(t.id for t in world.problem().tasks if "robot" in t.allowed)
+    assert demos.task_names == robot_tasks
+    assert demos.trajectories.shape == (2, world.horizon, 2)
+    for row, k in zip(demos.trajectories, demos.task_index, strict=True):
+        start, dur, a, b = moves[robot_tasks[k]]
+        want = np.stack([_line(a, b, dur, i * world.dt) for i in range(world.horizon)])
+        np.testing.assert_allclose(row, want, atol=1e-5)  # float32 demonstrations
+    code, _, err = run_main(capsys, "train-policy", "--world", "fetch", "--demos",
+                            str(tmp_path / "bags"), "--steps", "3", "--out", str(tmp_path / "p"))
+    assert code == 0, err
+    policy = DiffusionPolicy.load(tmp_path / "p", device="cpu")
+    assert tuple(policy.config.task_names) == robot_tasks
+    assert policy.config.horizon == world.horizon

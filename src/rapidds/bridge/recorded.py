@@ -23,7 +23,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -39,11 +39,13 @@ __all__ = [
     "RecordedTeammate",
     "RigidTransform",
     "TrackingMapping",
+    "bag_paths",
     "default_mapping",
     "human_executions",
     "load_mapping",
     "observed_for",
     "read_cycle",
+    "robot_demonstrations",
 ]
 
 log = logging.getLogger("rapidds.bridge")
@@ -302,3 +304,60 @@ class RecordedTeammate:
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         return {t: self.observed[t] for t in tasks}
+
+
+def bag_paths(path: str | Path) -> list[Path]:
+    """The bags at ``path``: itself (an .mcap or .db3 file, or a bag folder with
+    ``metadata.yaml``), or the bags directly inside a folder of them, by name."""
+    path = Path(path)
+    if path.is_file() or (path / "metadata.yaml").is_file():
+        return [path]
+    if not path.is_dir():
+        raise RapiddsError(f"{path}: no such bag or folder of bags")
+    found = sorted(p for p in path.iterdir()
+                   if (p.is_file() and p.suffix in (".mcap", ".db3"))
+                   or (p / "metadata.yaml").is_file())
+    if not found:
+        raise RapiddsError(f"{path}: no rosbag2 bag in it (.mcap, .db3 or bag folders)")
+    return found
+
+
+def robot_demonstrations(path: str | Path, world: World) -> Any:
+    """:class:`~rapidds.motion.demos.Demonstrations` of the robot from recorded bags: its
+    ``sensor_msgs/JointState`` (the world's joint names, any order, extra joints ignored) cut
+    into tasks by the robot's task events and sampled at the world's dt from each task's start,
+    held at the last pose to the world's horizon (the demonstrations' convention: a motion
+    that finishes early stops moving). A task longer than the horizon is dropped."""
+    from rapidds.motion.demos import Demonstrations
+    from rapidds.worlds.base import joint_names
+
+    names = joint_names(world)
+    tasks = [t.id for t in world.problem().tasks if "robot" in t.allowed]
+    dt, horizon = world.dt, world.horizon
+    rows, index = [], []
+    for bag in bag_paths(path):
+        cycle = read_cycle(bag, world, joints=names)
+        for task, (agent, start, end) in cycle.tasks.items():
+            if agent != "robot":
+                continue
+            if task not in tasks:
+                log.warning("%s: %r is not a robot task of %s; dropped", bag, task, world.name)
+                continue
+            if (end - start) / _NS > (horizon - 1) * dt + 1e-9:
+                log.warning("%s: robot task %r took %.2f s, longer than the horizon (%.2f s); "
+                            "dropped", bag, task, (end - start) / _NS, (horizon - 1) * dt)
+                continue
+            if cycle.joints is None or not _covers(cycle.joints[0], start, end, dt):
+                log.warning("%s: no joint states through robot task %r; dropped", bag, task)
+                continue
+            at = start + np.round(np.minimum(np.arange(horizon) * dt, (end - start) / _NS)
+                                  * _NS).astype(np.int64)
+            rows.append(resample(*cycle.joints, at))
+            index.append(tasks.index(task))
+    if not rows:
+        raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "
+                           "and end events on /rapidds/events, sensor_msgs/JointState)")
+    if missing := [t for k, t in enumerate(tasks) if k not in index]:
+        log.warning("no demonstration of robot task(s) %s: the policy will not know them",
+                    ", ".join(missing))
+    return Demonstrations(np.stack(rows), np.array(index), tuple(tasks))

@@ -34,7 +34,7 @@ def _run_id(store: Any, run_id: str | None) -> str:
     return str(ids[0])
 
 
-def _log_to_stderr() -> None:
+def log_to_stderr() -> None:
     """The bridge's one-line warnings (dropped messages) on stderr, as ``rapidds: warning``."""
     logger = logging.getLogger("rapidds.bridge")
     if not logger.handlers:
@@ -166,7 +166,7 @@ def observe_cmd(
     import torch
 
     torch.set_num_threads(threads)
-    _log_to_stderr()
+    log_to_stderr()
     try:
         rec = observe_cycle(run_dir, bag, mapping, config, run, policy)
     except RapiddsError as exc:
