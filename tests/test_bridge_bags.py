@@ -98,6 +98,14 @@ def test_export_reads_back_with_mcap_ros2(painting_run: Path, tmp_path: Path,
     assert len(trajs) == expected_count
     plans = [json.loads(p.data) for p in by_topic[ros2.PLAN_TOPIC]]
     assert plans == [ros2.plan_payload(r) for r in records]
+    # the Foxglove layout in docs/ shows only topics a painting export has
+    layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json").read_text())
+    shown = {t for c in layout["configById"].values() for t in c.get("topics", {})}
+    shown |= {p["value"].split(".")[0] for c in layout["configById"].values()
+              for p in c.get("paths", [])}
+    shown |= {c["topicPath"].split(".")[0] for c in layout["configById"].values()
+              if "topicPath" in c}
+    assert shown and shown <= set(by_topic), shown - set(by_topic)
     assert [p["order"]["human"] for p in plans] == [
         [x for x in r["human"] if not x.startswith("wait")] for r in records]
 

@@ -117,13 +117,16 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
         with RunStore.open_readonly(path) as store:
             ids = store.run_ids()
             stored = store.run_config(_run_id(store, run_id)) if ids else None
-    if ids and config is not None:
-        raise RapiddsError(f"{run_dir} holds a run already; --config starts a new one")
     if not ids and config is None:
         raise RapiddsError(f"{run_dir} holds no run; start one with --config RUN.yaml "
                            "(run settings: world, cycles, seed, ...)")
-    cfg = RunConfig(**(stored or {})) if ids else _new_config(config)  # type: ignore[arg-type]
+    # --config names the run (a new one, or the stored one with the same settings: the run
+    # checks them when it attaches to the store)
+    cfg = _new_config(config) if config is not None else RunConfig(**(stored or {}))
     world = make_world(cfg.world, cfg.variant)
+    if ids and (rid := cfg.resolved(world).run_id) not in ids:
+        raise RapiddsError(f"{run_dir} holds run(s) {', '.join(ids)}, not '{rid}' of --config; "
+                           "observe into another folder")
     maps = default_mapping(world) if mapping is None else load_mapping(mapping).check(world)
     recorded = read_cycle(bag, world, maps)
     if not any(agent == "human" for agent, _, _ in recorded.tasks.values()):
