@@ -31,7 +31,7 @@ from pydantic import Field, field_validator
 from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage, read_bag
 from rapidds.errors import ConfigError, RapiddsError
-from rapidds.settings import Settings
+from rapidds.settings import Settings, read_yaml
 from rapidds.worlds.base import HumanExecution, World, body_point_names
 
 __all__ = [
@@ -107,17 +107,8 @@ class TrackingMapping(Settings):
 
 def load_mapping(path: str | Path) -> TrackingMapping:
     """A mapping from YAML; ConfigError (one line) for a missing file, bad YAML or bad fields."""
-    import yaml
-
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"mapping {path}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"mapping {path}: not YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"mapping {path}: a mapping needs the keys points (and transform)")
+    raw = read_yaml(path, "mapping")
     try:
         return TrackingMapping(**raw)
     except ConfigError as exc:

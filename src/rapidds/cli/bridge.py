@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.errors import ConfigError, RapiddsError
+from rapidds.errors import RapiddsError
 
 STORE = "run.sqlite"
 
@@ -80,19 +80,10 @@ def export_cmd(
 
 def _new_config(config: Path) -> Any:
     """The RunConfig of a YAML or JSON file of its fields."""
-    import yaml
-
     from rapidds.loop.config import RunConfig
+    from rapidds.settings import read_yaml
 
-    try:
-        raw = yaml.safe_load(config.read_text())
-    except OSError as exc:
-        raise ConfigError(f"--config {config}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"--config {config}: not YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"--config {config}: a mapping of run settings (world, cycles, ...)")
-    return RunConfig(**raw)
+    return RunConfig(**read_yaml(config, "--config"))
 
 
 def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
