@@ -142,7 +142,8 @@ def test_observe_a_recorded_cycle_learns_what_the_simulated_one_did(
         painting_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Cycle 0 of the simulated run, recorded as a bag (events and the person's body points on
     /tf under the world's default mapping), observed by a fresh run with the same settings:
-    the same plan, the same observed durations and the same learned model. Tolerance 1e-7:
+    the same plan, the same observed durations and the same learned model; then cycle 1 the
+    same way, continuing the observed run. Tolerance 1e-7:
     a bag stores times in whole nanoseconds, so a duration read back differs by up to 2 ns,
     and the paths are resampled at those times (differences of ~1e-9 m)."""
     rid, cfg, records, store = _stored(painting_run)
@@ -168,3 +169,18 @@ def test_observe_a_recorded_cycle_learns_what_the_simulated_one_did(
         assert arrays.keys() == ref_arrays.keys()
         for key, a in ref_arrays.items():
             np.testing.assert_allclose(arrays[key], a, rtol=0, atol=1e-7)
+
+    # the next bag continues the run (its settings from the store): the second plan, made
+    # from the model learned from the bag, is the in-process run's second plan
+    bag1 = tmp_path / "cycle1.mcap"
+    assert run_main(capsys, "export", str(painting_run), "--cycle", "1", "--out", str(bag1))[0] == 0
+    code, stdout, err = run_main(capsys, "observe", str(tmp_path / "real"), "--bag", str(bag1),
+                                 "--json")
+    assert code == 0, err
+    rec, ref = json.loads(stdout), records[1]
+    assert (rec["cycle"], rec["human"], rec["robot"], rec["routes"]) == (
+        1, ref["human"], ref["robot"], ref["routes"])
+    assert rec["observed"] == pytest.approx(ref["observed"], abs=1e-7)
+    with RunStore.open_readonly(tmp_path / "real" / "run.sqlite") as mine:
+        _model_close(HumanModel.from_bytes(mine.state(rid, 1)),
+                     HumanModel.from_bytes(store.state(rid, 1)), 1e-7)
