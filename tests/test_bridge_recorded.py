@@ -64,7 +64,7 @@ def _tracking(at: int, t: float) -> list[BagMessage]:
     """The four body points at time t (s) as a PointStamped, a PoseStamped and a PoseArray."""
     ty = ros2.typestore().types
     pts = [_to_tracker(_hand(t) + off) for off in (0.0, 0.1, 0.2, 0.3)]
-    head = ros2._header(at, "mocap")
+    head = ros2.header(at, "mocap")
 
     def pose(p: np.ndarray) -> object:
         return ty["geometry_msgs/msg/Pose"](

@@ -69,12 +69,12 @@ def _row_times(duration: float, rows: int, dt: float) -> np.ndarray:
 def _path_msg(points: np.ndarray, start_ns: int, times: np.ndarray) -> Any:
     t = ros2.typestore().types
     poses = [t["geometry_msgs/msg/PoseStamped"](
-        header=ros2._header(start_ns + _ns(s)),
+        header=ros2.header(start_ns + _ns(s)),
         pose=t["geometry_msgs/msg/Pose"](
             position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
             orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
         for s, (x, y, z) in zip(times, (_xyz(p) for p in points), strict=True)]
-    return t["nav_msgs/msg/Path"](header=ros2._header(start_ns), poses=poses)
+    return t["nav_msgs/msg/Path"](header=ros2.header(start_ns), poses=poses)
 
 
 def tf_message(names: tuple[str, ...], points: np.ndarray, stamp: int,
@@ -82,7 +82,7 @@ def tf_message(names: tuple[str, ...], points: np.ndarray, stamp: int,
     """``tf2_msgs/msg/TFMessage``: frame ``names[k]`` at ``points[k]`` in ``parent``."""
     t = ros2.typestore().types
     return t["tf2_msgs/msg/TFMessage"](transforms=[t["geometry_msgs/msg/TransformStamped"](
-        header=ros2._header(stamp, parent), child_frame_id=name,
+        header=ros2.header(stamp, parent), child_frame_id=name,
         transform=t["geometry_msgs/msg/Transform"](
             translation=t["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z)),
             rotation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))

@@ -259,7 +259,9 @@ class World(Protocol):
     # Optional, read through :func:`joint_names` and :func:`body_point_names` (not members of
     # the protocol, so a user's world without them still is a World):
     #   joint_names: tuple[str, ...], the d coordinates of a robot row as its driver names them;
-    #   body_point_names: tuple[str, ...], the K body points of a human path, as frame names.
+    #   body_point_names: tuple[str, ...], the K body points of a human path, as frame names;
+    #   tracking_mapping: Path, the YAML mapping of a tracker's frames to those body points
+    #   (rapidds.bridge.recorded).
 
 
 def joint_names(world: World) -> tuple[str, ...]:
