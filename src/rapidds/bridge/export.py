@@ -31,8 +31,8 @@ from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage
 from rapidds.worlds.base import World, body_point_names, body_points, joint_names
 
-__all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "path_topic", "run_messages",
-           "tf_message"]
+__all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "human_task_messages", "path_topic",
+           "run_messages", "tf_message"]
 
 CYCLE_GAP_S = 1.0
 """Seconds between one exported cycle's end and the next one's start on the bag's clock."""
@@ -94,6 +94,20 @@ def _event(task: str, agent: str, kind: str, at: int) -> BagMessage:
     return BagMessage(ros2.EVENTS_TOPIC, "std_msgs/msg/String", at, ros2.event_message(ev))
 
 
+def human_task_messages(world: World, task: str, path: np.ndarray, duration: float,
+                        start_ns: int) -> list[BagMessage]:
+    """One human task as a real cell reports it (the contract of ``rapidds observe``): its
+    start and end on ``/rapidds/events`` and the body points of ``path`` (T, K, d_ws), rows at
+    start + min(k * dt, duration), on ``/tf`` under the world's body-point names."""
+    names, path = body_point_names(world), body_points(path)
+    end = start_ns + _ns(duration)
+    out = [_event(task, "human", "start", start_ns), _event(task, "human", "end", end)]
+    for s, row in zip(_row_times(duration, len(path), world.dt), path, strict=True):
+        at = start_ns + _ns(s)
+        out.append(BagMessage("/tf", "tf2_msgs/msg/TFMessage", at, tf_message(names, row, at)))
+    return sorted(out, key=lambda m: m.time_ns)
+
+
 def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str, np.ndarray],
                    spatial: Any, epoch_ns: int,
                    expected: Mapping[str, np.ndarray] | None = None) -> Iterator[BagMessage]:
@@ -127,10 +141,8 @@ def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str,
         start, end = times[task]
         begin = epoch_ns + _ns(start)
         rel = _row_times(end - start, len(path), dt)
-        for s, row in zip(rel, path, strict=True):
-            at = begin + _ns(s)
-            out.append(BagMessage("/tf", "tf2_msgs/msg/TFMessage", at,
-                                  tf_message(names, row, at)))
+        out += [m for m in human_task_messages(world, task, path, end - start, begin)
+                if m.topic == "/tf"]
         for k, name in enumerate(names):
             out.append(BagMessage(path_topic("realised", name), "nav_msgs/msg/Path", begin,
                                   _path_msg(path[:, k], begin, rel)))

@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = ["InputError", "OutOfTurn", "StudySession", "View", "step_token"]
 
-SOURCES = ("tracker", "simulated", "typed", "game")
+SOURCES = ("tracker", "bag", "simulated", "typed", "game")
 """Where a round's data come from; "game" (fetch only): played at ``/p/{pid}/play``."""
 
 
@@ -279,6 +279,8 @@ class StudySession:
             return self._played(pid, tasks, played)
         if not tasks:
             return {}
+        if source == "bag":
+            return self._bag(str(fields.get("bag", "")).strip(), tasks)
         if source == "tracker":
             if not tracker:
                 raise InputError("choose the tracker file of this round (CSV or JSON)")
@@ -309,6 +311,21 @@ class StudySession:
         except StudyDataError as exc:
             raise InputError(f"{exc}: a duration is a positive number of seconds") from None
         return {t: typed_execution(self.world, mate, t, d) for t, d in durations.items()}
+
+    def _bag(self, name: str, tasks: Sequence[str]) -> dict[str, HumanExecution]:
+        """The round as recorded in the cell: a rosbag2 bag in the study folder's ``bags/``,
+        named on the page (only there: the page never makes the server read other files),
+        under the world's default tracking mapping (README, "In a real cell")."""
+        from rapidds.bridge.recorded import observed_for, read_cycle
+
+        if not name or name != Path(name).name or name.startswith("."):
+            raise InputError("type the file name of the round's bag, which lies in the study "
+                             "folder's bags/")
+        try:
+            cycle = read_cycle(self.store.path.parent / "bags" / name, self.world)
+            return observed_for(cycle, self.world, tasks)
+        except RapiddsError as exc:
+            raise InputError(str(exc)) from None
 
     @property
     def has_game(self) -> bool:
