@@ -21,6 +21,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("rapidds.plots", "rapidds.render"),
     ("rapidds.worlds",),
     ("rapidds.loop",),
+    ("rapidds.bridge",),  # ROS 2 formats at the border: reads the loop's records and models
     ("rapidds.experiments",),
     ("rapidds.web",),
     ("rapidds.cli",),

@@ -72,7 +72,8 @@ CASES: list[tuple[str, str]] = [
     ("train-policy --out {tmp}/p --world moon", "unknown world 'moon'"),
     ("train-policy --out {tmp}/p --world fetch --steps -1", "steps must be >= 1"),
     ("train-policy --out {tmp}/p --world fetch --demos-per-mode 0", "--demos-per-mode must be"),
-    ("train-policy --out {tmp}/p", "give exactly one of --demos FILE or --world NAME"),
+    ("train-policy --out {tmp}/p", "give --demos FILE, --world NAME, or --world NAME --demos"),
+    ("train-policy --out {tmp}/p --world fetch --demos {missing}", "no such bag or folder"),
     ("train-policy --out {tmp}/p --demos {missing}.npz", "does not exist"),
     # ablation and report
     ("ablation --out {tmp}/ab --trials 0", "--trials must be between 1 and 10000"),

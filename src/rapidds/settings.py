@@ -8,13 +8,14 @@ Every user-facing configuration (a run, a study, a world's options) derives from
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from rapidds.errors import ConfigError
 
-__all__ = ["Settings", "first_error", "memory_bytes", "require_memory"]
+__all__ = ["Settings", "first_error", "memory_bytes", "read_yaml", "require_memory"]
 
 
 def first_error(exc: ValidationError) -> str:
@@ -42,6 +43,22 @@ class Settings(BaseModel):
     def replace(self, **changes: Any) -> Any:
         """A validated copy with ``changes`` applied."""
         return type(self)(**{**self.model_dump(), **changes})
+
+
+def read_yaml(path: Path, what: str) -> dict[str, Any]:
+    """The mapping in the YAML (or JSON) file ``path``; ConfigError naming ``what`` in one line
+    for a missing file, bad YAML or a document that is not a mapping."""
+    import yaml
+
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{what} {path}: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{what} {path}: not YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{what} {path}: not a mapping of settings")
+    return raw
 
 
 def memory_bytes() -> int:

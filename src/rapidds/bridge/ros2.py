@@ -29,6 +29,7 @@ __all__ = [
     "TrackedPoint",
     "deserialize",
     "event_message",
+    "header",
     "joint_state",
     "joint_trajectory",
     "parse_event",
@@ -94,6 +95,11 @@ def _duration(seconds: float) -> Any:
 
 def _header(stamp_ns: int, frame_id: str = "world") -> Any:
     return _type("std_msgs/msg/Header")(stamp=_time(stamp_ns), frame_id=frame_id)
+
+
+def header(stamp_ns: int, frame_id: str = "world") -> Any:
+    """``std_msgs/msg/Header`` stamped ``stamp_ns`` in ``frame_id``."""
+    return _header(stamp_ns, frame_id)
 
 
 def stamp_ns(header: Any) -> int:

@@ -53,15 +53,29 @@ def _world_demos(name: str, per_mode: int, seed: int) -> tuple[Any, dict[str, An
     return demos, dict(world.policy_defaults)
 
 
+def _bag_demos(name: str, path: Path) -> tuple[Any, dict[str, Any]]:
+    """A world's robot demonstrations recorded in rosbag2 bags, and its network defaults."""
+    from rapidds.bridge.recorded import robot_demonstrations
+    from rapidds.cli.bridge import log_to_stderr
+    from rapidds.worlds.registry import make_world
+
+    log_to_stderr()
+    world = make_world(name)
+    return robot_demonstrations(path, world), dict(world.policy_defaults)
+
+
 @app.command("train-policy")
 def train_policy_cmd(
     out: Annotated[Path, typer.Option("--out", help="Checkpoint directory to write.")],
     demos: Annotated[Path | None, typer.Option(
-        "--demos", help="Demonstrations .npz (trajectories, task_index, task_names[, start]).")
+        "--demos", help="Demonstrations .npz (trajectories, task_index, task_names[, start]); "
+        "with --world, rosbag2 bags of the robot (a bag or a folder of them: JointState cut "
+        "into tasks by its task events).")
     ] = None,
     world: Annotated[str | None, typer.Option(
         help="Train on a registered world's generated demonstrations instead (see 'rapidds "
-        "worlds'), with the world's network defaults.")] = None,
+        "worlds'), with the world's network defaults; with --demos, on its recorded ones.")
+    ] = None,
     demos_per_mode: Annotated[int, typer.Option(
         help="With --world: demonstrations per task and route.")] = 64,
     steps: Annotated[int | None, typer.Option(
@@ -89,10 +103,14 @@ def train_policy_cmd(
     from rapidds.motion.train import total_steps, train_policy
 
     try:
-        if (demos is None) == (world is None):
-            raise ConfigError("give exactly one of --demos FILE or --world NAME")
+        if demos is None and world is None:
+            raise ConfigError("give --demos FILE, --world NAME, or --world NAME --demos BAGS")
         fields: dict[str, Any] = {}
-        if world is not None:
+        if world is not None and demos is not None:
+            data, fields = _bag_demos(world, demos)
+            if horizon is not None:
+                data = data.resample(horizon)
+        elif world is not None:
             data, fields = _world_demos(world, demos_per_mode, 0 if seed is None else seed)
             if horizon is not None:
                 data = data.resample(horizon)

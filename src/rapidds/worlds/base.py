@@ -42,7 +42,9 @@ __all__ = [
     "SimulatedTeammate",
     "Teammate",
     "World",
+    "body_point_names",
     "body_points",
+    "joint_names",
 ]
 
 
@@ -253,3 +255,34 @@ class World(Protocol):
     def draw(self, ax: Axes, view: str) -> None:
         """Draw the static scene (walls, tables, trays, homes) into ``ax`` in ``view``."""
         ...
+
+    # Optional, read through :func:`joint_names` and :func:`body_point_names` (not members of
+    # the protocol, so a user's world without them still is a World):
+    #   joint_names: tuple[str, ...], the d coordinates of a robot row as its driver names them;
+    #   body_point_names: tuple[str, ...], the K body points of a human path, as frame names;
+    #   tracking_mapping: Path, the YAML mapping of a tracker's frames to those body points
+    #   (rapidds.bridge.recorded).
+
+
+def joint_names(world: World) -> tuple[str, ...]:
+    """The names of the robot's ``state_dim`` coordinates (a JointTrajectory's joint names):
+    the world's ``joint_names`` if it declares them, else ``joint1`` .. ``joint{d}``."""
+    names = getattr(world, "joint_names", None)
+    if names is None:
+        return tuple(f"joint{k}" for k in range(1, world.state_dim + 1))
+    if len(names) != world.state_dim:
+        raise ValueError(f"{world.name} declares {len(names)} joint names for a "
+                         f"{world.state_dim}-D robot")
+    return tuple(names)
+
+
+def body_point_names(world: World) -> tuple[str, ...]:
+    """The names of the K body points of a human path (tracked frames): the world's
+    ``body_point_names`` if it declares them, else ``point1`` .. ``point{K}``."""
+    k = np.asarray(world.human_rest()).reshape(-1, world.workspace_dim).shape[0]
+    names = getattr(world, "body_point_names", None)
+    if names is None:
+        return tuple(f"point{i}" for i in range(1, k + 1))
+    if len(names) != k:
+        raise ValueError(f"{world.name} declares {len(names)} body point names for {k} points")
+    return tuple(names)

@@ -108,6 +108,13 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
             "a tracker file (CSV or JSON)",
             "<input type=file name=tracker_file accept='.csv,.json,text/csv,application/json'>"
             f"<p class='muted small'>{tracker_help}</p>"),
+        "bag": (
+            "a ROS 2 bag recorded in the cell",
+            "<input type=text name=bag placeholder='round.mcap' "
+            "aria-label='file name of the bag in the study folder'>"
+            "<p class='muted small'>A rosbag2 bag (.mcap, .db3 or a bag folder) in the study "
+            "folder's bags/: task events and tracked body points (README, \"In a real cell\")."
+            "</p>"),
         "simulated": (
             "the simulated cell (the priming group's simulated person does the tasks)",
             "<p class='muted small'>No input: the world's simulated teammate of this "

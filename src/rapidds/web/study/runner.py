@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = ["InputError", "OutOfTurn", "StudySession", "View", "step_token"]
 
-SOURCES = ("tracker", "simulated", "typed", "game")
+SOURCES = ("tracker", "bag", "simulated", "typed", "game")
 """Where a round's data come from; "game" (fetch only): played at ``/p/{pid}/play``."""
 
 
@@ -171,11 +171,12 @@ class StudySession:
         return self.store.design.task_bound(self.world)
 
     def sources(self, pid: str) -> tuple[str, ...]:
-        """The sources ``pid``'s round page offers: a tracker file always; the simulated cell and
-        typed-in durations when their priming group names a simulated teammate of the world;
-        the game on fetch."""
+        """The sources ``pid``'s round page offers: a tracker file and a bag always; the simulated
+        cell and typed-in durations when their priming group names a simulated teammate of the
+        world; the game on fetch."""
         group = self.store.participant(pid).group in self.world.teammate_names
-        return tuple(s for s in SOURCES if s == "tracker" or (s == "game" and self.has_game)
+        return tuple(s for s in SOURCES if s in ("tracker", "bag")
+                     or (s == "game" and self.has_game)
                      or (s in ("simulated", "typed") and group))
 
     def teammate(self, pid: str) -> SimulatedTeammate:
@@ -289,7 +290,7 @@ class StudySession:
                   ) -> dict[str, HumanExecution] | None:
         if source not in SOURCES:
             raise InputError(f"choose where the round's data come from: {', '.join(SOURCES)}")
-        unknown = sorted(set(fields) - {f"d:{t}" for t in tasks})
+        unknown = sorted(set(fields) - {f"d:{t}" for t in tasks} - {"bag"})
         if unknown:  # e.g. the duration of a robot task: the page never sends one
             raise InputError(f"unknown field(s) in the round: {', '.join(unknown[:5])[:200]} (the "
                              f"person's tasks: {', '.join(tasks) or 'none'})")
@@ -297,6 +298,8 @@ class StudySession:
             return self._played(pid, tasks, played)
         if not tasks:
             return {}
+        if source == "bag":
+            return self._bag(str(fields.get("bag", "")).strip(), tasks)
         if source == "tracker":
             if not tracker:
                 raise InputError("choose the tracker file of this round (CSV or JSON)")
@@ -328,6 +331,21 @@ class StudySession:
         except StudyDataError as exc:  # longer than any task: a typo (4500 for 4.5)
             raise InputError(str(exc)) from None
         return {t: typed_execution(self.world, mate, t, d) for t, d in durations.items()}
+
+    def _bag(self, name: str, tasks: Sequence[str]) -> dict[str, HumanExecution]:
+        """The round as recorded in the cell: a rosbag2 bag in the study folder's ``bags/``,
+        named on the page (only there: the page never makes the server read other files),
+        under the world's default tracking mapping (README, "In a real cell")."""
+        from rapidds.bridge.recorded import observed_for, read_cycle
+
+        if not name or name != Path(name).name or name.startswith("."):
+            raise InputError("type the file name of the round's bag, which lies in the study "
+                             "folder's bags/")
+        try:
+            cycle = read_cycle(self.store.path.parent / "bags" / name, self.world)
+            return observed_for(cycle, self.world, tasks)
+        except RapiddsError as exc:
+            raise InputError(str(exc)) from None
 
     @property
     def has_game(self) -> bool:

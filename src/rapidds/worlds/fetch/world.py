@@ -180,6 +180,21 @@ class FetchWorld:
     def human_rest(self) -> np.ndarray:
         return self.home("human")[None, :]
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The robot's planar coordinates (m), as a mobile base's driver would name its axes."""
+        return ("x", "y")
+
+    @property
+    def body_point_names(self) -> tuple[str, ...]:
+        """The person is one point: their body (ROS4HRI's ``body`` frame, on the floor)."""
+        return ("body",)
+
+    @property
+    def tracking_mapping(self) -> Path:
+        """The default YAML mapping of tracked frames to :attr:`body_point_names`."""
+        return Path(str(files("rapidds.worlds.fetch") / "tracking.yaml"))
+
     def bundled_policy(self) -> Path | None:
         path = Path(str(files("rapidds.worlds.fetch") / "policy"))
         return path if path.is_dir() else None

@@ -29,6 +29,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
+from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,7 +37,7 @@ import numpy as np
 
 from rapidds.problem import Objective, Problem, Task
 from rapidds.worlds.base import PopulationPrior, RobotDemos
-from rapidds.worlds.painting.scene import LAYOUT, Box, CellLayout
+from rapidds.worlds.painting.scene import ARM_JOINTS, LAYOUT, Box, CellLayout
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -243,6 +244,24 @@ class PaintingWorld:
     def robot_points(self, traj: np.ndarray) -> np.ndarray:
         """(..., H, 7) joint trajectories -> (..., H, 12, 3) points along the arm."""
         return self.kinematics.points(traj)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The Panda's seven arm joints as the shipped MJCF names them
+        (``robot:panda0_joint1..7``); franka_ros2 calls the same joints ``fr3_joint1..7``, in
+        this order (README, "In a real cell")."""
+        return ARM_JOINTS
+
+    @property
+    def body_point_names(self) -> tuple[str, ...]:
+        """The person's four body points (left hand, right hand, left elbow, right elbow) as
+        ROS4HRI-like frame names; a hand is tracked at its wrist, as ROS4HRI's skeleton has it."""
+        return ("l_wrist", "r_wrist", "l_elbow", "r_elbow")
+
+    @property
+    def tracking_mapping(self) -> Path:
+        """The default YAML mapping of tracked frames to :attr:`body_point_names`."""
+        return Path(str(files("rapidds.worlds.painting") / "tracking.yaml"))
 
     def robot_rest(self) -> np.ndarray:
         from rapidds.worlds.painting.motions import rest_pose

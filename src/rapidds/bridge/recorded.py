@@ -1,0 +1,354 @@
+"""A cycle recorded in a real cell, read from a rosbag2 bag under the default contract.
+
+- Task events on ``/rapidds/events`` (String JSON ``{"task", "agent", "event"}``), timed by the
+  bag's receive time.
+- Tracked points (PointStamped, PoseStamped, PoseArray, TFMessage) mapped to the world's body
+  points by a :class:`TrackingMapping` (YAML), with a rigid transform into the world frame;
+  timed by receive time too, so events and tracking share one clock (the recorder's).
+- The robot's ``sensor_msgs/JointState`` on ``/rapidds/robot/joint_states`` (demonstrations).
+
+Bad input never stops the reading: a malformed message, an unknown task id, an event out of
+order (an end before its start, a second start), a tracked point whose header stamp goes back
+in time, or a frame the mapping does not name is logged in one line and dropped. A human task
+whose body points were not tracked through it is dropped the same way. What remains is
+resampled at the world's dt: a task's path has a row at start + min(k * dt, duration) for
+k = 0 .. ceil(duration / dt), the teammates' convention.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from rapidds.bridge import ros2
+from rapidds.bridge.bag import BagMessage, read_bag
+from rapidds.errors import ConfigError, RapiddsError
+from rapidds.settings import Settings, read_yaml
+from rapidds.worlds.base import HumanExecution, World, body_point_names
+
+__all__ = [
+    "RecordedCycle",
+    "RecordedTeammate",
+    "RigidTransform",
+    "TrackingMapping",
+    "bag_paths",
+    "default_mapping",
+    "human_executions",
+    "load_mapping",
+    "observed_for",
+    "read_cycle",
+    "robot_demonstrations",
+]
+
+log = logging.getLogger("rapidds.bridge")
+_NS = 1e9
+_TRACKING = frozenset({"geometry_msgs/msg/PointStamped", "geometry_msgs/msg/PoseStamped",
+                       "geometry_msgs/msg/PoseArray", "tf2_msgs/msg/TFMessage"})
+
+
+class RigidTransform(Settings):
+    """Tracker frame -> world frame: p_world = R(rotation) p + translation (metres; rotation a
+    unit quaternion [x, y, z, w], normalised here)."""
+
+    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @field_validator("rotation")
+    @classmethod
+    def _unit(cls, v: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        n = math.sqrt(sum(c * c for c in v))
+        if n < 1e-9:
+            raise ValueError("a rotation quaternion cannot be zero")
+        return (v[0] / n, v[1] / n, v[2] / n, v[3] / n)
+
+    def matrix(self) -> np.ndarray:
+        x, y, z, w = self.rotation
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+    def apply(self, p: np.ndarray) -> np.ndarray:
+        return self.matrix() @ np.asarray(p, float) + np.asarray(self.translation)
+
+
+class TrackingMapping(Settings):
+    """Which tracked source is which body point (source: a TF child frame, a topic, or
+    ``TOPIC/i`` for a PoseArray's i-th pose), and how the tracker's frame sits in the world."""
+
+    points: Annotated[dict[str, str], Field(min_length=1)]
+    transform: RigidTransform = RigidTransform()
+    transforms: dict[str, RigidTransform] = Field(default_factory=dict)
+
+    def check(self, world: World) -> TrackingMapping:
+        """This mapping, if it names only and every body point of ``world``; ConfigError else."""
+        names = body_point_names(world)
+        if unknown := sorted(set(self.points.values()) - set(names)):
+            raise ConfigError(f"mapping: {unknown[0]!r} is not a body point of {world.name} "
+                              f"({', '.join(names)})")
+        if missing := [n for n in names if n not in self.points.values()]:
+            raise ConfigError(f"mapping: no source for body point {missing[0]!r} of "
+                              f"{world.name}")
+        if stray := sorted(set(self.transforms) - set(self.points)):
+            raise ConfigError(f"mapping: a transform for {stray[0]!r}, which is not a source")
+        return self
+
+    def to_world(self, source: str, p: np.ndarray, dim: int) -> np.ndarray:
+        return self.transforms.get(source, self.transform).apply(p)[:dim]
+
+
+def load_mapping(path: str | Path) -> TrackingMapping:
+    """A mapping from YAML; ConfigError (one line) for a missing file, bad YAML or bad fields."""
+    path = Path(path)
+    raw = read_yaml(path, "mapping")
+    try:
+        return TrackingMapping(**raw)
+    except ConfigError as exc:
+        raise ConfigError(f"mapping {path}: {exc}") from None
+
+
+def default_mapping(world: World) -> TrackingMapping:
+    """The mapping the world ships (its ``tracking_mapping`` file), else each body point
+    tracked as the TF frame of its own name in the world frame."""
+    path = getattr(world, "tracking_mapping", None)
+    if path is not None and Path(path).is_file():
+        return load_mapping(path).check(world)
+    return TrackingMapping(points={n: n for n in body_point_names(world)}).check(world)
+
+
+@dataclass
+class RecordedCycle:
+    """What a bag holds of one cycle: each task's (agent, start ns, end ns) and each body
+    point's samples (receive times ns, positions (N, d_ws)), plus the robot's joint states."""
+
+    tasks: dict[str, tuple[str, int, int]] = field(default_factory=dict)
+    points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    joints: tuple[np.ndarray, np.ndarray] | None = None
+    dropped: int = 0
+
+
+class _Reader:
+    """Accumulates a bag's messages into a :class:`RecordedCycle`, dropping bad ones."""
+
+    def __init__(self, world: World, mapping: TrackingMapping, where: str):
+        self.world, self.mapping, self.where = world, mapping, where
+        self.started: dict[str, tuple[str, int]] = {}
+        self.out = RecordedCycle()
+        self.samples: dict[str, list[tuple[int, np.ndarray]]] = defaultdict(list)
+        self.stamps: dict[str, int] = {}
+        self.joint_rows: list[tuple[int, np.ndarray]] = []
+        self.unmapped: set[str] = set()
+
+    def drop(self, what: str) -> None:
+        log.warning("%s: %s; dropped", self.where, what)
+        self.out.dropped += 1
+
+    def event(self, m: BagMessage) -> None:
+        try:
+            ev = ros2.parse_event(m.msg.data)
+        except ros2.MessageError as exc:
+            return self.drop(f"event at {m.time_ns} ns: {exc}")
+        if ev.task not in self.world.task_ids:
+            return self.drop(f"event of unknown task {ev.task!r}")
+        if ev.event == "start":
+            if ev.task in self.started or ev.task in self.out.tasks:
+                return self.drop(f"second start of task {ev.task!r}")
+            self.started[ev.task] = (ev.agent, m.time_ns)
+            return None
+        agent, start = self.started.get(ev.task, (None, None))
+        if start is None or agent != ev.agent:
+            return self.drop(f"end of task {ev.task!r} ({ev.agent}) before its start")
+        del self.started[ev.task]
+        self.out.tasks[ev.task] = (ev.agent, start, m.time_ns)
+        return None
+
+    def tracking(self, m: BagMessage) -> None:
+        try:
+            points = list(ros2.tracked_points(m.msg, m.topic))
+        except (ros2.MessageError, AttributeError) as exc:
+            return self.drop(f"{m.topic}: {exc}")
+        for tp in points:
+            name = self.mapping.points.get(tp.name)
+            if name is None:
+                if tp.name not in self.unmapped:  # one line per source, not per message
+                    self.unmapped.add(tp.name)
+                    self.drop(f"{tp.name!r} is not in the mapping")
+                continue
+            if not np.isfinite(tp.position).all():
+                self.drop(f"{tp.name!r} at {m.time_ns} ns is not finite")
+                continue
+            if tp.stamp_ns and tp.stamp_ns < self.stamps.get(name, 0):
+                self.drop(f"{tp.name!r} stamped {tp.stamp_ns} ns, before its previous sample")
+                continue
+            self.stamps[name] = max(tp.stamp_ns, self.stamps.get(name, 0))
+            self.samples[name].append(
+                (m.time_ns, self.mapping.to_world(tp.name, tp.position,
+                                                  self.world.workspace_dim)))
+        return None
+
+    def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
+        got = list(m.msg.name)
+        pos = np.asarray(m.msg.position, float)
+        if set(names) - set(got) or len(pos) != len(got) or not np.isfinite(pos).all():
+            return self.drop(f"joint state at {m.time_ns} ns lacks the robot's joints "
+                             f"{', '.join(names)} or is not finite")
+        row = pos[[got.index(n) for n in names]]
+        self.joint_rows.append((m.time_ns, row))
+        return None
+
+    def finish(self) -> RecordedCycle:
+        for task in self.started:
+            self.drop(f"task {task!r} started but never ended")
+        for name, rows in self.samples.items():
+            self.out.points[name] = (np.array([t for t, _ in rows], dtype=np.int64),
+                                     np.stack([p for _, p in rows]))
+        if self.joint_rows:
+            self.out.joints = (np.array([t for t, _ in self.joint_rows], dtype=np.int64),
+                               np.stack([r for _, r in self.joint_rows]))
+        return self.out
+
+
+def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None = None,
+               joints: Sequence[str] | None = None) -> RecordedCycle:
+    """Events, tracked body points and (given the robot's ``joints``) joint states of the bag
+    at ``path`` (module docstring)."""
+    mapping = (mapping or default_mapping(world)).check(world)
+    reader = _Reader(world, mapping, str(path))
+    # one clock: the bag's receive times, in order (a bag of several files may interleave)
+    for m in sorted(read_bag(path), key=lambda m: m.time_ns):
+        if m.topic == ros2.EVENTS_TOPIC and m.msgtype == "std_msgs/msg/String":
+            reader.event(m)
+        elif m.msgtype in _TRACKING:
+            reader.tracking(m)
+        elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
+            reader.joint_state(m, joints)
+    return reader.finish()
+
+
+def resample(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
+    """Linear interpolation of samples (N, ...) taken at ``times_ns`` at the times ``at_ns``."""
+    flat = values.reshape(len(values), -1)
+    t = (times_ns - times_ns[0]) / _NS
+    x = (at_ns - times_ns[0]) / _NS
+    cols = [np.interp(x, t, flat[:, j]) for j in range(flat.shape[1])]
+    return np.stack(cols, axis=-1).reshape(len(at_ns), *values.shape[1:])
+
+
+def _covers(times: np.ndarray, start: int, end: int, dt: float) -> bool:
+    slack = dt * _NS
+    return len(times) > 0 and times[0] <= start + slack and times[-1] >= end - slack
+
+
+def human_executions(cycle: RecordedCycle, world: World,
+                     tasks: Iterable[str] | None = None) -> dict[str, HumanExecution]:
+    """task -> what the person did, for the human tasks the bag holds whole (of ``tasks`` only,
+    if given): the duration between the task's events and each body point's path resampled at
+    the world's dt over it (module docstring). Tasks without their body points are dropped."""
+    dt, names = world.dt, body_point_names(world)
+    out: dict[str, HumanExecution] = {}
+    wanted = None if tasks is None else set(tasks)
+    for task, (agent, start, end) in cycle.tasks.items():
+        if agent != "human" or (wanted is not None and task not in wanted):
+            continue
+        duration = (end - start) / _NS
+        rows = math.ceil(duration / dt - 1e-9) + 1
+        at = start + np.round(np.minimum(np.arange(rows) * dt, duration) * _NS).astype(np.int64)
+        missing = [n for n in names if n not in cycle.points
+                   or not _covers(cycle.points[n][0], start, end, dt)]
+        if missing:
+            log.warning("body point %r was not tracked through human task %r; task dropped",
+                        missing[0], task)
+            continue
+        path = np.stack([resample(*cycle.points[n], at) for n in names], axis=1)
+        out[task] = HumanExecution(task, duration, path)
+    return out
+
+
+def observed_for(cycle: RecordedCycle, world: World,
+                 tasks: Sequence[str]) -> dict[str, HumanExecution]:
+    """The observations of the plan's human ``tasks``; RapiddsError naming the first one the
+    bag does not hold whole (a cycle cannot be realised without every one of them)."""
+    got = human_executions(cycle, world, tasks)
+    if missing := [t for t in tasks if t not in got]:
+        held = ", ".join(sorted(t for t, v in cycle.tasks.items() if v[0] == "human")) or "none"
+        raise RapiddsError(f"the bag holds no usable observation of human task {missing[0]!r} "
+                           f"of this cycle's plan (human tasks in the bag: {held})")
+    return got
+
+
+@dataclass(frozen=True)
+class RecordedTeammate:
+    """The person of a bag, as a :class:`~rapidds.worlds.base.Teammate`: a live person whose
+    truth is unknown (no plan cost against it), who did what the bag holds."""
+
+    observed: Mapping[str, HumanExecution]
+    name: str = "recorded"
+
+    def execute(self, cycle: int, tasks: Sequence[str],
+                rng: np.random.Generator) -> dict[str, HumanExecution]:
+        return {t: self.observed[t] for t in tasks}
+
+
+def bag_paths(path: str | Path) -> list[Path]:
+    """The bags at ``path``: itself (an .mcap or .db3 file, or a bag folder with
+    ``metadata.yaml``), or the bags directly inside a folder of them, by name."""
+    path = Path(path)
+    if path.is_file() or (path / "metadata.yaml").is_file():
+        return [path]
+    if not path.is_dir():
+        raise RapiddsError(f"{path}: no such bag or folder of bags")
+    found = sorted(p for p in path.iterdir()
+                   if (p.is_file() and p.suffix in (".mcap", ".db3"))
+                   or (p / "metadata.yaml").is_file())
+    if not found:
+        raise RapiddsError(f"{path}: no rosbag2 bag in it (.mcap, .db3 or bag folders)")
+    return found
+
+
+def robot_demonstrations(path: str | Path, world: World) -> Any:
+    """:class:`~rapidds.motion.demos.Demonstrations` of the robot from recorded bags: its
+    ``sensor_msgs/JointState`` (the world's joint names, any order, extra joints ignored) cut
+    into tasks by the robot's task events and sampled at the world's dt from each task's start,
+    held at the last pose to the world's horizon (the demonstrations' convention: a motion
+    that finishes early stops moving). A task longer than the horizon is dropped."""
+    from rapidds.motion.demos import Demonstrations
+    from rapidds.worlds.base import joint_names
+
+    names = joint_names(world)
+    tasks = [t.id for t in world.problem().tasks if "robot" in t.allowed]
+    dt, horizon = world.dt, world.horizon
+    rows, index = [], []
+    for bag in bag_paths(path):
+        cycle = read_cycle(bag, world, joints=names)
+        for task, (agent, start, end) in cycle.tasks.items():
+            if agent != "robot":
+                continue
+            if task not in tasks:
+                log.warning("%s: %r is not a robot task of %s; dropped", bag, task, world.name)
+                continue
+            if (end - start) / _NS > (horizon - 1) * dt + 1e-9:
+                log.warning("%s: robot task %r took %.2f s, longer than the horizon (%.2f s); "
+                            "dropped", bag, task, (end - start) / _NS, (horizon - 1) * dt)
+                continue
+            if cycle.joints is None or not _covers(cycle.joints[0], start, end, dt):
+                log.warning("%s: no joint states through robot task %r; dropped", bag, task)
+                continue
+            at = start + np.round(np.minimum(np.arange(horizon) * dt, (end - start) / _NS)
+                                  * _NS).astype(np.int64)
+            rows.append(resample(*cycle.joints, at))
+            index.append(tasks.index(task))
+    if not rows:
+        raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "
+                           "and end events on /rapidds/events, sensor_msgs/JointState)")
+    if missing := [t for k, t in enumerate(tasks) if k not in index]:
+        log.warning("no demonstration of robot task(s) %s: the policy will not know them",
+                    ", ".join(missing))
+    return Demonstrations(np.stack(rows), np.array(index), tuple(tasks))

@@ -1,0 +1,174 @@
+"""``rapidds export`` (a stored run's cycles as an MCAP rosbag2 bag) and ``rapidds observe`` (a
+cycle recorded in a real cell, from a bag, learned and recorded as the run's next cycle).
+
+The messages and the contract are :mod:`rapidds.bridge`'s; README, "In a real cell".
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from rapidds.cli import app, fail
+from rapidds.errors import RapiddsError
+
+STORE = "run.sqlite"
+
+
+def _run_id(store: Any, run_id: str | None) -> str:
+    """The run to use: ``run_id``, or the store's only run."""
+    ids = store.run_ids()
+    if run_id is not None:
+        if run_id not in ids:
+            raise RapiddsError(f"{store.path} has no run '{run_id}' (runs: "
+                               f"{', '.join(ids) or 'none'})")
+        return run_id
+    if len(ids) != 1:
+        raise RapiddsError(f"{store.path} holds {len(ids)} runs ({', '.join(ids) or 'none'}); "
+                           "name one with --run")
+    return str(ids[0])
+
+
+def log_to_stderr() -> None:
+    """The bridge's one-line warnings (dropped messages) on stderr, as ``rapidds: warning``."""
+    logger = logging.getLogger("rapidds.bridge")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("rapidds: warning: %(message)s"))
+        logger.addHandler(handler)
+        logger.propagate = False
+
+
+@app.command("export")
+def export_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Folder of a stored run (its run.sqlite).")],
+    out: Annotated[Path, typer.Option("--out", help="MCAP file to write (not overwritten).")],
+    cycle: Annotated[int | None, typer.Option(help="Export this cycle only.",
+                                              show_default="every stored cycle")] = None,
+    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
+                                            "several.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Write a stored run's cycles as ROS 2 messages in an MCAP rosbag2 bag: each robot task's
+    JointTrajectory, the schedule, the person's paths and the learned spatial costs."""
+    from rapidds.bridge.export import export_run
+    from rapidds.store import RunStore
+    from rapidds.worlds.registry import make_world
+
+    try:
+        with RunStore.open_readonly(run_dir / STORE) as store:
+            rid = _run_id(store, run)
+            cfg = store.run_config(rid) or {}
+            world = make_world(cfg["world"], cfg.get("variant"))
+            cycles = None if cycle is None else [cycle]
+            path, count = export_run(store, rid, world, out, cycles)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    if as_json:
+        typer.echo(json.dumps({"out": str(path), "run": rid, "messages": count,
+                               "cycles": cycles}))
+    else:
+        typer.echo(f"wrote {path}: {count} messages of run '{rid}'"
+                   + ("" if cycle is None else f", cycle {cycle}"))
+
+
+def _new_config(config: Path) -> Any:
+    """The RunConfig of a YAML or JSON file of its fields."""
+    from rapidds.loop.config import RunConfig
+    from rapidds.settings import read_yaml
+
+    return RunConfig(**read_yaml(config, "--config"))
+
+
+def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
+                  run_id: str | None, policy: Path | None) -> dict[str, Any]:
+    """Plan the run's next cycle, realise it with what the bag recorded, learn and record it;
+    the cycle's record."""
+    from rapidds.bridge.recorded import (
+        RecordedTeammate,
+        default_mapping,
+        load_mapping,
+        observed_for,
+        read_cycle,
+    )
+    from rapidds.loop.config import RunConfig
+    from rapidds.loop.run import AdaptiveRun, load_policy
+    from rapidds.store import RunStore
+    from rapidds.worlds.registry import make_world
+
+    path = run_dir / STORE
+    ids: list[str] = []
+    if path.exists():
+        with RunStore.open_readonly(path) as store:
+            ids = store.run_ids()
+            stored = store.run_config(_run_id(store, run_id)) if ids else None
+    if not ids and config is None:
+        raise RapiddsError(f"{run_dir} holds no run; start one with --config RUN.yaml "
+                           "(run settings: world, cycles, seed, ...)")
+    # --config names the run (a new one, or the stored one with the same settings: the run
+    # checks them when it attaches to the store)
+    cfg = _new_config(config) if config is not None else RunConfig(**(stored or {}))
+    world = make_world(cfg.world, cfg.variant)
+    if ids and (rid := cfg.resolved(world).run_id) not in ids:
+        raise RapiddsError(f"{run_dir} holds run(s) {', '.join(ids)}, not '{rid}' of --config; "
+                           "observe into another folder")
+    maps = default_mapping(world) if mapping is None else load_mapping(mapping).check(world)
+    recorded = read_cycle(bag, world, maps)
+    if not any(agent == "human" for agent, _, _ in recorded.tasks.values()):
+        raise RapiddsError(f"{bag}: no complete human task (start and end events on "
+                           "/rapidds/events) to learn from")
+    # the store is written only now, with a usable bag in hand
+    with RunStore(path, lock_as="rapidds observe") as store:
+        run = AdaptiveRun(cfg, load_policy(world, policy), store, world,
+                          teammate=RecordedTeammate({}))
+        plan = run.plan()
+        observed = observed_for(recorded, world, plan.best.schedule.tasks("human"))
+        dep = run.execute(plan, observed=observed)
+        run.learn(plan, dep)
+        return run.record(plan, dep)
+
+
+@app.command("observe")
+def observe_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Folder of the run (its run.sqlite); the "
+                                            "bag becomes its next cycle.")],
+    bag: Annotated[Path, typer.Option("--bag", help="rosbag2 bag of one cycle: a folder, or an "
+                                      ".mcap or .db3 file.")],
+    mapping: Annotated[Path | None, typer.Option(
+        help="YAML: tracked frames or topics -> the world's body points, and the tracker's "
+        "transform into the world frame.", show_default="the world's")] = None,
+    config: Annotated[Path | None, typer.Option(
+        help="YAML of run settings (world, cycles, seed, ...) to start a new run in RUN_DIR.")
+    ] = None,
+    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
+                                            "several.")] = None,
+    policy: Annotated[Path | None, typer.Option(help="Policy checkpoint.",
+                                                show_default="the world's bundled one")] = None,
+    threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the cycle's record as JSON.")
+                       ] = False,
+) -> None:
+    """Learn from a cycle recorded in a real cell: plan the run's next cycle as usual, realise
+    it with the person's task events and tracked body points from a rosbag2 bag, learn and
+    record it as a simulated cycle is."""
+    import torch
+
+    torch.set_num_threads(threads)
+    log_to_stderr()
+    try:
+        rec = observe_cycle(run_dir, bag, mapping, config, run, policy)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    if as_json:
+        typer.echo(json.dumps(rec, allow_nan=False))
+    else:
+        observed = ", ".join(f"{t} {d:.2f} s" for t, d in rec["observed"].items())
+        typer.echo(f"cycle {rec['cycle']} recorded in {run_dir / STORE}: makespan "
+                   f"{rec['realised']['makespan']:.2f} s, observed {observed}")
