@@ -21,6 +21,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("rapidds.plots", "rapidds.render"),
     ("rapidds.worlds",),
     ("rapidds.loop",),
+    ("rapidds.bridge",),  # the real cell's border: runs the loop over ROS 2 formats
     ("rapidds.experiments",),
     ("rapidds.web",),
     ("rapidds.cli",),

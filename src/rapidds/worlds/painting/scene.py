@@ -143,11 +143,12 @@ def franka_assets_dir() -> Path:
     return Path(next(iter(spec.submodule_search_locations))).joinpath(*_ASSET_SUBDIR)
 
 
-def _wrapper_xml(assets: Path, base: tuple[float, float, float]) -> str:
+def _wrapper_xml(assets: Path, base: tuple[float, float, float], actuators: bool = False) -> str:
     # Base rotated -90 deg about z: link0's +x (the arm's forward) points to -y, the person.
     x, y, z = base
+    act = f'\n  <include file="{assets / "actuator.xml"}"/>' if actuators else ""
     return f"""<mujoco model="rapidds-painting">
-  <include file="{assets / 'assets.xml'}"/>
+  <include file="{assets / 'assets.xml'}"/>{act}
   <compiler angle="radian" meshdir="{assets / 'meshes'}"/>
   <option timestep="0.002"/>
   <worldbody>
@@ -160,10 +161,16 @@ def _wrapper_xml(assets: Path, base: tuple[float, float, float]) -> str:
 </mujoco>"""
 
 
-def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None) -> mujoco.MjModel:
+def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
+                physics: bool = False) -> mujoco.MjModel:
     """Compile the cell: the Panda from ``assets`` (default: the installed gymnasium-robotics
     copy) plus table, objects and the person's mocap hands and forearms. SceneError, one line,
-    when MuJoCo or an asset is missing or unreadable."""
+    when MuJoCo or an asset is missing or unreadable.
+
+    ``physics``: also the Panda's position actuators (the shipped ``actuator.xml``: its gains
+    and force limits), and the person's hands and forearms collide with the arm, so ``mj_step``
+    runs the arm and its contacts report touches (a kinematic hand pushes the arm, as a real
+    one would)."""
     try:
         import mujoco
     except ImportError:
@@ -173,8 +180,8 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None) -> mujo
         if not (folder / name).is_file():
             raise SceneError(f"Panda asset {folder / name} is missing")
     try:
-        spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base))
-        _add_cell(spec, layout)
+        spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base, physics))
+        _add_cell(spec, layout, person_collides=physics)
         model = spec.compile()
     except (ValueError, RuntimeError, OSError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -205,7 +212,7 @@ def _add_box(body: mujoco.MjsBody, name: str, box: Box, rgba: tuple[float, ...],
     g.contype = g.conaffinity = 1 if collide else 0
 
 
-def _add_cell(spec: mujoco.MjSpec, layout: CellLayout) -> None:
+def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, person_collides: bool = False) -> None:
     import mujoco
 
     world = spec.worldbody
@@ -233,7 +240,8 @@ def _add_cell(spec: mujoco.MjSpec, layout: CellLayout) -> None:
         b.mocap = True
         g = b.add_geom()
         g.name = f"{name}_geom"
-        g.contype = g.conaffinity = 0  # kinematic: shown, never pushed
+        # kinematic: shown, never pushed; under physics it touches (and pushes) the arm
+        g.contype = g.conaffinity = 1 if person_collides else 0
         g.rgba = list(skin)
         if name.endswith("hand"):
             g.type = mujoco.mjtGeom.mjGEOM_ELLIPSOID
