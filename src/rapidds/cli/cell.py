@@ -118,6 +118,9 @@ def sim_robot_cmd(
 
     _logging(quiet)
     w = make_world(world)
+    if getattr(w, "physics_model", None) is None:  # before waiting for the hub
+        fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
+             "(painting)")
     with Link(SimRobot.topics(body_point_names(w)), connect=connect) as link:
         SimRobot(w, link, rate=rate).spin()
 
