@@ -168,9 +168,9 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
     when MuJoCo or an asset is missing or unreadable.
 
     ``physics``: also the Panda's position actuators (the shipped ``actuator.xml``: its gains
-    and force limits), and the person's hands and forearms collide with the arm, so ``mj_step``
+    and force limits); the person's hands and forearms collide with the arm, so ``mj_step``
     runs the arm and its contacts report touches (a kinematic hand pushes the arm, as a real
-    one would)."""
+    one would); the paint trays, the bowl and the workpiece do not (the tool dips into them)."""
     try:
         import mujoco
     except ImportError:
@@ -181,7 +181,7 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
             raise SceneError(f"Panda asset {folder / name} is missing")
     try:
         spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base, physics))
-        _add_cell(spec, layout, person_collides=physics)
+        _add_cell(spec, layout, physics)
         model = spec.compile()
     except (ValueError, RuntimeError, OSError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -212,7 +212,7 @@ def _add_box(body: mujoco.MjsBody, name: str, box: Box, rgba: tuple[float, ...],
     g.contype = g.conaffinity = 1 if collide else 0
 
 
-def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, person_collides: bool = False) -> None:
+def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, physics: bool = False) -> None:
     import mujoco
 
     world = spec.worldbody
@@ -227,10 +227,13 @@ def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, person_collides: bool = F
             _add_box(cell, f"table_leg_{'lr'[sx > 0]}{'fb'[sy > 0]}", leg, (0.45, 0.36, 0.27, 1))
     _add_box(cell, "vise", layout.vise, (0.35, 0.38, 0.42, 1.0))
     _add_box(cell, "vise_handle", layout.vise_handle, (0.2, 0.2, 0.22, 1.0))
-    _add_box(cell, "workpiece", layout.workpiece, (0.85, 0.75, 0.55, 1.0))
-    _add_box(cell, "bowl", layout.bowl, (0.9, 0.9, 0.88, 1.0))
-    _add_box(cell, "left_tray", layout.left_tray, (0.15, 0.35, 0.8, 1.0))
-    _add_box(cell, "right_tray", layout.right_tray, (0.8, 0.25, 0.15, 1.0))
+    # Under physics the tool dips into the paint and brushes the piece, as the world's
+    # completion rule has it (only the tool tip may enter them): these do not collide there.
+    dip = not physics
+    _add_box(cell, "workpiece", layout.workpiece, (0.85, 0.75, 0.55, 1.0), dip)
+    _add_box(cell, "bowl", layout.bowl, (0.9, 0.9, 0.88, 1.0), dip)
+    _add_box(cell, "left_tray", layout.left_tray, (0.15, 0.35, 0.8, 1.0), dip)
+    _add_box(cell, "right_tray", layout.right_tray, (0.8, 0.25, 0.15, 1.0), dip)
     _add_box(cell, "left_rack", layout.left_rack, (0.5, 0.5, 0.5, 1.0))
     _add_box(cell, "right_rack", layout.right_rack, (0.5, 0.5, 0.5, 1.0))
     skin = (0.93, 0.76, 0.64, 1.0)
@@ -241,7 +244,7 @@ def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, person_collides: bool = F
         g = b.add_geom()
         g.name = f"{name}_geom"
         # kinematic: shown, never pushed; under physics it touches (and pushes) the arm
-        g.contype = g.conaffinity = 1 if person_collides else 0
+        g.contype = g.conaffinity = 1 if physics else 0
         g.rgba = list(skin)
         if name.endswith("hand"):
             g.type = mujoco.mjtGeom.mjGEOM_ELLIPSOID
