@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from rapidds.bridge.link import Link, Received, log
+from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     STOP_TOPIC,
@@ -70,6 +70,7 @@ class SimRobot:
     _current: str | None = None
     _people: dict[str, np.ndarray] = field(default_factory=dict)
     _touching: set[tuple[str, str]] = field(default_factory=set)
+    _gate: StampGate = field(default_factory=StampGate)
 
     def __post_init__(self) -> None:
         physics = getattr(self.world, "physics_model", None)
@@ -115,7 +116,7 @@ class SimRobot:
             self.arm.hold()
         elif rec.topic == TRAJECTORY_TOPIC:
             self._trajectory(rec.msg)
-        else:
+        elif self._gate.accept(rec.topic, stamp_ns(rec.msg.header)):
             p = rec.msg.point
             self._people[rec.topic] = np.array([p.x, p.y, p.z])
             if len(self._people) == len(self.points):
