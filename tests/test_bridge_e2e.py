@@ -49,6 +49,20 @@ def _wait_text(path: Path, text: str, proc: subprocess.Popen[bytes], timeout: fl
     raise AssertionError(f"{text!r} not in {path} after {timeout} s: {path.read_text()[-2000:]}")
 
 
+def _inject_faults(ep: str) -> None:
+    from rapidds.bridge import ros2
+    from rapidds.bridge.link import Link
+    from rapidds.bridge.live import tracking_topic
+
+    with Link({}, connect=ep) as peer:
+        time.sleep(1.0)  # the hub's subscriptions reach this new client
+        peer.publish_raw(ros2.EVENTS_TOPIC, b"\x00\x01\x02 not CDR")
+        peer.publish(ros2.EVENTS_TOPIC, ros2.event_message(
+            ros2.Event("paint_wall", "human", "start")))
+        peer.publish(tracking_topic("left_hand"), ros2.point_stamped((0.0, 0.0, 0.0), 1))
+        time.sleep(0.5)
+
+
 def _stop(*procs: subprocess.Popen[bytes]) -> None:
     for p in procs:
         if p.poll() is None:
@@ -75,11 +89,19 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
         with open(hub_out, "wb") as o, open(hub_err, "wb") as e:
             hub = subprocess.Popen([*CLI, *deploy], stdout=o, stderr=e,
                                    env={**os.environ, "RAPIDDS_LOG": "info"})
+        # a faulty peer mid-cycle 0: bytes that are no message, an event of no task in the
+        # plan, a tracked point from the past; each is dropped with one line
+        _wait_text(hub_err, "cycle 0: human prep_vise start", hub, timeout=240)
+        _inject_faults(ep)
         # the robot dies once it is moving in cycle 1
         _wait_text(hub_err, "cycle 1: robot ", hub, timeout=240)
         robot.kill()
         assert hub.wait(60) == 3
         err = hub_err.read_text().strip().splitlines()
+        dropped = [x for x in err if "dropped" in x]
+        assert any("malformed message on /rapidds/events" in x for x in dropped), err
+        assert any("'paint_wall'" in x for x in dropped)
+        assert any("/rapidds/human/left_hand stamped" in x for x in dropped)
         assert err[-1].startswith("rapidds: error: cycle 1 stopped, not recorded: the robot "
                                   "has been silent"), err[-3:]
         first = [json.loads(x) for x in hub_out.read_text().splitlines()]
