@@ -3,6 +3,7 @@ the hub's gate on bad input, the person's paths rebuilt from tracking, the arm u
 
 from __future__ import annotations
 
+import json
 import logging
 import socket
 import time
@@ -199,3 +200,50 @@ def test_bad_input_is_one_line_and_exit_2(capsys, args, says) -> None:
     code, _, err = run_main(capsys, *args)
     assert code == 2
     assert err.count("\n") == 1 and err.startswith("rapidds: error:") and says in err
+
+
+def test_sim_robot_runs_a_trajectory_announces_it_and_reports_a_touch(painting) -> None:
+    from rapidds.bridge.live import CONTACTS_TOPIC, body_point_names
+    from rapidds.bridge.nodes.sim_robot import SimRobot
+
+    ep = free_endpoint()
+    string = "std_msgs/msg/String"
+    topics = {ros2.EVENTS_TOPIC: string, CONTACTS_TOPIC: string,
+              ros2.JOINT_STATE_TOPIC: "sensor_msgs/msg/JointState"}
+    with Link(topics, listen=ep) as hub, \
+            Link(SimRobot.topics(body_point_names(painting)), connect=ep) as link:
+        robot = SimRobot(painting, link)
+        while hub.receive(0.05) is None:  # until the hub hears the robot
+            robot.tick()
+        payload, _ = _plan(painting.problem())
+        now = time.time_ns()
+        payload["stamp_ns"] = now
+        robot.handle(Received(ros2.PLAN_TOPIC, ros2.string_message(payload), now))
+        rest = np.asarray(painting.robot_rest())
+        bad = ros2.joint_trajectory([f"j{i}" for i in range(7)], np.stack([rest, rest]), 0.15)
+        robot.handle(Received(ros2.TRAJECTORY_TOPIC, bad, now))  # unknown joints: dropped
+        traj = ros2.joint_trajectory(robot_joint_names(painting), np.stack([rest, rest]), 0.15,
+                                     stamp_ns=now)
+        robot.handle(Received(ros2.TRAJECTORY_TOPIC, traj, now))
+        for _ in range(100):
+            robot.tick()
+        # the person's left hand on the tool: a touch is reported once
+        body = painting.human_rest().copy()
+        body[0] = painting.kinematics.tool(rest[None])[0]
+        for k, name in enumerate(body_point_names(painting)):
+            robot.handle(Received(tracking_topic(name), ros2.point_stamped(body[k], now), now))
+        for _ in range(5):
+            robot.tick()
+        seen: dict[str, list[str]] = {ros2.EVENTS_TOPIC: [], CONTACTS_TOPIC: []}
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and len(seen[CONTACTS_TOPIC]) < 1:
+            rec = hub.receive(0.1)
+            if rec is not None and rec.topic in seen:
+                seen[rec.topic].append(rec.msg.data)
+        seen[ros2.EVENTS_TOPIC] += [r.msg.data for r in hub.drain()
+                                    if r.topic == ros2.EVENTS_TOPIC]
+    events = [ros2.parse_event(x) for x in seen[ros2.EVENTS_TOPIC]]
+    # the plan's first robot task is mix_l: the first (good) trajectory is it
+    assert events == [ros2.Event("mix_l", "robot", "start"), ros2.Event("mix_l", "robot", "end")]
+    touches = [json.loads(x) for x in seen[CONTACTS_TOPIC]]
+    assert touches and touches[0]["person"] == "left_hand"
