@@ -81,6 +81,10 @@ def deploy_cmd(
     if run.next_cycle and not resume:
         fail(f"{out} already holds run '{run.config.run_id}' ({run.next_cycle} cycles); pass "
              "--resume to continue it or choose another --out")
+    if run.finished:
+        typer.echo(f"run '{run.config.run_id}' in {out} is already finished "
+                   f"({run.config.cycles} cycles); nothing to run", err=True)
+        return
     options = CellOptions(time_scale=time_scale, robot_timeout=robot_timeout,
                           startup_timeout=startup_timeout, cycle_timeout=cycle_timeout)
 
