@@ -143,6 +143,8 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
     for task, d in live["robot_durations"].items():  # physics: not faster than planned
         assert live["planned_robot_durations"][task] - 0.1 < d < \
             live["planned_robot_durations"][task] + 5.0
+        start, end = records[1]["realised"]["timeline"][task]  # the cycle that happened
+        assert end - start == pytest.approx(d)
     _second_plan_used_the_learned_model(records, state0)
 
 

@@ -4,9 +4,10 @@ then learns and records it like a simulated cycle (:class:`~rapidds.loop.run.Ada
 
 Dispatch: a robot task's ``JointTrajectory`` goes out when every task the plan puts before it
 has ended (its header stamp is then "start now"), cut at the task's planned completion (the
-rows after it hold the rest pose). The person acts on the plan on their own. The cycle is the
-person's durations and paths as observed; the robot's motions are the planned ones, its
-realised durations (from its events) are reported beside the record.
+rows after it hold the rest pose). The person acts on the plan on their own. The cycle is
+realised from what was observed: the person's durations and paths, and the robot's durations
+from its start and end events (its trajectories stay the planned ones: the loop scores and
+stores those).
 
 Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds) or the
 cycle overruns (``cycle_timeout`` cell seconds): a stop goes out on ``/rapidds/stop``, nothing
@@ -77,6 +78,16 @@ class LinkTeammate:
 
     def execute(self, cycle: int, tasks: Any, rng: np.random.Generator) -> dict[str, Any]:
         raise RapiddsError("a live person's cycle comes from the link, not from execute()")
+
+
+def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
+    """``plan`` with each robot motion's duration the one the robot took, so the realised
+    timeline is the cycle that happened (its trajectories stay the planned ones)."""
+    from dataclasses import replace
+
+    motions = {t: replace(m, duration=robot.get(t, m.duration))
+               for t, m in plan.best.motions.items()}
+    return replace(plan, best=replace(plan.best, motions=motions))
 
 
 def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
@@ -193,12 +204,12 @@ class LiveCell:
             human = obs.human_executions(run.world.dt)
         except MessageError as exc:
             raise self._stop(plan.cycle, str(exc)) from None
+        planned = {t: float(m.duration) for t, m in plan.best.motions.items()}
+        plan = _as_executed(plan, obs.durations("robot"))
         dep = run.execute(plan, observed=human)
         run.learn(plan, dep)
         record = run.record(plan, dep)
-        live = {"robot_durations": obs.durations("robot"),
-                "planned_robot_durations": {t: float(m.duration)
-                                            for t, m in plan.best.motions.items()},
+        live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
                 "contacts": obs.contacts}
         return CycleResult(record, plan, dep), live
 
