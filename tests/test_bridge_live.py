@@ -247,3 +247,47 @@ def test_sim_robot_runs_a_trajectory_announces_it_and_reports_a_touch(painting) 
     assert events == [ros2.Event("mix_l", "robot", "start"), ros2.Event("mix_l", "robot", "end")]
     touches = [json.loads(x) for x in seen[CONTACTS_TOPIC]]
     assert touches and touches[0]["person"] == "left_hand"
+
+
+def test_sim_human_waits_for_the_plans_prerequisites_and_is_tracked(painting) -> None:
+    from rapidds.bridge.nodes.sim_human import SimHuman
+
+    ep = free_endpoint()
+    string = "std_msgs/msg/String"
+    names = ("left_hand", "right_hand", "left_elbow", "right_elbow")
+    topics = {ros2.EVENTS_TOPIC: string,
+              **{tracking_topic(n): "geometry_msgs/msg/PointStamped" for n in names}}
+    with Link(topics, listen=ep) as hub, Link(SimHuman.topics(), connect=ep) as link:
+        human = SimHuman(painting, painting.teammate("left-slow"), link, seed=3)
+        payload = live_plan_payload(painting.problem(), 0, ["prep_vise", "secure_piece", "brush"],
+                                    ["mix_l", "mix_r"], {}, start_ns=time.time_ns(),
+                                    time_scale=50.0, dt=0.15)
+        human.handle(Received(ros2.PLAN_TOPIC, ros2.string_message(payload), 0))
+
+        def run_until(done, limit: float = 10.0) -> None:
+            deadline = time.monotonic() + limit
+            while not done() and time.monotonic() < deadline:
+                time.sleep(human.tick())
+
+        run_until(lambda: "secure_piece" in human._ended)
+        for _ in range(20):  # brush waits for both mixes, however long
+            time.sleep(human.tick())
+        assert human._doing is None and human._next == 2
+        for task in ("mix_l", "mix_r"):
+            human.handle(Received(ros2.EVENTS_TOPIC, ros2.event_message(
+                ros2.Event(task, "robot", "end")), 0))
+        run_until(lambda: "brush" in human._ended)
+        time.sleep(0.5)
+        got = hub.drain()
+    events = [ros2.parse_event(r.msg.data) for r in got if r.topic == ros2.EVENTS_TOPIC]
+    assert [(e.task, e.event) for e in events] == [
+        (t, k) for t in ("prep_vise", "secure_piece", "brush") for k in ("start", "end")]
+    # the person's own draws from (seed, cycle): the tracker sent every row of each path
+    rng = np.random.default_rng([3, 0])
+    person = painting.teammate("left-slow")
+    paths = [person.perform(t, rng)[1] for t in ("prep_vise", "secure_piece", "brush")]
+    left = np.array([[r.msg.point.x, r.msg.point.y, r.msg.point.z] for r in got
+                     if r.topic == tracking_topic("left_hand")])
+    for path in paths:
+        for row in path[:, 0]:  # every row of the left hand's path was published
+            assert np.isclose(left, row, atol=1e-12).all(axis=1).any()
