@@ -83,7 +83,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
     robot = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot1.log")
     human = _start(["sim-human", "painting", "--human", "left-slow", "--connect", ep],
                    tmp_path / "human.log")
-    robot2 = None
+    robot2 = hub = None
     try:
         hub_out, hub_err = tmp_path / "hub1.out", tmp_path / "hub1.err"
         with open(hub_out, "wb") as o, open(hub_err, "wb") as e:
@@ -117,7 +117,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
         second = [json.loads(x) for x in again.stdout.splitlines()]
         assert [r["cycle"] for r in second] == [1]
     finally:
-        _stop(*(p for p in (robot, human, robot2) if p is not None))
+        _stop(*(p for p in (robot, human, robot2, hub) if p is not None))
 
     with RunStore.open_readonly(out / "run.sqlite") as st:
         rid = st.run_ids()[0]
