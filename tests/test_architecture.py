@@ -21,7 +21,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("rapidds.plots", "rapidds.render"),
     ("rapidds.worlds",),
     ("rapidds.loop",),
-    ("rapidds.bridge",),  # ROS 2 formats at the border: reads the loop's records and models
+    ("rapidds.bridge",),  # the real cell's border: ROS 2 formats in and out, runs the loop
     ("rapidds.experiments",),
     ("rapidds.web",),
     ("rapidds.cli",),

@@ -19,7 +19,7 @@ import numpy as np
 from rapidds.errors import RapiddsError
 from rapidds.worlds.painting.scene import LAYOUT, CellLayout, load_model
 
-__all__ = ["RenderError", "render_cell", "try_render_cell"]
+__all__ = ["RenderError", "place_person", "render_cell", "try_render_cell"]
 
 
 class RenderError(RapiddsError):
@@ -68,7 +68,7 @@ def render_cell(q: Sequence[float] | np.ndarray | None = None,
     if q is not None:
         data.qpos[:7] = np.asarray(q, dtype=float).reshape(7)
     points = rest_points(layout) if body is None else np.asarray(body, dtype=float).reshape(4, 3)
-    _place_person(model, data, points)
+    place_person(model, data, points)
     mujoco.mj_forward(model, data)
     try:
         renderer = _renderer(model, height, width)
@@ -98,7 +98,7 @@ def try_render_cell(*args: object, **kwargs: object) -> np.ndarray | None:
         return None
 
 
-def _place_person(model: object, data: object, points: np.ndarray) -> None:
+def place_person(model: object, data: object, points: np.ndarray) -> None:
     """Move the mocap hands to the hand points and the forearm capsules from elbow to hand."""
     import mujoco
 

@@ -143,11 +143,12 @@ def franka_assets_dir() -> Path:
     return Path(next(iter(spec.submodule_search_locations))).joinpath(*_ASSET_SUBDIR)
 
 
-def _wrapper_xml(assets: Path, base: tuple[float, float, float]) -> str:
+def _wrapper_xml(assets: Path, base: tuple[float, float, float], actuators: bool = False) -> str:
     # Base rotated -90 deg about z: link0's +x (the arm's forward) points to -y, the person.
     x, y, z = base
+    act = f'\n  <include file="{assets / "actuator.xml"}"/>' if actuators else ""
     return f"""<mujoco model="rapidds-painting">
-  <include file="{assets / 'assets.xml'}"/>
+  <include file="{assets / 'assets.xml'}"/>{act}
   <compiler angle="radian" meshdir="{assets / 'meshes'}"/>
   <option timestep="0.002"/>
   <worldbody>
@@ -160,10 +161,16 @@ def _wrapper_xml(assets: Path, base: tuple[float, float, float]) -> str:
 </mujoco>"""
 
 
-def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None) -> mujoco.MjModel:
+def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
+                physics: bool = False) -> mujoco.MjModel:
     """Compile the cell: the Panda from ``assets`` (default: the installed gymnasium-robotics
     copy) plus table, objects and the person's mocap hands and forearms. SceneError, one line,
-    when MuJoCo or an asset is missing or unreadable."""
+    when MuJoCo or an asset is missing or unreadable.
+
+    ``physics``: also the Panda's position actuators (the shipped ``actuator.xml``: its gains
+    and force limits); the person's hands and forearms collide with the arm, so ``mj_step``
+    runs the arm and its contacts report touches (a kinematic hand pushes the arm, as a real
+    one would); the paint trays, the bowl and the workpiece do not (the tool dips into them)."""
     try:
         import mujoco
     except ImportError:
@@ -173,8 +180,8 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None) -> mujo
         if not (folder / name).is_file():
             raise SceneError(f"Panda asset {folder / name} is missing")
     try:
-        spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base))
-        _add_cell(spec, layout)
+        spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base, physics))
+        _add_cell(spec, layout, physics)
         model = spec.compile()
     except (ValueError, RuntimeError, OSError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -205,7 +212,7 @@ def _add_box(body: mujoco.MjsBody, name: str, box: Box, rgba: tuple[float, ...],
     g.contype = g.conaffinity = 1 if collide else 0
 
 
-def _add_cell(spec: mujoco.MjSpec, layout: CellLayout) -> None:
+def _add_cell(spec: mujoco.MjSpec, layout: CellLayout, physics: bool = False) -> None:
     import mujoco
 
     world = spec.worldbody
@@ -220,10 +227,13 @@ def _add_cell(spec: mujoco.MjSpec, layout: CellLayout) -> None:
             _add_box(cell, f"table_leg_{'lr'[sx > 0]}{'fb'[sy > 0]}", leg, (0.45, 0.36, 0.27, 1))
     _add_box(cell, "vise", layout.vise, (0.35, 0.38, 0.42, 1.0))
     _add_box(cell, "vise_handle", layout.vise_handle, (0.2, 0.2, 0.22, 1.0))
-    _add_box(cell, "workpiece", layout.workpiece, (0.85, 0.75, 0.55, 1.0))
-    _add_box(cell, "bowl", layout.bowl, (0.9, 0.9, 0.88, 1.0))
-    _add_box(cell, "left_tray", layout.left_tray, (0.15, 0.35, 0.8, 1.0))
-    _add_box(cell, "right_tray", layout.right_tray, (0.8, 0.25, 0.15, 1.0))
+    # Under physics the tool dips into the paint and brushes the piece, as the world's
+    # completion rule has it (only the tool tip may enter them): these do not collide there.
+    dip = not physics
+    _add_box(cell, "workpiece", layout.workpiece, (0.85, 0.75, 0.55, 1.0), dip)
+    _add_box(cell, "bowl", layout.bowl, (0.9, 0.9, 0.88, 1.0), dip)
+    _add_box(cell, "left_tray", layout.left_tray, (0.15, 0.35, 0.8, 1.0), dip)
+    _add_box(cell, "right_tray", layout.right_tray, (0.8, 0.25, 0.15, 1.0), dip)
     _add_box(cell, "left_rack", layout.left_rack, (0.5, 0.5, 0.5, 1.0))
     _add_box(cell, "right_rack", layout.right_rack, (0.5, 0.5, 0.5, 1.0))
     skin = (0.93, 0.76, 0.64, 1.0)
@@ -233,7 +243,8 @@ def _add_cell(spec: mujoco.MjSpec, layout: CellLayout) -> None:
         b.mocap = True
         g = b.add_geom()
         g.name = f"{name}_geom"
-        g.contype = g.conaffinity = 0  # kinematic: shown, never pushed
+        # kinematic: shown, never pushed; under physics it touches (and pushes) the arm
+        g.contype = g.conaffinity = 1 if physics else 0
         g.rgba = list(skin)
         if name.endswith("hand"):
             g.type = mujoco.mjtGeom.mjGEOM_ELLIPSOID

@@ -40,6 +40,7 @@ from rapidds.worlds.base import PopulationPrior, RobotDemos
 from rapidds.worlds.painting.scene import ARM_JOINTS, LAYOUT, Box, CellLayout
 
 if TYPE_CHECKING:
+    import mujoco
     from matplotlib.axes import Axes
 
     from rapidds.worlds.painting.kinematics import ArmKinematics
@@ -384,6 +385,22 @@ class PaintingWorld:
         names = "xyz"
         ax.set_xlabel(f"{names[h]} (m)")
         ax.set_ylabel(f"{names[v]} (m)")
+
+    # -- physics (the reference robot of a live cell, rapidds.bridge.nodes) ---------------------
+    def physics_model(self) -> mujoco.MjModel:
+        """The cell compiled for ``mj_step``: the Panda's shipped position actuators, and the
+        person's hands and forearms colliding with the arm (a fresh model per call)."""
+        from rapidds.worlds.painting.scene import build_model
+
+        return build_model(self.layout, physics=True)
+
+    def place_person(self, model: mujoco.MjModel, data: mujoco.MjData,
+                     points: np.ndarray) -> None:
+        """Move the person's mocap hands and forearms to body points (K, 3), the order of
+        :data:`~rapidds.worlds.painting.teammates.BODY_POINTS`."""
+        from rapidds.worlds.painting.render import place_person
+
+        place_person(model, data, np.asarray(points, dtype=float))
 
     # -- geometry and motions -------------------------------------------------------------------
     @property

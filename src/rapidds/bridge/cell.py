@@ -1,0 +1,224 @@
+"""The planner as the hub of a live cell: each cycle it plans, publishes the plan and dispatches
+the robot's trajectories over the link, runs the cycle from the events and tracking it receives,
+then learns and records it like a simulated cycle (:class:`~rapidds.loop.run.AdaptiveRun`).
+
+Dispatch: a robot task's ``JointTrajectory`` goes out when every task the plan puts before it
+has ended (its header stamp is then "start now"), cut at the task's planned completion (the
+rows after it hold the rest pose). The person acts on the plan on their own. The cycle is
+realised from what was observed: the person's durations and paths, and the robot's durations
+from its start and end events (its trajectories stay the planned ones: the loop scores and
+stores those).
+
+Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds) or the
+cycle overruns (``cycle_timeout`` cell seconds): a stop goes out on ``/rapidds/stop``, nothing
+is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last recorded cycle.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from rapidds.bridge.link import Link, log
+from rapidds.bridge.live import (
+    CONTACTS_TOPIC,
+    STOP_TOPIC,
+    TRACKING_PREFIX,
+    CycleObservation,
+    LivePlan,
+    live_plan_payload,
+    tracking_topic,
+)
+from rapidds.bridge.ros2 import (
+    EVENTS_TOPIC,
+    JOINT_STATE_TOPIC,
+    PLAN_TOPIC,
+    TRAJECTORY_TOPIC,
+    MessageError,
+    joint_trajectory,
+    string_message,
+)
+from rapidds.errors import RapiddsError
+from rapidds.worlds.base import body_point_names, joint_names
+
+if TYPE_CHECKING:
+    from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
+
+__all__ = ["CellFault", "CellOptions", "LinkTeammate", "LiveCell"]
+
+
+class CellFault(RapiddsError):
+    """The cell stopped mid-cycle (a silent robot, an overrun); the cycle was not recorded."""
+
+
+@dataclass(frozen=True)
+class CellOptions:
+    """time_scale: cell seconds per wall second. robot_timeout: wall s without a JointState
+    before the robot counts as silent. startup_timeout: wall s to wait for the nodes.
+    cycle_timeout: cell s a cycle may take. lead: wall s between publishing a plan and its
+    start (the nodes' time to read it)."""
+
+    time_scale: float = 1.0
+    robot_timeout: float = 2.0
+    startup_timeout: float = 60.0
+    cycle_timeout: float = 120.0
+    lead: float = 0.3
+
+
+class LinkTeammate:
+    """The person at the far end of the link: the loop never asks them directly (the cell
+    passes what it observed), and their truth is unknown, so no plan cost is computed."""
+
+    name = "live"
+
+    def execute(self, cycle: int, tasks: Any, rng: np.random.Generator) -> dict[str, Any]:
+        raise RapiddsError("a live person's cycle comes from the link, not from execute()")
+
+
+def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
+    """``plan`` with each robot motion's duration the one the robot took, so the realised
+    timeline is the cycle that happened (its trajectories stay the planned ones)."""
+    from dataclasses import replace
+
+    motions = {t: replace(m, duration=robot.get(t, m.duration))
+               for t, m in plan.best.motions.items()}
+    return replace(plan, best=replace(plan.best, motions=motions))
+
+
+def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
+    string = "std_msgs/msg/String"
+    return {EVENTS_TOPIC: string, CONTACTS_TOPIC: string,
+            JOINT_STATE_TOPIC: "sensor_msgs/msg/JointState",
+            **{tracking_topic(p): "geometry_msgs/msg/PointStamped" for p in points}}
+
+
+@dataclass
+class LiveCell:
+    """Runs an :class:`AdaptiveRun`'s cycles over ``link`` (opened with :func:`hub_topics`)."""
+
+    run: AdaptiveRun
+    link: Link
+    options: CellOptions = field(default_factory=CellOptions)
+    _robot_seen: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.joints = joint_names(self.run.world)
+        self.points = body_point_names(self.run.world)
+
+    def wait_ready(self) -> None:
+        """Until the robot streams its joint states and the tracker the person's body points."""
+        deadline = time.monotonic() + self.options.startup_timeout
+        robot = tracker = False
+        while not (robot and tracker):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                missing = [n for n, ok in (("robot (joint states)", robot),
+                                           ("tracker (body points)", tracker)) if not ok]
+                raise CellFault(f"no {' or '.join(missing)} on the link after "
+                                f"{self.options.startup_timeout:g} s; start the nodes with "
+                                "--connect to this hub's endpoint")
+            rec = self.link.receive(min(left, 0.2))
+            if rec is not None:
+                robot |= rec.topic == JOINT_STATE_TOPIC
+                tracker |= rec.topic.startswith(TRACKING_PREFIX)
+        self._robot_seen = time.monotonic()
+        time.sleep(0.2)  # the nodes' subscriptions reach the hub before the first plan
+        self.link.drain()
+
+    def _stop(self, cycle: int, reason: str) -> CellFault:
+        self.link.publish(STOP_TOPIC, string_message({"cycle": cycle, "reason": reason}))
+        return CellFault(f"cycle {cycle} stopped, not recorded: {reason}; continue with "
+                         "--resume once the cell is back")
+
+    def _publish_plan(self, plan: CyclePlan) -> LivePlan:
+        run, best = self.run, plan.best
+        idx = run.problem.index
+        expected = {t: (float(best.expected_start[idx[t]]), float(best.expected_finish[idx[t]]))
+                    for t in run.problem.ids if t in idx and len(best.expected_start)}
+        payload = live_plan_payload(
+            run.problem, plan.cycle, [str(x) for x in best.schedule.human],
+            [str(x) for x in best.schedule.robot], expected,
+            start_ns=time.time_ns() + round(self.options.lead * 1e9),
+            time_scale=self.options.time_scale, dt=run.world.dt)
+        self.link.publish(PLAN_TOPIC, string_message(payload))
+        return LivePlan.parse(string_message(payload).data)
+
+    def _dispatch(self, plan: CyclePlan, live: LivePlan, obs: CycleObservation,
+                  sent: set[str]) -> None:
+        """Send each robot trajectory whose prerequisites have all ended (and are past t0)."""
+        if time.time_ns() < live.stamp_ns:
+            return
+        dt = self.run.world.dt
+        for task in live.order["robot"]:
+            if task in sent or not all(x in obs.end for x in live.after[task]):
+                continue
+            motion = plan.best.motions[task]
+            q = np.asarray(motion.trajectory, dtype=float)
+            rows = min(len(q), int(np.ceil(motion.duration / dt - 1e-9)) + 1)
+            self.link.publish(TRAJECTORY_TOPIC, joint_trajectory(self.joints, q[:max(rows, 2)],
+                                                                 dt, stamp_ns=time.time_ns()))
+            sent.add(task)
+            log.info("cycle %d: dispatched %s (%d rows)", plan.cycle, task, rows)
+
+    def observe(self, plan: CyclePlan) -> CycleObservation:
+        """Run one cycle on the link and return what was observed; CellFault on a fault."""
+        live = self._publish_plan(plan)
+        obs = CycleObservation(live, self.points)
+        sent: set[str] = set()
+        self._robot_seen = time.monotonic()
+        while not obs.done:
+            self._dispatch(plan, live, obs, sent)
+            rec = self.link.receive(0.02)
+            now = time.monotonic()
+            if rec is not None:
+                if rec.topic == JOINT_STATE_TOPIC:
+                    self._robot_seen = now
+                elif rec.topic == CONTACTS_TOPIC:
+                    obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
+                                         "touch": rec.msg.data})
+                    log.warning("contact: %s", rec.msg.data)
+                else:
+                    obs.handle(rec)
+            if now - self._robot_seen > self.options.robot_timeout:
+                raise self._stop(plan.cycle, f"the robot has been silent for "
+                                             f"{self.options.robot_timeout:g} s")
+            if live.cell_seconds(time.time_ns()) > self.options.cycle_timeout:
+                raise self._stop(plan.cycle, f"the cycle took over "
+                                             f"{self.options.cycle_timeout:g} s")
+        return obs
+
+    def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
+        """Plan, run over the link, learn, record. Returns the result and what the link saw
+        beyond the record (the robot's realised durations, contacts)."""
+        from rapidds.loop.run import CycleResult
+
+        run = self.run
+        plan = run.plan()
+        obs = self.observe(plan)
+        try:
+            human = obs.human_executions(run.world.dt)
+        except MessageError as exc:
+            raise self._stop(plan.cycle, str(exc)) from None
+        planned = {t: float(m.duration) for t, m in plan.best.motions.items()}
+        plan = _as_executed(plan, obs.durations("robot"))
+        dep = run.execute(plan, observed=human)
+        run.learn(plan, dep)
+        record = run.record(plan, dep)
+        live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
+                "contacts": obs.contacts}
+        return CycleResult(record, plan, dep), live
+
+    def run_all(self, on_cycle: Callable[[CycleResult, dict[str, Any]], None] | None = None,
+                ) -> None:
+        """Every remaining cycle of the run."""
+        if self.run.finished:
+            return
+        self.wait_ready()
+        while not self.run.finished:
+            res, live = self.cycle()
+            if on_cycle is not None:
+                on_cycle(res, live)

@@ -1,0 +1,211 @@
+"""The live cycle's contract beyond :mod:`rapidds.bridge.ros2`: the plan as the nodes read it,
+the cell clock, and the person's executions rebuilt from events and tracking.
+
+Clock: stamps are wall-clock nanoseconds since the Unix epoch, as ROS 2 stamps are (the hub and
+the nodes share a clock: one machine, or NTP/PTP in a cell). The plan names the cycle's start
+``stamp_ns`` and a ``time_scale``: cell seconds = (stamp - stamp_ns) x time_scale / 1e9. A
+scale of 1 is real time; a larger one runs the simulated nodes faster than the wall clock (the
+tests do); a real cell runs at 1.
+
+Task events carry no stamp (the contract of ``/rapidds/events``): they are timed by when the
+hub receives them, as a bag's events are by its receive time.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from rapidds.bridge.link import Received, StampGate, log
+from rapidds.bridge.ros2 import EVENTS_TOPIC, MessageError, parse_event, plan_payload, stamp_ns
+
+if TYPE_CHECKING:
+    from rapidds.problem import Problem
+    from rapidds.worlds.base import HumanExecution
+
+__all__ = [
+    "CONTACTS_TOPIC",
+    "STOP_TOPIC",
+    "TRACKING_PREFIX",
+    "CycleObservation",
+    "LivePlan",
+    "live_plan_payload",
+    "tracking_topic",
+]
+
+STOP_TOPIC = "/rapidds/stop"
+"""``std_msgs/msg/String`` JSON ``{"cycle", "reason"}``: every node stops the cycle now."""
+CONTACTS_TOPIC = "/rapidds/robot/contacts"
+"""``std_msgs/msg/String`` JSON ``{"robot", "person", "depth"}``: the arm touched the person."""
+TRACKING_PREFIX = "/rapidds/human/"
+"""``geometry_msgs/msg/PointStamped`` per body point on ``/rapidds/human/<body point>``."""
+
+
+def tracking_topic(point: str) -> str:
+    return TRACKING_PREFIX + point
+
+
+def live_plan_payload(problem: Problem, cycle: int, human: Sequence[str], robot: Sequence[str],
+                      expected: Mapping[str, tuple[float, float]], *, start_ns: int,
+                      time_scale: float, dt: float) -> dict[str, Any]:
+    """``/rapidds/plan`` for a live cycle: :func:`~rapidds.bridge.ros2.plan_payload` plus what a
+    node needs to act on its own: ``after`` (task -> every task that must end before it
+    starts: precedence, the agent's previous task, its waits), ``stamp_ns``, ``time_scale``
+    and ``dt`` (seconds per trajectory and path row)."""
+    payload = plan_payload({"cycle": cycle, "human": list(human), "robot": list(robot),
+                            "expected": {"timeline": {t: list(se) for t, se in expected.items()}}})
+    after: dict[str, list[str]] = {}
+    for agent, order in payload["order"].items():
+        for i, task in enumerate(order):
+            need = set(problem.preceding[task])
+            if i:
+                need.add(order[i - 1])
+            need.update(w["for"] for w in payload["waits"]
+                        if w["agent"] == agent and w["before"] == i)
+            after[task] = sorted(need)
+    payload.update(after=after, stamp_ns=int(start_ns), time_scale=float(time_scale),
+                   dt=float(dt))
+    return payload
+
+
+@dataclass(frozen=True)
+class LivePlan:
+    """A received ``/rapidds/plan`` (validated)."""
+
+    cycle: int
+    order: dict[str, list[str]]
+    after: dict[str, list[str]]
+    stamp_ns: int
+    time_scale: float
+    dt: float
+
+    @classmethod
+    def parse(cls, text: str) -> LivePlan:
+        try:
+            raw = json.loads(text)
+            order = {a: [str(t) for t in raw["order"][a]] for a in ("human", "robot")}
+            after = {str(t): [str(x) for x in v] for t, v in raw["after"].items()}
+            plan = cls(int(raw["cycle"]), order, after, int(raw["stamp_ns"]),
+                       float(raw["time_scale"]), float(raw["dt"]))
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise MessageError(f"not a live plan: {str(exc)[:120]}") from exc
+        tasks = [t for o in order.values() for t in o]
+        if not (plan.time_scale > 0 and plan.dt > 0) or set(after) != set(tasks) \
+                or any(x not in after for v in after.values() for x in v):
+            raise MessageError("not a live plan: time_scale and dt must be > 0 and 'after' must "
+                               "name the plan's tasks")
+        return plan
+
+    @property
+    def agent(self) -> dict[str, str]:
+        return {t: a for a, o in self.order.items() for t in o}
+
+    def cell_seconds(self, ns: int) -> float:
+        """Cell time (s since the cycle's start) of a wall-clock stamp."""
+        return (ns - self.stamp_ns) * self.time_scale / 1e9
+
+    def wall_ns(self, seconds: float) -> int:
+        """The wall-clock stamp of cell time ``seconds``."""
+        return self.stamp_ns + round(seconds / self.time_scale * 1e9)
+
+
+@dataclass
+class CycleObservation:
+    """What the hub saw in one cycle: task starts and ends (cell s), the person's tracked body
+    points, the robot's contacts. Bad input is logged in one line and dropped: an event that is
+    malformed, names a task not in the plan or the wrong agent, or comes out of order (an end
+    before its start, a second start or end); a tracking sample older than its source's last."""
+
+    plan: LivePlan
+    points: tuple[str, ...]
+    start: dict[str, float] = field(default_factory=dict)
+    end: dict[str, float] = field(default_factory=dict)
+    contacts: list[dict[str, Any]] = field(default_factory=list)
+    _tracks: dict[str, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
+    _gate: StampGate = field(default_factory=StampGate)
+
+    @property
+    def done(self) -> bool:
+        return set(self.end) == set(self.plan.agent)
+
+    def event(self, rec: Received) -> None:
+        try:
+            ev = parse_event(rec.msg.data)
+        except MessageError as exc:
+            log.warning("dropped an event: %s", exc)
+            return
+        agent = self.plan.agent.get(ev.task)
+        t = self.plan.cell_seconds(rec.received_ns)
+        if agent is None or agent != ev.agent:
+            log.warning("dropped an event of %s task %r: not in cycle %d's plan for that agent",
+                        ev.agent, ev.task, self.plan.cycle)
+        elif ev.event == "start" and ev.task in self.start:
+            log.warning("dropped a second start of %r", ev.task)
+        elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end):
+            log.warning("dropped an end of %r: %s", ev.task,
+                        "it has ended" if ev.task in self.end else "it never started")
+        else:
+            (self.start if ev.event == "start" else self.end)[ev.task] = t
+            log.info("cycle %d: %s %s %s at %.2f s", self.plan.cycle, ev.agent, ev.task,
+                     ev.event, t)
+
+    def track(self, rec: Received) -> None:
+        name = rec.topic[len(TRACKING_PREFIX):]
+        if name not in self.points:
+            log.warning("dropped tracking of unknown body point %r", name)
+            return
+        ns = stamp_ns(rec.msg.header)
+        if not self._gate.accept(rec.topic, ns):
+            return
+        p = rec.msg.point
+        pos = np.array([p.x, p.y, p.z], dtype=float)
+        if not np.isfinite(pos).all():
+            log.warning("dropped tracking of %r: not finite", name)
+            return
+        self._tracks.setdefault(name, []).append((self.plan.cell_seconds(ns), pos))
+
+    def handle(self, rec: Received) -> None:
+        """Route a received message to its handler (events, tracking); others are ignored."""
+        if rec.topic == EVENTS_TOPIC:
+            self.event(rec)
+        elif rec.topic.startswith(TRACKING_PREFIX):
+            self.track(rec)
+
+    def durations(self, agent: str) -> dict[str, float]:
+        return {t: self.end[t] - self.start[t] for t, a in self.plan.agent.items()
+                if a == agent and t in self.end}
+
+    def human_executions(self, dt: float) -> dict[str, HumanExecution]:
+        """The person's tasks as the loop takes them: duration from the events, path (T, K, 3)
+        from the tracking, resampled at rows min(k dt, duration) from the task's start."""
+        from rapidds.worlds.base import HumanExecution
+
+        out = {}
+        for task, d in self.durations("human").items():
+            times = self.start[task] + np.minimum(
+                np.arange(int(np.ceil(d / dt - 1e-9)) + 1) * dt, d)
+            out[task] = HumanExecution(task, float(d), self._path(task, times, dt))
+        return out
+
+    def _path(self, task: str, times: np.ndarray, dt: float) -> np.ndarray:
+        path = np.empty((len(times), len(self.points), 3))
+        for k, name in enumerate(self.points):
+            track = self._tracks.get(name, [])
+            t = np.array([s for s, _ in track])
+            near = (t >= times[0] - dt) & (t <= times[-1] + dt) if track else np.zeros(0, bool)
+            if not near.any():
+                raise MessageError(f"no tracking of {name} during {task}")
+            pos = np.stack([p for _, p in track])
+            path[:, k] = np.stack([np.interp(times, t, pos[:, c]) for c in range(3)], axis=1)
+        return path
+
+
+def joint_rows(names: Iterable[str], known: Sequence[str]) -> list[int] | None:
+    """Row of each of ``known`` in a message's joint ``names``; None when one is missing."""
+    index = {n: i for i, n in enumerate(names)}
+    rows = [index.get(n) for n in known]
+    return None if any(r is None for r in rows) else [int(r) for r in rows if r is not None]

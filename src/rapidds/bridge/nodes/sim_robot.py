@@ -1,0 +1,172 @@
+"""The reference robot: a world's arm under MuJoCo physics on the live link.
+
+It takes ``trajectory_msgs/JointTrajectory`` on ``/rapidds/robot/trajectory`` (started at the
+header stamp, or on arrival when that has passed; one queued behind the other), runs them with
+:class:`~rapidds.bridge.nodes.arm.PhysicsArm`, publishes ``sensor_msgs/JointState`` at
+``rate`` Hz of simulated time, the robot's task events (the k-th trajectory of a cycle is the
+k-th robot task of its plan) and every new touch of the arm on the person's bodies, whom it
+places where the tracking says. ``/rapidds/stop`` holds the arm where it is and drops the
+cycle's queue. Simulated time runs ``time_scale`` (from the plan) times faster than the wall.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rapidds.bridge.link import Link, Received, StampGate, log
+from rapidds.bridge.live import (
+    CONTACTS_TOPIC,
+    STOP_TOPIC,
+    LivePlan,
+    joint_rows,
+    tracking_topic,
+)
+from rapidds.bridge.nodes.arm import PhysicsArm
+from rapidds.bridge.ros2 import (
+    EVENTS_TOPIC,
+    JOINT_STATE_TOPIC,
+    PLAN_TOPIC,
+    TRAJECTORY_TOPIC,
+    Event,
+    MessageError,
+    event_message,
+    joint_state,
+    stamp_ns,
+    string_message,
+    trajectory_positions,
+)
+from rapidds.errors import RapiddsError
+from rapidds.worlds.base import World, body_point_names, joint_names
+
+__all__ = ["SimRobot"]
+
+
+@dataclass
+class _Queued:
+    task: str
+    positions: np.ndarray
+    times: np.ndarray
+    start_ns: int
+
+
+@dataclass
+class SimRobot:
+    """The node's state; :meth:`spin` runs it until ``until`` (wall s) or forever."""
+
+    world: World
+    link: Link
+    rate: float = 100.0
+    arm: PhysicsArm = field(init=False)
+    plan: LivePlan | None = None
+    _tasks: deque[str] = field(default_factory=deque)
+    _queue: deque[_Queued] = field(default_factory=deque)
+    _current: str | None = None
+    _people: dict[str, np.ndarray] = field(default_factory=dict)
+    _touching: set[tuple[str, str]] = field(default_factory=set)
+    _gate: StampGate = field(default_factory=StampGate)
+
+    def __post_init__(self) -> None:
+        physics = getattr(self.world, "physics_model", None)
+        if physics is None:
+            raise RapiddsError(f"world {self.world.name} has no physics model; sim-robot runs "
+                               "a world that offers one (painting)")
+        self.joints = joint_names(self.world)
+        self.points = body_point_names(self.world)
+        self.arm = PhysicsArm(physics(), self.joints)
+        self.arm.reset(np.asarray(self.world.robot_rest(), dtype=float))
+        self._place(np.asarray(self.world.human_rest(), dtype=float))
+
+    @staticmethod
+    def topics(points: tuple[str, ...]) -> dict[str, str]:
+        string = "std_msgs/msg/String"
+        return {PLAN_TOPIC: string, STOP_TOPIC: string,
+                TRAJECTORY_TOPIC: "trajectory_msgs/msg/JointTrajectory",
+                **{tracking_topic(p): "geometry_msgs/msg/PointStamped" for p in points}}
+
+    @property
+    def scale(self) -> float:
+        return self.plan.time_scale if self.plan is not None else 1.0
+
+    def _place(self, points: np.ndarray) -> None:
+        place = getattr(self.world, "place_person", None)
+        if place is not None:
+            place(self.arm.model, self.arm.data, points)
+
+    def handle(self, rec: Received) -> None:
+        if rec.topic == PLAN_TOPIC:
+            try:
+                self.plan = LivePlan.parse(rec.msg.data)
+            except MessageError as exc:
+                log.warning("sim-robot dropped a plan: %s", exc)
+                return
+            self._tasks = deque(self.plan.order["robot"])
+            self._queue.clear()
+        elif rec.topic == STOP_TOPIC:
+            log.warning("sim-robot: stop (%s)", rec.msg.data[:120])
+            self.plan, self._current = None, None
+            self._tasks.clear()
+            self._queue.clear()
+            self.arm.hold()
+        elif rec.topic == TRAJECTORY_TOPIC:
+            self._trajectory(rec.msg)
+        elif self._gate.accept(rec.topic, stamp_ns(rec.msg.header)):
+            p = rec.msg.point
+            self._people[rec.topic] = np.array([p.x, p.y, p.z])
+            if len(self._people) == len(self.points):
+                self._place(np.stack([self._people[tracking_topic(n)] for n in self.points]))
+
+    def _trajectory(self, msg: Any) -> None:
+        names, q, t = trajectory_positions(msg)
+        rows = joint_rows(names, self.joints)
+        if rows is None or not len(t) or not np.isfinite(q).all() or np.any(np.diff(t) < 0):
+            log.warning("sim-robot dropped a trajectory: joints %s, %d points", names, len(t))
+            return
+        if self.plan is None or not self._tasks:
+            log.warning("sim-robot dropped a trajectory: no robot task is left in the plan")
+            return
+        self._queue.append(_Queued(self._tasks.popleft(), q[:, rows], t, stamp_ns(msg.header)))
+
+    def _event(self, task: str, kind: str) -> None:
+        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind)))  # type: ignore[arg-type]
+
+    def tick(self) -> None:
+        """One control period: start a due trajectory, step the physics, report."""
+        now = time.time_ns()
+        if self._current is None and self._queue and now >= self._queue[0].start_ns:
+            job = self._queue.popleft()
+            self.arm.follow(job.positions, job.times)
+            self._current = job.task
+            self._event(job.task, "start")
+        self.arm.step(1.0 / self.rate)
+        if self._current is not None and self.arm.settled():
+            self._event(self._current, "end")
+            self._current = None
+        touching = set()
+        for touch in self.arm.touches():
+            key = (touch.robot, touch.person)
+            touching.add(key)
+            if key not in self._touching:
+                self.link.publish(CONTACTS_TOPIC, string_message(
+                    {"robot": touch.robot, "person": touch.person, "depth": touch.depth}))
+        self._touching = touching
+        self.link.publish(JOINT_STATE_TOPIC, joint_state(self.joints, self.arm.q, self.arm.qdot,
+                                                         stamp_ns=time.time_ns()))
+
+    def spin(self, until: float | None = None) -> None:
+        """Run in (scaled) real time: each tick is 1/rate simulated seconds."""
+        next_tick = time.monotonic()
+        while until is None or time.monotonic() < until:
+            for rec in self.link.drain():
+                self.handle(rec)
+            self.tick()
+            next_tick += 1.0 / (self.rate * self.scale)
+            lag = next_tick - time.monotonic()
+            if lag > 0:
+                time.sleep(lag)
+            elif lag < -0.5:  # fell behind (a loaded machine): do not race to catch up
+                next_tick = time.monotonic()
