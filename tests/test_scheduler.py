@@ -5,7 +5,10 @@ from __future__ import annotations
 import itertools
 import math
 import random
+import subprocess
+import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -509,7 +512,8 @@ def test_cp_sat_seeds_fixed_durations_only() -> None:
     mean = np.nan_to_num(means(p))
     optimum = solve_exact(p, load_bound=True)
     assert optimum.optimal
-    config = GAConfig(generations=2, population=8, exact_seed_work=5.0)  # proves it in far less
+    config = GAConfig(generations=2, population=8, exact_seed_work=5.0,  # proves it in less
+                      exact_seed_min_tasks=10)
     seeded = GeneticScheduler(p, FixedDurationMotion(p), config).solve(
         mean[None], mean, gamma=0.0)
     assert seeded.seeds == [optimum.schedule]
@@ -517,6 +521,23 @@ def test_cp_sat_seeds_fixed_durations_only() -> None:
     motion = ConcurrencyMotion(lambda cj: (3.0, 0.0), 3.0)  # durations CP-SAT cannot see
     other = GeneticScheduler(p, motion, config).solve(mean[None], mean, gamma=0.0)
     assert other.seeds == []
+
+
+def test_small_jobs_are_not_seeded_and_plan_never_imports_or_tools() -> None:
+    rng = np.random.default_rng(23)
+    p = random_problem(rng, 10)
+    mean = np.nan_to_num(means(p))
+    config = GAConfig(generations=2, population=8)  # defaults: seed from 11 tasks
+    assert GeneticScheduler(p, FixedDurationMotion(p), config).solve(
+        mean[None], mean, gamma=0.0).seeds == []
+    # a fresh process: this one has imported OR-Tools for the exact solver's tests
+    code = ("import sys\nfrom rapidds.cli import main\ntry:\n    main()\n"
+            "except SystemExit as e:\n    assert not e.code, e.code\n"
+            "assert 'ortools' not in sys.modules, 'plan imported OR-Tools'")
+    fetch = Path(__file__).resolve().parents[1] / "examples" / "fetch.yaml"
+    out = subprocess.run([sys.executable, "-c", code, "plan", str(fetch), "--seed", "0",
+                          "--generations", "3"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
 
 
 def test_time_limit_stops_the_search_with_a_feasible_best() -> None:

@@ -98,6 +98,9 @@ class GAConfig:
         exact_seed_tasks: the CP-SAT seed only for jobs of at most this many tasks. Measured:
             1 unit proves the optimum of random 32-task jobs, but on 64 tasks it takes 8 s and
             ends about 19 % above the GA's schedule, on 128 tasks 17 s and 170 % above.
+        exact_seed_min_tasks: and only for jobs of at least this many: on 4-10 tasks the search
+            alone found CP-SAT's optimum in 210 of 210 runs (docs/benchmarks.md), so a seed
+            there only costs importing OR-Tools (0.5 s of a 1 s ``rapidds plan``).
         time_limit_s: stop the search cleanly once this much wall time has passed (checked
             between generations and between polish passes) and return the best so far;
             None = no limit. A safety net for callers with a deadline, not a tuning knob.
@@ -123,6 +126,7 @@ class GAConfig:
     order_search_nodes: int = 300
     exact_seed_work: float = 1.0
     exact_seed_tasks: int = 40
+    exact_seed_min_tasks: int = 11
     time_limit_s: float | None = None
     seed: int = 0
 
@@ -133,7 +137,7 @@ class GAConfig:
                 raise ValueError(f"GAConfig.{name} must be an integer >= 1, got {value!r}")
         for name in ("patience", "restart_after", "elites_per_allocation", "polish_passes",
                      "polish_allocations", "order_search_nodes", "polish_window",
-                     "exact_seed_tasks", "seed"):
+                     "exact_seed_tasks", "exact_seed_min_tasks", "seed"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"GAConfig.{name} must be an integer >= 0, got {value!r}")

@@ -48,7 +48,6 @@ from rapidds.scheduler.active import AllocationOrders, longest_tails
 from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
-from rapidds.scheduler.exact import solve_exact
 
 Progress = Callable[[int, float], None]
 # (parent, rng, parent's expected start times (n,) or None) -> child before repair, or None
@@ -442,15 +441,19 @@ class GeneticScheduler:
     def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
                ) -> list[Schedule]:
         """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
-        ``exact_seed_work``, fixed robot durations and a job of at most ``exact_seed_tasks``
-        tasks, CP-SAT's schedule on the expected durations; at most a population's worth."""
+        ``exact_seed_work``, fixed robot durations and a job of ``exact_seed_min_tasks`` to
+        ``exact_seed_tasks`` tasks, CP-SAT's schedule on the expected durations; at most a
+        population's worth."""
         out: dict[Schedule, None] = {}
         for s in initial:
             validate(self.problem, s)
             out[repair(s)] = None
         cfg = self.config
-        if (cfg.exact_seed_work > 0 and len(self.problem.tasks) <= cfg.exact_seed_tasks
+        if (cfg.exact_seed_work > 0
+                and cfg.exact_seed_min_tasks <= len(self.problem.tasks) <= cfg.exact_seed_tasks
                 and isinstance(self.motion, FixedDurationMotion)):
+            from rapidds.scheduler.exact import solve_exact  # OR-Tools: 0.5 s to import
+
             human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
             try:  # a deterministic budget, so the seed does not depend on the machine's load;
                 # the wall-time limit only guards against a stalled solver

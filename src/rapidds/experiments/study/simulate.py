@@ -20,7 +20,6 @@ import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -30,7 +29,9 @@ from rapidds.experiments.ablation import (
     StudyOutcome,
     TrialCallback,
     _worker_policy,
+    _worker_world,
     store_results,
+    worker_prior,
 )
 from rapidds.experiments.study.store import StudyStore
 from rapidds.loop.config import RunConfig
@@ -38,7 +39,6 @@ from rapidds.loop.config import RunConfig
 if TYPE_CHECKING:
     from distributed import Client
 
-    from rapidds.loop.model import HumanModel
     from rapidds.worlds.base import SimulatedTeammate, World
 
 __all__ = ["PERSON_STREAM", "DrawsParticipants", "Trial", "person_rng", "run_trial",
@@ -111,31 +111,6 @@ def trials_to_run(store: StudyStore) -> tuple[list[Trial], int]:
 
 
 # -- worker side ---------------------------------------------------------------------------------
-@lru_cache(maxsize=2)
-def _worker_world(name: str, variant: str | None) -> World:
-    from rapidds.worlds.registry import make_world
-
-    return make_world(name, variant)
-
-
-@lru_cache(maxsize=4)
-def _worker_prior(name: str, variant: str | None, key: str) -> HumanModel:
-    """The population prior, computed once per worker (the painting one takes seconds). ``key``
-    is the spatial settings it depends on; the run copies it before learning."""
-    from rapidds.loop.model import prior_model
-
-    return prior_model(_worker_world(name, variant), RunConfig(**json.loads(key)))
-
-
-def _prior_key(cfg: RunConfig) -> str:
-    """What the prior depends on: the world's spatial settings (and the seed only where the
-    surrogate network, which it seeds, is used)."""
-    keep = {"world": cfg.world, "variant": cfg.variant, "beta": cfg.beta, "rho": cfg.rho,
-            "grid_points": cfg.grid_points, "surrogate": cfg.surrogate,
-            "seed": cfg.seed if cfg.surrogate else 0}
-    return json.dumps(keep, sort_keys=True)
-
-
 def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
     """Run one participant x system (all rounds) and return its records; the Dask task. Touches
     no files: the client stores the result."""
@@ -149,7 +124,7 @@ def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
     world = _worker_world(t.config["world"], t.config["variant"])
     cfg = RunConfig(**t.config).resolved(world)
     person = simulated_participant(world, t.participant, t.levels, t.study_seed, t.position)
-    prior = _worker_prior(cfg.world, cfg.variant, _prior_key(cfg))
+    prior = worker_prior(cfg)
     run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, teammate=person, prior=prior)
     records = run.run()
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
