@@ -27,17 +27,19 @@ import json
 import math
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import numpy as np
 import torch
 from numpy.typing import ArrayLike
+from pydantic import Field, ValidationInfo, field_validator
 from torch import nn
 
 from rapidds.errors import StateError
 from rapidds.fileio import atomic_write_text
+from rapidds.settings import Flag, Int, Real, Settings
 
 __all__ = [
     "FORMAT",
@@ -67,8 +69,7 @@ def _is_real(v: Any) -> bool:
     return isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
 
 
-@dataclass(frozen=True)
-class SpatialConfig:
+class SpatialConfig(Settings):
     """Settings of one person's spatial model (shared by all their human tasks).
 
     Attributes:
@@ -136,90 +137,44 @@ class SpatialConfig:
             Eqs. 10-11 exactly.
     """
 
-    bounds: tuple[tuple[float, float], ...]
-    beta: float = 1.0
-    polyline: bool = True
-    rho: float = 0.05
-    prior_var: float | None = None
-    min_prior_var: float = 0.01
-    grid_points: int | tuple[int, ...] = 32
-    hidden: int = 64
-    layers: int = 3
-    fourier: int | None = None
-    steps: int = 3000
-    batch: int = 4096
-    lr: float = 1e-2
-    tol: float = 0.02
-    seed: int = 0
-    use_surrogate: bool = False
-    chunk: int = 1 << 16
-    forgetting: float = 1.0
+    label: ClassVar[str] = "SpatialConfig"
 
-    def __post_init__(self) -> None:
-        try:
-            pairs = [tuple(p) for p in self.bounds]
-        except TypeError:
-            raise ValueError(
-                f"SpatialConfig.bounds must be a sequence of (lo, hi) pairs, got {self.bounds!r}"
-            ) from None
-        if not pairs:
-            raise ValueError("SpatialConfig.bounds needs at least one (lo, hi) pair")
-        bounds = []
-        for k, p in enumerate(pairs):
-            if len(p) != 2 or not all(_is_real(v) and math.isfinite(v) for v in p):
-                raise ValueError(f"SpatialConfig.bounds[{k}] must be two finite numbers, got {p}")
-            lo, hi = float(p[0]), float(p[1])
+    bounds: Annotated[tuple[tuple[Real, Real], ...], Field(min_length=1)]
+    beta: Annotated[Real, Field(gt=0)] = 1.0
+    polyline: Flag = True
+    rho: Annotated[Real, Field(gt=0)] = 0.05
+    prior_var: Annotated[Real, Field(gt=0)] | None = None
+    min_prior_var: Annotated[Real, Field(gt=0)] = 0.01
+    grid_points: Annotated[Int | tuple[Int, ...], Field(validate_default=True)] = 32
+    hidden: Annotated[Int, Field(ge=1)] = 64
+    layers: Annotated[Int, Field(ge=1)] = 3
+    fourier: Annotated[Int, Field(ge=0)] | None = None
+    steps: Annotated[Int, Field(ge=1)] = 3000
+    batch: Annotated[Int, Field(ge=1)] = 4096
+    lr: Annotated[Real, Field(gt=0)] = 1e-2
+    tol: Annotated[Real, Field(ge=0)] = 0.02
+    seed: Annotated[Int, Field(ge=0)] = 0
+    use_surrogate: Flag = False
+    chunk: Annotated[Int, Field(ge=1)] = 1 << 16
+    forgetting: Annotated[Real, Field(gt=0, le=1)] = 1.0
+
+    @field_validator("bounds")
+    @classmethod
+    def _boxes(cls, v: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+        for k, (lo, hi) in enumerate(v):
             if not lo < hi:
-                raise ValueError(f"SpatialConfig.bounds[{k}] needs lo < hi, got {p}")
-            bounds.append((lo, hi))
-        object.__setattr__(self, "bounds", tuple(bounds))
-        d = len(bounds)
+                raise ValueError(f"[{k}] needs lo < hi, got {(lo, hi)}")
+        return v
 
-        g: Any = self.grid_points
-        grid: tuple[Any, ...] | None = (
-            (g,) * d if _is_int(g) else tuple(g) if isinstance(g, Sequence) else None
-        )
-        if grid is None or len(grid) != d or not all(_is_int(n) and n >= 2 for n in grid):
-            raise ValueError(
-                f"SpatialConfig.grid_points must be an int >= 2 or {d} of them (one per axis), "
-                f"got {g!r}"
-            )
-        object.__setattr__(self, "grid_points", tuple(int(n) for n in grid))
-        if self.fourier is not None and (not _is_int(self.fourier) or self.fourier < 0):
-            raise ValueError(
-                f"SpatialConfig.fourier must be None or an integer >= 0, got {self.fourier!r}"
-            )
-
-        for name in ("beta", "rho", "min_prior_var", "lr"):
-            v = getattr(self, name)
-            if not _is_real(v) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"SpatialConfig.{name} must be a finite number > 0, got {v!r}")
-            object.__setattr__(self, name, float(v))
-        if self.prior_var is not None:
-            v = self.prior_var
-            if not _is_real(v) or not math.isfinite(v) or v <= 0:
-                raise ValueError(
-                    f"SpatialConfig.prior_var must be None or a finite number > 0, got {v!r}"
-                )
-            object.__setattr__(self, "prior_var", float(v))
-        f = self.forgetting
-        if not _is_real(f) or not 0 < f <= 1:
-            raise ValueError(f"SpatialConfig.forgetting must be in (0, 1], got {f!r}")
-        object.__setattr__(self, "forgetting", float(f))
-        if not _is_real(self.tol) or not math.isfinite(self.tol) or self.tol < 0:
-            raise ValueError(f"SpatialConfig.tol must be a finite number >= 0, got {self.tol!r}")
-        object.__setattr__(self, "tol", float(self.tol))
-        for name, least in (("hidden", 1), ("layers", 1), ("steps", 1), ("batch", 1), ("chunk", 1),
-                            ("seed", 0)):
-            v = getattr(self, name)
-            if not _is_int(v) or v < least:
-                raise ValueError(f"SpatialConfig.{name} must be an integer >= {least}, got {v!r}")
-            object.__setattr__(self, name, int(v))
-        for name in ("polyline", "use_surrogate"):
-            v = getattr(self, name)
-            if not isinstance(v, bool | np.bool_):
-                raise ValueError(f"SpatialConfig.{name} must be a bool, got {v!r}")
-            object.__setattr__(self, name, bool(v))
+    @field_validator("grid_points")
+    @classmethod
+    def _per_axis(cls, v: int | tuple[int, ...], info: ValidationInfo) -> tuple[int, ...]:
+        """One count per axis (an int is the same on every axis), each >= 2."""
+        d = len(info.data.get("bounds", ()))
+        grid = (v,) * d if isinstance(v, int) else tuple(v)
+        if len(grid) != d or not all(n >= 2 for n in grid):
+            raise ValueError(f"must be an int >= 2 or {d} of them (one per axis), got {v!r}")
+        return grid
 
     @classmethod
     def from_box(cls, lo: ArrayLike, hi: ArrayLike, **kwargs: Any) -> SpatialConfig:
@@ -238,7 +193,7 @@ class SpatialConfig:
     @property
     def shape(self) -> tuple[int, ...]:
         """Grid shape, one entry per axis."""
-        return self.grid_points  # type: ignore[return-value]  # normalised in __post_init__
+        return self.grid_points  # type: ignore[return-value]  # one per axis, _per_axis
 
     @property
     def octaves(self) -> int:
@@ -261,7 +216,7 @@ class SpatialConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe dict; ``SpatialConfig.from_dict`` inverts it."""
-        out = asdict(self)
+        out = dict(self.__dict__)
         out["bounds"] = [list(p) for p in self.bounds]
         out["grid_points"] = list(self.shape)
         return out

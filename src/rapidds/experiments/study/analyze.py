@@ -35,7 +35,7 @@ from rapidds.experiments.study.stats import (
     rm_anova_2x2,
 )
 from rapidds.experiments.study.store import StudyStore, study_path
-from rapidds.experiments.study.systems import ADAPTATION, FACTORS
+from rapidds.experiments.study.systems import ADAPTATION, ANALYSIS_FACTORS, adapts
 from rapidds.fileio import atomic_write_text
 
 __all__ = ["COSTS", "Analysis", "analyze_study", "round_table"]
@@ -180,7 +180,7 @@ def analyze_study(folder: str | Path) -> Analysis:
         md.append("")
         if not four:
             md += [f"rm-ANOVA not run: it needs the four systems {', '.join(ADAPTATION)} "
-                   f"(the 2 x 2 of {' x '.join(FACTORS)} adaptation).", ""]
+                   f"(the 2 x 2 of {' x '.join(ANALYSIS_FACTORS)} adaptation).", ""]
         else:
             s["objective"]["anova"] = {}
             s["objective"]["claims"] = {}
@@ -192,10 +192,8 @@ def analyze_study(folder: str | Path) -> Analysis:
                                 "adaptation)", rows)
                 factor, alpha = PAPER[c]
                 row = next(r for r in rows if r["effect"] == factor)
-                adaptive = red[red["system"].map(lambda x, f=factor: ADAPTATION[x][
-                    FACTORS.index(f)])][c].mean()
-                other = red[~red["system"].map(lambda x, f=factor: ADAPTATION[x][
-                    FACTORS.index(f)])][c].mean()
+                adaptive = red[red["system"].map(lambda x, f=factor: adapts(x, f))][c].mean()
+                other = red[~red["system"].map(lambda x, f=factor: adapts(x, f))][c].mean()
                 holds = bool(row["p"] < alpha and adaptive > other)
                 s["objective"]["claims"][c] = {
                     "claim": f"{factor} adaptation lowers the {cost} (paper p < {alpha:g})",
@@ -210,7 +208,7 @@ def analyze_study(folder: str | Path) -> Analysis:
     # -- ranking --------------------------------------------------------------------------
     md += ["## Ranking", ""]
     s["ranking"] = {"n": len(rankings)}
-    spatial_split = len({ADAPTATION[x][0] for x in systems}) == 2
+    spatial_split = len({adapts(x, "spatial") for x in systems}) == 2
     if len(rankings) < 2 or not spatial_split:
         why = (f"{len(rankings)} ranking(s) stored (simulated participants rank nothing)"
                if len(rankings) < 2 else "no systems both with and without spatial adaptation")

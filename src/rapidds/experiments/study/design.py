@@ -38,6 +38,7 @@ from pydantic import (
 from rapidds.errors import StudyDesignError
 from rapidds.experiments.study.systems import SYSTEMS
 from rapidds.fileio import atomic_write_text
+from rapidds.settings import error_line
 
 HEADER = "# rapidds study design: "
 """First line of a design CSV; the design's JSON follows it on the same line."""
@@ -97,10 +98,7 @@ class StudyDesign(BaseModel):
         try:
             super().__init__(**data)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            msg = err["msg"].removeprefix("Value error, ")
-            raise StudyDesignError(f"study design: {where + ': ' if where else ''}{msg}") from None
+            raise StudyDesignError(f"study design: {error_line(exc)}") from None
 
     @field_validator("systems")
     @classmethod

@@ -31,7 +31,7 @@ import pingouin as pg
 from scipy import stats
 
 from rapidds.errors import StudyDataError
-from rapidds.experiments.study.systems import ADAPTATION, FACTORS, SYSTEMS
+from rapidds.experiments.study.systems import ADAPTATION, ANALYSIS_FACTORS, FACTORS, SYSTEMS
 
 EFFECT_COLUMNS: tuple[str, ...] = ("F", "df1", "df2", "p", "partial_eta_sq")
 """Columns of every ANOVA table this module returns (one row per effect, index ``effect``)."""
@@ -198,12 +198,13 @@ def rm_anova_2x2(
     data = pd.DataFrame(
         {
             "_subject": data[subject].astype(str),
-            **{f: np.where(data[f], "yes", "no") for f in FACTORS},
+            **{f: np.where(data[f], "yes", "no") for f in ANALYSIS_FACTORS},
             "_dv": data[dv].astype(float),
         }
     )
-    res = pg.rm_anova(data, dv="_dv", within=list(FACTORS), subject="_subject", effsize="np2")
-    names = {FACTORS[0]: FACTORS[0], FACTORS[1]: FACTORS[1], " * ".join(FACTORS): ":".join(FACTORS)}
+    within = list(ANALYSIS_FACTORS)
+    res = pg.rm_anova(data, dv="_dv", within=within, subject="_subject", effsize="np2")
+    names = {within[0]: within[0], within[1]: within[1], " * ".join(within): ":".join(within)}
     table = pd.DataFrame(
         {
             "F": res["F"].to_numpy(float),
@@ -277,8 +278,8 @@ def ranking_test(
     unknown = sorted(set(systems) - set(adaptation))
     if unknown:
         raise StudyDataError(f"{what}: no adaptation known for system(s) {', '.join(unknown)}")
-    spatial = [s for s in systems if adaptation[s][0]]
-    other = [s for s in systems if not adaptation[s][0]]
+    spatial = [s for s in systems if adaptation[s][FACTORS.index("spatial")]]
+    other = [s for s in systems if not adaptation[s][FACTORS.index("spatial")]]
     if not spatial or not other:
         raise StudyDataError(f"{what}: needs spatially adaptive and other systems among {systems}")
     ranks = _numeric(rankings, rank, what)
@@ -609,7 +610,7 @@ def art_by_item(
     for name, g in data.groupby(item, sort=False):
         _one_per_system(g, subject, system, list(adaptation), f"{what} (item {name!r})")
         try:
-            res = art_anova(g, response, list(FACTORS), subject)
+            res = art_anova(g, response, list(ANALYSIS_FACTORS), subject)
         except StudyDataError as exc:
             raise StudyDataError(f"{what} (item {name!r}): {exc}") from None
         frames.append(
