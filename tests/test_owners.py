@@ -19,7 +19,8 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "rapidds"
 # parse by position
 WAIT_TEXT = re.compile(r"""["'`]wait:|startsWith\(\s*["']wait|\bslice\(5\)|\[5:\]""")
 # an array name built or split by hand: "human/...", "robot/...", f"{kind}/{task}", split("/")
-ARRAY_NAME = re.compile(r"""["'`](?:human|robot)/|\}/\{(?:task|t|j)\}|(?:split|partition)\(\s*["']/["']""")
+ARRAY_NAME = re.compile(r"""["'`](?:human|robot)/|\}/\{(?:task|t|j)\}"""
+                        r"""|(?:split|partition)\(\s*["']/["']""")
 
 
 def _offenders(pattern: re.Pattern[str], owner: str) -> list[str]:

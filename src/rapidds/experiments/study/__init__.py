@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
+    from rapidds.experiments.study.art import ArtResult, art_anova, art_by_item
     from rapidds.experiments.study.design import StudyDesign, cell_sequence, williams_square
     from rapidds.experiments.study.power import (
         planted_costs,
@@ -25,11 +26,8 @@ if TYPE_CHECKING:
     )
     from rapidds.experiments.study.stats import (
         EFFECT_COLUMNS,
-        ArtResult,
         RankingTest,
         adaptation_factors,
-        art_anova,
-        art_by_item,
         cost_reduction,
         ranking_test,
         rankings_from_orders,
@@ -47,8 +45,9 @@ _WHERE = {
     **dict.fromkeys(("StudyDesign", "cell_sequence", "williams_square"), "design"),
     **dict.fromkeys(("planted_costs", "planted_likert", "planted_rankings", "rejection_rates",
                      "study_frame"), "power"),
-    **dict.fromkeys(("EFFECT_COLUMNS", "ArtResult", "RankingTest", "adaptation_factors",
-                     "art_anova", "art_by_item", "cost_reduction", "ranking_test",
+    **dict.fromkeys(("ArtResult", "art_anova", "art_by_item"), "art"),
+    **dict.fromkeys(("EFFECT_COLUMNS", "RankingTest", "adaptation_factors",
+                     "cost_reduction", "ranking_test",
                      "rankings_from_orders", "rm_anova_2x2"), "stats"),
     **dict.fromkeys(("ADAPTATION", "ANALYSIS_FACTORS", "FACTORS", "SYSTEMS", "adapts"),
                     "systems"),

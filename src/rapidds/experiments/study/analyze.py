@@ -27,8 +27,8 @@ from typing import Any
 
 import pandas as pd
 
+from rapidds.experiments.study.art import art_by_item
 from rapidds.experiments.study.stats import (
-    art_by_item,
     cost_reduction,
     ranking_test,
     rankings_from_orders,
