@@ -63,7 +63,7 @@ def main() -> None:
     body = (
         f"`benchmarks/bench_cli.py --repeat {args.repeat}`: each command in a fresh process, CPU "
         f"time (user + system) of the child. Machine: {cpu_model()}, 2 cores; 1-min load average "
-        f"{load0} at start, {load_average()} at end. Goals (issue 11): `rapidds --help` under "
+        f"{load0} at start, {load_average()} at end. Goals: `rapidds --help` under "
         "0.5 s of CPU, `rapidds plan examples/fetch.yaml` under 1 s.\n\n"
         "| command | CPU s (median) | CPU s (max) | wall s (median) | heavy libraries imported |\n"
         "|---|---:|---:|---:|---|\n"

@@ -212,3 +212,49 @@ def test_every_size_exception_is_still_needed() -> None:
              for name, n in _functions(ast.parse(p.read_text()))}
     for key in FUNCTION_EXCEPTIONS:
         assert sizes.get(key, 0) > MAX_FUNCTION_LINES, key
+
+
+# -- who knows a world by name -------------------------------------------------------------------
+# Everything else reaches a world through the registry (rapidds.worlds.registry) and the World
+# interface. These name one on purpose (README, "Worlds and teammates", says the same):
+NAMES_A_WORLD: dict[str, str] = {
+    "loop/config.py": "RunConfig's default world, fetch",
+    "cli/run.py": "`rapidds run` and `demo` default to fetch (and its default teammate)",
+    "cli/play.py": "the browser game is the fetch game",
+    "cli/case_study.py": "the paper's painting case study",
+    "cli/study.py": "`rapidds study` defaults to the painting world",
+    "experiments/ablation.py": "the paper's fetch ablation",
+    "experiments/painting.py": "the paper's painting case study",
+    "web/": "the browser game and the study's game rounds play fetch",
+}
+_WORLDS = ("fetch", "painting")
+
+
+def _names_a_world(tree: ast.AST) -> bool:
+    """A world's name as a string of code (docstrings never equal it), an import of a world's
+    package, or its World class."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and node.value in _WORLDS:
+            return True
+        modules = ([node.module or ""] if isinstance(node, ast.ImportFrom) else
+                   [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+        if any(m.startswith(tuple(f"rapidds.worlds.{w}" for w in _WORLDS)) for m in modules):
+            return True
+        if isinstance(node, ast.Name | ast.alias) and \
+                getattr(node, "id", getattr(node, "name", "")) in ("FetchWorld", "PaintingWorld"):
+            return True
+    return False
+
+
+def test_only_the_listed_modules_know_a_world_by_name() -> None:
+    named = [rel for rel, path in _sources().items()
+             if not rel.startswith("worlds/") and not any(rel.startswith(k) for k in NAMES_A_WORLD)
+             and _names_a_world(ast.parse(path.read_text()))]
+    assert not named, f"these know a world by name; go through the registry: {named}"
+
+
+def test_the_world_name_check_sees_each_way_of_naming_one() -> None:
+    for code in ('make_world("fetch")', "from rapidds.worlds.painting import x",
+                 "import rapidds.worlds.fetch.map", "isinstance(w, FetchWorld)"):
+        assert _names_a_world(ast.parse(code)), code
+    assert not _names_a_world(ast.parse('"""Runs in the fetch world."""\nmake_world(name)'))
