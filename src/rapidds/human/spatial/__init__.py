@@ -18,9 +18,9 @@ and shape, so float64 beliefs and float32 MLP weights round-trip bit for bit);
 :meth:`SpatialModel.save` writes that dict as JSON with a SHA-256 of its body, atomically.
 
 The package's parts: :mod:`.config` (the settings), :mod:`.grid` (Eq. 7 and the belief of one
-task), :mod:`.surrogate` (the MLP, torch's autograd), :mod:`.codec` (arrays in JSON) and
-:mod:`.model` (a person's beliefs for all tasks, saved and loaded). Names are imported on first
-use, so reading a config does not load torch.
+task), :mod:`.surrogate` (the MLP, torch's autograd) and :mod:`.model` (a person's beliefs for
+all tasks, saved and loaded; arrays in :mod:`rapidds.codec`). Names are imported on first use,
+so reading a config does not load torch.
 """
 
 from __future__ import annotations

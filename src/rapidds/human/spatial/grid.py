@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike
 
+from rapidds.codec import decode_array, encode_array
 from rapidds.errors import StateError
-from rapidds.human.spatial.codec import decode_array, encode_array
 from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
 from rapidds.human.spatial.surrogate import FitReport, Surrogate, SurrogateError
 
@@ -413,13 +413,13 @@ class SpatialCostModel:
         except (KeyError, TypeError, ValueError) as e:
             raise StateError(f"spatial model: bad config ({e})") from None
         v = (config.n_points,)
-        mean = decode_array(data.get("mean"), "mean", v)
-        var = decode_array(data.get("var"), "var", v)
-        prior = decode_array(data.get("prior_mean"), "prior_mean", v)
+        mean = decode_array(data.get("mean"), "spatial model: mean", v)
+        var = decode_array(data.get("var"), "spatial model: var", v)
+        prior = decode_array(data.get("prior_mean"), "spatial model: prior_mean", v)
         # files written before forgetting existed hold no prior variance; only a model that
         # forgets or resets reads it, and such a model always stored it
-        prior_var = (decode_array(data["prior_var"], "prior_var", v) if "prior_var" in data
-                     else None)
+        prior_var = (decode_array(data["prior_var"], "spatial model: prior_var", v)
+                     if "prior_var" in data else None)
         try:
             model = cls(config, mean, var, prior_mean=prior, prior_var=prior_var,
                         n_obs=data.get("n_obs", -1))
@@ -429,7 +429,7 @@ class SpatialCostModel:
         if sur is not None:
             net = model._new_net()
             try:
-                state = {k: torch.from_numpy(decode_array(a, f"MLP weight {k}"))
+                state = {k: torch.from_numpy(decode_array(a, f"spatial model: MLP weight {k}"))
                          for k, a in sur["state"].items()}
                 net.load_state_dict(state)
                 stale, n_fits = sur["stale"], sur["n_fits"]
