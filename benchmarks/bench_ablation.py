@@ -5,7 +5,7 @@
 The study: fast-middle and slow-middle x full, spatial, temporal, exact, ``--trials`` trials of
 ``--cycles`` cycles, the study's default search settings (what ``rapidds ablation`` runs). Each
 worker count gets a fresh LocalCluster (single-threaded worker processes) and a fresh store; the
-time counted is from submitting the first trial to storing the last (``run_study``); apart, the
+time counted is from submitting the first trial to storing the last (``run_ablation``); apart, the
 cluster's start, including each worker's imports and policy load (done before timing). The two
 runs must store identical records (the result does not depend on how many workers computed it).
 With --update-docs the "## Ablation study" section of docs/benchmarks.md is replaced (or added).
@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from _common import cpu_model, update_docs_section
 
-from rapidds.experiments.ablation import StudyConfig, dask_client, run_study, study_store
+from rapidds.experiments.ablation import AblationConfig, ablation_store, dask_client, run_ablation
 from rapidds.store import RunStore
 
 
@@ -54,7 +54,7 @@ def _records(path: Path) -> dict[str, list[dict]]:
 
 
 def measure(
-    study: StudyConfig, workers: int, root: Path
+    study: AblationConfig, workers: int, root: Path
 ) -> tuple[dict[str, float], str, dict[str, list[dict]]]:
     """(seconds: cluster start, study wall time, sum of trial times; load after; records)."""
     out = root / f"w{workers}"
@@ -64,8 +64,8 @@ def measure(
         client.run(_warm_up)  # imports and the policy: paid once per worker, not measured
         start = time.perf_counter() - t0
         cpu0 = client.run(time.process_time)
-        with study_store(out) as store:
-            res = run_study(study, store, client)
+        with ablation_store(out) as store:
+            res = run_ablation(study, store, client)
         cpu1 = client.run(time.process_time)
     assert res.ran == res.total, (res.ran, res.total)
     cpu = sum(cpu1[w] - cpu0.get(w, 0.0) for w in cpu1)
@@ -75,7 +75,7 @@ def measure(
 
 
 def run(trials: int, cycles: int) -> str:
-    study = StudyConfig(humans=("fast-middle", "slow-middle"),
+    study = AblationConfig(humans=("fast-middle", "slow-middle"),
                         levels=("full", "spatial", "temporal", "exact"), trials=trials,
                         cycles=cycles)
     n = trials * len(study.humans) * len(study.levels)

@@ -1,4 +1,5 @@
-"""Teammates who change (issue 17): how fast each model follows a person who changes at a cycle.
+"""Teammates who change (beyond the paper): how fast each model follows a person who changes
+at a cycle.
 
 Fetch, 24 cycles, the change at cycle 12 (``--at``). Kinds of change:
 

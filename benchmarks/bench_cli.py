@@ -87,8 +87,8 @@ def main() -> None:
         + (f" --base {args.base}`" if args.base else "`")
         + ": each command in a fresh process, CPU "
         f"time (user + system) of the child. Machine: {cpu_model()}, 2 cores; 1-min load average "
-        f"{load0} at start, {load_average()} at end. Goals (issue 11): `rapidds --help` under "
-        "0.5 s of CPU, `rapidds plan examples/fetch.yaml` under 1 s (issue 28: 0.6 s)"
+        f"{load0} at start, {load_average()} at end. Goals: `rapidds --help` under "
+        "0.5 s of CPU, `rapidds plan examples/fetch.yaml` under 0.6 s"
         + (", base and this tree interleaved run by run" if args.base else "") + ".\n\n"
         "| command | CPU s (median) | CPU s (max) | wall s (median) | heavy libraries imported |\n"
         "|---|---:|---:|---:|---|\n"

@@ -246,9 +246,10 @@ def main() -> None:
         "",
         split,
         "",
-        f"Against the issue's target (5x the steered samples/s at M = 8 and the policy's "
-        f"steps, same V): the fast network gives {speedup[(8, 32, None)]:.2f}x at 256 rows per "
-        f"pass and {speedup[(8, 4, None)]:.2f}x at 32; with fewer "
+        f"Against the target set for the fast network (5x the steered samples/s at M = 8 and "
+        f"the policy's steps, same V): the fast network gives "
+        f"{speedup[(8, 32, None)]:.2f}x at 256 rows per pass and "
+        f"{speedup[(8, 4, None)]:.2f}x at 32; with fewer "
         f"reverse steps on top, {speedup[(8, 32, 6)]:.2f}x with 6 steps and "
         f"{speedup[(8, 32, 4)]:.2f}x with 4 at 256 rows. Whether V stays the same at fewer "
         "steps is what the next table measures (the t3-beside-t2 V above is one request type).",

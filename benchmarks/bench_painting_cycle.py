@@ -6,7 +6,7 @@ process CPU time, one torch thread.
 Runs ``rapidds run painting --human left-slow --gamma 12 --cycles 7`` (full adaptation, the
 default search) in memory for each seed. The loop is single-threaded, so on a shared machine
 its CPU time is what the wall time would be on an idle core; both are reported, with the load.
-The target of issue 16 is a median of at most 2 s on 2 cores.
+The target is a median of at most 2 s on 2 cores.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ resident memory.
 
     .venv/bin/python benchmarks/bench_quality.py --before REV [--seeds 8] [--update-docs]
 
-REV is any commit of this repository (default: efc830e, main before the issue-14 work); it is
+REV is any commit of this repository (default: efc830e, main before the scheduler speed-ups); it is
 checked out into a temporary worktree and imported from there.
 """
 

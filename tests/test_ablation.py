@@ -21,16 +21,16 @@ import pytest
 from rapidds.errors import RapiddsError
 from rapidds.experiments.ablation import (
     LOCAL_WORKER_ENV,
-    StudyConfig,
+    AblationConfig,
+    ablation_store,
     dask_client,
-    run_study,
+    run_ablation,
     run_trial,
-    study_store,
 )
 from rapidds.experiments.report import (
-    StudyData,
+    AblationData,
     check_claims,
-    load_study,
+    load_ablation,
     paired_bootstrap,
     summarise,
     table_markdown,
@@ -42,7 +42,7 @@ from rapidds.store import RunStore
 HUMANS = ("fast-middle", "slow-outside")
 LEVELS = ("full", "none")
 SEARCH = dict(population=8, generations=4, samples=8, patience=2, particles=2, candidates=2)
-STUDY = StudyConfig(humans=HUMANS, levels=LEVELS, trials=2, cycles=4, **SEARCH)
+STUDY = AblationConfig(humans=HUMANS, levels=LEVELS, trials=2, cycles=4, **SEARCH)
 ARGS = ["--trials", "2", "--cycles", "4", "--humans", ",".join(HUMANS), "--adapt",
         ",".join(LEVELS), "--workers", "2",
         *[x for k, v in SEARCH.items() for x in (f"--{k}", str(v))]]
@@ -189,7 +189,7 @@ def test_killed_worker_loses_only_its_trial(serial, tmp_path):
             LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                          dashboard_address=":0", silence_logs=logging.ERROR) as cluster:
         killed: list[int] = []
-        with study_store(tmp_path / "w") as store, \
+        with ablation_store(tmp_path / "w") as store, \
                 dask_client(scheduler=cluster.scheduler_address) as client:
 
             def kill_one_worker(result: dict, stored: int, total: int) -> None:
@@ -199,7 +199,7 @@ def test_killed_worker_loses_only_its_trial(serial, tmp_path):
                     os.kill(victim, signal.SIGKILL)  # busy with the next trial right now
                     killed.append(victim)
 
-            outcome = run_study(STUDY, store, client, on_trial=kill_one_worker)
+            outcome = run_ablation(STUDY, store, client, on_trial=kill_one_worker)
             alive = set(client.run(os.getpid).values())
         assert killed and killed[0] not in alive
         assert outcome.ran == 8 and outcome.skipped == 0
@@ -216,7 +216,7 @@ def test_report_redraws_from_the_store_alone(study, tmp_path, capsys):
     assert json.loads(capsys.readouterr().out) == study[2]
     assert (out / "ablation.png").stat().st_size > 1000
     assert (out / "table.csv").read_text() == (study[0] / "table.csv").read_text()
-    data = load_study(out)
+    data = load_ablation(out)
     assert data.metric("fast-middle", "full").shape == (2, 4) and not data.incomplete
 
 
@@ -237,7 +237,7 @@ def test_bad_input_is_one_line_and_exit_2(study, tmp_path, capsys):
 
     assert _run(main, ["ablation", "--out", str(tmp_path / "a"), "--adapt", "full,bogus"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "unknown --adapt value 'bogus'" in err
+    assert err.count("\n") == 1 and "--adapt: unknown value 'bogus'" in err
     assert _run(main, ["report", str(tmp_path / "empty")]) == 2
     assert "holds no study" in capsys.readouterr().err
     # a folder holds one study: other cycles are refused before any cluster starts
@@ -248,17 +248,17 @@ def test_bad_input_is_one_line_and_exit_2(study, tmp_path, capsys):
     args[args.index("--cycles") + 1] = "6"
     assert _run(main, ["ablation", "--out", str(copy), *args]) == 2
     assert "other settings: cycles=4 (asked 6)" in capsys.readouterr().err
-    with study_store(tmp_path / "locked"), pytest.raises(RapiddsError, match="another"), \
-            study_store(tmp_path / "locked"):
+    with ablation_store(tmp_path / "locked"), pytest.raises(RapiddsError, match="another"), \
+            ablation_store(tmp_path / "locked"):
         pass
 
 
-def _synthetic(scores: dict[str, dict[str, list[float]]], cycles: int = 4) -> StudyData:
+def _synthetic(scores: dict[str, dict[str, list[float]]], cycles: int = 4) -> AblationData:
     """A study whose trial scores are given: every cycle of trial i costs scores[h][lv][i]."""
     trials = {h: {lv: {s: np.tile([v, 0.0, 0.0, 1.0, v], (cycles, 1))  # one column per METRICS
                        for s, v in enumerate(vals)} for lv, vals in cell.items()}
               for h, cell in scores.items()}
-    return StudyData(Path("."), cycles, {}, trials)
+    return AblationData(Path("."), cycles, {}, trials)
 
 
 def test_claims_check_counts_strict_wins_and_ties():

@@ -64,3 +64,22 @@ def test_carried_motions_survive_a_round_trip_of_the_state(fetch_policy, small):
         got, got_stamps = back.motions[key]
         assert got_stamps == stamps and got.duration == plan.duration
         np.testing.assert_array_equal(got.trajectory, plan.trajectory)
+
+
+def test_carried_trajectories_use_the_model_codec_and_old_lists_still_read() -> None:
+    """One codec for a model's arrays (rapidds.codec), bit-exact; a state stored before it
+    (trajectories as lists of floats) reads back the same."""
+    from rapidds.loop.carry import decode_plans, encode_plans
+    from rapidds.motion.interface import MotionPlan
+
+    traj = np.random.default_rng(0).normal(size=(16, 2))
+    carried = {("t3", frozenset({"t2"})): (MotionPlan("t3", frozenset({"t2"}), 4.25, 0.125, traj),
+                                          {"t2": "abc"})}
+    items = encode_plans(carried)
+    assert set(items[0]["trajectory"]) == {"dtype", "shape", "data"}
+    old = [{**items[0], "trajectory": traj.tolist()}]
+    for stored in (items, old):
+        (plan, stamps), = decode_plans(stored).values()
+        assert stamps == {"t2": "abc"} and plan.duration == 4.25
+        assert plan.trajectory.dtype == np.float64
+        np.testing.assert_array_equal(plan.trajectory, traj)

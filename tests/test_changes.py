@@ -1,4 +1,4 @@
-"""Teammates who change (issue 17): changing simulated people, forgetting, change detection,
+"""Teammates who change (beyond the paper): changing simulated people, forgetting, change detection,
 questions, and runs that store and resume all of it."""
 
 from __future__ import annotations

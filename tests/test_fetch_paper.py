@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rapidds.experiments.ablation import StudyConfig
+from rapidds.experiments.ablation import AblationConfig
 from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.deploy import deploy
 from rapidds.loop.model import oracle_spatial, prior_model, workspace_cost
@@ -19,7 +19,7 @@ from rapidds.scheduler import solve_exact
 from rapidds.worlds.fetch import FetchWorld
 
 SEEDS = range(12)
-_S = StudyConfig()
+_S = AblationConfig()
 STUDY_SEARCH = dict(population=_S.population, generations=_S.generations, samples=_S.samples,
                     patience=_S.patience, particles=_S.particles, candidates=_S.candidates)
 GAMMA = 1.75  # the paper's ablation

@@ -45,7 +45,7 @@ precedence:
 objective: {gamma: 1.75, lambda: 0.0}
 """
 
-# The problem file exactly as the foundation issue gives it.
+# The problem file exactly as the first specification of the file format gives it.
 ISSUE_LITERAL = """\
 name: four-fetch
 tasks:

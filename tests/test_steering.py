@@ -1,4 +1,4 @@
-"""SVDD-PM steering (the issue's acceptance): it lowers V against unsteered sampling on the same
+"""SVDD-PM steering (its acceptance checks): it lowers V against unsteered sampling on the same
 seeds, moves samples off a route covered by a person's spatial cost while plain sampling keeps
 both routes, prefers the quicker route when V is completion time only (gamma = 0), and costs M
 network passes per step, all candidates in one batch.

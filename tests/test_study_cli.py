@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +18,7 @@ from rapidds.experiments.study.analyze import analyze_study, round_table
 from rapidds.experiments.study.design import StudyDesign
 from rapidds.experiments.study.simulate import simulated_participant
 from rapidds.experiments.study.store import StudyStore, study_path
-from rapidds.experiments.study.systems import ADAPTATION
+from rapidds.experiments.study.systems import adapts
 from rapidds.worlds.registry import make_world
 
 TINY = ["--population", "6", "--generations", "2", "--samples", "8", "--particles", "1",
@@ -106,11 +108,15 @@ def test_design_with_own_items_and_foreign_store(tmp_path, capsys):
     _one_line(code, err, "no such study store")
 
 
-def test_cli_default_systems_are_the_studys():
-    from rapidds.cli.study import SYSTEMS_DEFAULT
-    from rapidds.experiments.study.systems import SYSTEMS
-
-    assert ",".join(SYSTEMS) == SYSTEMS_DEFAULT
+def test_the_study_package_loads_its_statistics_only_when_asked():
+    """The CLI reads the study's systems from the package itself (no copy), so importing it
+    must not load pingouin; asking for a statistic does."""
+    code = ("import sys, rapidds.cli.study, rapidds.experiments.study as s\n"
+            "print('pingouin' in sys.modules, end=' ')\ns.rm_anova_2x2\n"
+            "print('pingouin' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert out.stdout.split() == ["False", "True"]
 
 
 def test_simulated_participants_are_individuals_of_their_group():
@@ -173,7 +179,7 @@ def _planted_store(out: Path, spatial_effect: float, seed: int = 0) -> None:
     with StudyStore.create(study_path(out), design, run) as st:
         for p in st.participants():
             for system in p.systems:
-                spatial = ADAPTATION[system][0]
+                spatial = adapts(system, "spatial")
                 recs = []
                 for k in range(design.rounds):
                     drop = spatial_effect * (k > 0) if spatial else 0.0
@@ -188,7 +194,7 @@ def _planted_store(out: Path, spatial_effect: float, seed: int = 0) -> None:
                 else:
                     answers["robot_in_the_way"] = int(rng.integers(5, 8))
                 st.submit_survey(p.id, system, answers)
-            ranking = sorted(p.systems, key=lambda s: (not ADAPTATION[s][0], rng.random()))
+            ranking = sorted(p.systems, key=lambda s: (not adapts(s, "spatial"), rng.random()))
             st.submit_ranking(p.id, ranking)
             st.submit_demographics(p.id, {"age": "22"})
 

@@ -18,6 +18,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import ProblemError
+from rapidds.settings import error_line
 
 Agent = Literal["human", "robot"]
 AGENTS: tuple[Agent, Agent] = ("human", "robot")
@@ -277,10 +278,8 @@ def problem_from_dict(raw: Any, source: str = "problem") -> Problem:
     try:
         spec = _ProblemSpec.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = _location(tuple(err["loc"]), raw)
-        msg = err["msg"].removeprefix("Value error, ")
-        raise ProblemError(f"{source}: {where}: {msg}") from None
+        line = error_line(exc, locate=lambda loc: _location(loc, raw))
+        raise ProblemError(f"{source}: {line}") from None
     tasks = tuple(
         Task(
             id=t.id,

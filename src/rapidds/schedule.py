@@ -40,6 +40,18 @@ def parse_item(text: str) -> Item:
     return Wait(text[5:]) if text.startswith("wait:") else text
 
 
+def task_items(items: Iterable[str]) -> list[str]:
+    """The tasks of a sequence written as text (a stored record's), its waits left out."""
+    return [t for t in items if not isinstance(parse_item(t), Wait)]
+
+
+def item_json(item: Item | str) -> dict[str, str]:
+    """An item as structured data for a reader outside Python (the browser): ``{"task": t}`` or
+    ``{"wait": t}``, so no one else needs to know how a wait is written as text."""
+    item = parse_item(item) if isinstance(item, str) else item
+    return {"wait": item.task} if isinstance(item, Wait) else {"task": item}
+
+
 @dataclass(frozen=True)
 class Schedule:
     """Per-agent sequences. Hashable, so it can key caches and deduplicate a population."""

@@ -1,44 +1,132 @@
 """Declarative settings: pydantic models whose validation errors are one readable line.
 
-Every user-facing configuration (a run, a study, a world's options) derives from
-:class:`Settings`: fields declare their bounds, and a bad value raises
-:class:`~rapidds.errors.ConfigError` naming the option as the CLI spells it.
+Every configuration, user-facing (a run, a study, a world's options) or internal (the genetic
+search, the spatial model, the diffusion policy, steering), derives from :class:`Settings`:
+fields declare their bounds, and a bad value raises :class:`~rapidds.errors.ConfigError` (also a
+``ValueError``), one line naming the option. :func:`error_line` is the one place a pydantic
+``ValidationError`` becomes a line of text, here and for the other validated inputs (problem
+files, browser messages, study forms).
 """
 
 from __future__ import annotations
 
+import numbers
+import operator
 import os
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
 
 from rapidds.errors import ConfigError
 
-__all__ = ["Settings", "first_error", "memory_bytes", "read_yaml", "require_memory"]
+__all__ = ["Flag", "Int", "Real", "Settings", "error_line", "memory_bytes", "read_yaml",
+           "require_memory"]
 
 
-def first_error(exc: ValidationError) -> str:
-    """``--option: what is wrong`` for the first error of a pydantic validation."""
+def _bool_like(v: Any) -> bool:
+    return isinstance(v, bool) or type(v).__name__ == "bool_"  # numpy's, without importing it
+
+
+def _int(v: Any) -> int:
+    """An int or a numpy integer; never a bool, a float (3.0 included) or a string."""
+    if _bool_like(v) or isinstance(v, float | str | bytes):
+        raise ValueError("must be an integer")
+    try:
+        return operator.index(v)
+    except TypeError:
+        raise ValueError("must be an integer") from None
+
+
+def _real(v: Any) -> float:
+    """An int, a float or a numpy number as a float; never a bool or a string."""
+    if _bool_like(v) or not isinstance(v, numbers.Real):
+        raise ValueError("must be a number")
+    return float(v)
+
+
+def _flag(v: Any) -> bool:
+    """True or False (numpy's included); never 1, 0 or "yes"."""
+    if not _bool_like(v):
+        raise ValueError("must be true or false")
+    return bool(v)
+
+
+# Strict scalar types: pydantic's lax mode would take True for 1, "1.5" for 1.5 and "yes" for
+# True; the hand checks these replace refused all three, and accepted numpy scalars.
+Int = Annotated[int, BeforeValidator(_int)]
+Real = Annotated[float, BeforeValidator(_real)]
+Flag = Annotated[bool, BeforeValidator(_flag)]
+
+
+def _loc_text(loc: tuple[Any, ...]) -> str:
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+def error_line(exc: ValidationError, *, prefix: str = "", option: bool = False,
+               skip: int = 0, quote: bool = False, with_input: bool = False,
+               empty: str = "", names: Mapping[str, str] | None = None, unknown: str = "",
+               locate: Callable[[tuple[Any, ...]], str] | None = None) -> str:
+    """One line for the first error of a pydantic validation: ``where: what (got value)``.
+
+    prefix: put before the place (e.g. ``GAConfig.``); option: name the place as a CLI option
+    (``--grid-points``); skip: leading parts of the place to drop (a wrapper's field); quote:
+    quote the place ('name'); with_input: append the offending value; empty: the place named
+    when the error is about the whole input; names: another name for a field (the CLI's option
+    where it differs from the field's); unknown: what an unknown field is called instead of
+    pydantic's words; locate: turns the place into words itself (a
+    problem file names a task by its id, not its index).
+    """
     err = exc.errors()[0]
-    loc = ".".join(str(x) for x in err["loc"])
-    name = f"--{loc.replace('_', '-')}" if loc else "settings"
-    msg = err["msg"]
-    if err["type"] == "extra_forbidden":
-        msg = "unknown setting"
-    return f"{name}: {msg}" + (f" (got {err['input']!r})" if "input" in err and loc else "")
+    loc = tuple(err["loc"])[skip:]
+    if names and loc and loc[0] in names:
+        loc = (names[loc[0]], *loc[1:])
+    msg = str(err["msg"])
+    for tag in ("Value error, ", "Assertion failed, "):
+        msg = msg.removeprefix(tag)
+    if err["type"] == "extra_forbidden" and unknown:
+        msg = unknown
+    if locate is not None:
+        where = locate(loc)
+    elif option and loc:
+        where = "--" + _loc_text(loc).replace("_", "-")
+    else:
+        where = _loc_text(loc)
+    if where and quote:
+        where = f"'{where}'"
+    where = prefix + where if where else prefix.rstrip(". ") or empty
+    got = f" (got {err['input']!r})" if with_input and loc and "input" in err else ""
+    return f"{where}: {msg}{got}" if where else f"{msg}{got}"
 
 
 class Settings(BaseModel):
-    """Frozen, no unknown fields, NaN and infinity refused; errors as one line."""
+    """Frozen, no unknown fields, NaN and infinity refused; errors as one ConfigError line.
+
+    ``label`` names the model in its errors (``GAConfig.population: ...``); without it the
+    fields are named as the CLI's options (``--population: ...``), for the settings a user types.
+    """
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+    label: ClassVar[str | None] = None
+    options: ClassVar[dict[str, str]] = {}  # field -> the CLI's option, where they differ
 
     def __init__(self, **data: Any) -> None:
         try:
             super().__init__(**data)
         except ValidationError as exc:
-            raise ConfigError(first_error(exc)) from None
+            raise ConfigError(self.error(exc)) from None
+
+    @classmethod
+    def error(cls, exc: ValidationError) -> str:
+        """The one line this model's validation error reads as."""
+        if cls.label is None:
+            return error_line(exc, option=True, with_input=True, empty="settings",
+                              names=cls.options, unknown="unknown setting")
+        return error_line(exc, prefix=f"{cls.label}.", with_input=True, unknown="unknown field")
 
     def replace(self, **changes: Any) -> Any:
         """A validated copy with ``changes`` applied."""

@@ -35,7 +35,7 @@ import os
 import sqlite3
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -73,6 +73,29 @@ CREATE TABLE IF NOT EXISTS arrays (
     FOREIGN KEY (run_id, cycle) REFERENCES cycles(run_id, cycle)
 );
 """
+
+
+PATH_KINDS = ("robot", "human")
+"""The agents whose paths a cycle stores, each path as the array ``KIND/TASK``."""
+
+
+def path_arrays(robot: Mapping[str, np.ndarray], human: Mapping[str, np.ndarray]
+                ) -> dict[str, np.ndarray]:
+    """A cycle's arrays to store: each robot motion's and each human task's path, by task. The
+    one writer of the array names; :func:`cycle_paths` is their one reader."""
+    return {f"{kind}/{task}": path for kind, paths in zip(PATH_KINDS, (robot, human), strict=True)
+            for task, path in paths.items()}
+
+
+def cycle_paths(arrays: Mapping[str, np.ndarray]) -> dict[str, dict[str, np.ndarray]]:
+    """``{"robot": {task: path}, "human": {task: path}}`` from a cycle's stored arrays (as
+    :meth:`RunStore.arrays` returns them); arrays of other names are left out."""
+    out: dict[str, dict[str, np.ndarray]] = {kind: {} for kind in PATH_KINDS}
+    for name, arr in arrays.items():
+        kind, sep, task = name.partition("/")
+        if sep and kind in out:
+            out[kind][task] = arr
+    return out
 
 
 def _npy(a: np.ndarray) -> bytes:

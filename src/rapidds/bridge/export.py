@@ -29,6 +29,7 @@ import numpy as np
 
 from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage
+from rapidds.store import cycle_paths
 from rapidds.worlds.base import World, body_point_names, body_points, joint_names
 
 __all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "human_task_messages", "path_topic",
@@ -126,9 +127,9 @@ def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str,
         if task in agent_of:
             out += [_event(task, agent_of[task], "start", epoch_ns + _ns(start)),
                     _event(task, agent_of[task], "end", epoch_ns + _ns(end))]
-    robot = {k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith("robot/")}
-    human = {k.split("/", 1)[1]: body_points(v) for k, v in arrays.items()
-             if k.startswith("human/")}
+    paths = cycle_paths(arrays)
+    robot = paths["robot"]
+    human = {t: body_points(v) for t, v in paths["human"].items()}
     for task, q in robot.items():
         begin = epoch_ns + _ns(times[task][0])
         out.append(BagMessage(ros2.TRAJECTORY_TOPIC, "trajectory_msgs/msg/JointTrajectory",
@@ -174,8 +175,7 @@ def run_messages(world: World, records: list[dict[str, Any]],
             yield from cycle_messages(world, rec, arrays, spatial_of(rec["cycle"]), epoch,
                                       dict(last_paths))
             epoch += _ns(rec["realised"]["makespan"] + CYCLE_GAP_S)
-        last_paths.update({k.split("/", 1)[1]: v for k, v in arrays.items()
-                           if k.startswith("human/")})
+        last_paths.update(cycle_paths(arrays)["human"])
 
 
 def export_run(store: Any, run_id: str, world: World, out: Any,

@@ -6,7 +6,8 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
+from typing import Any
 
 Update = Callable[[int, str], None]
 """update(done, info): ``done`` units of ``total`` finished; ``info`` a short status."""
@@ -58,3 +59,35 @@ def progress(label: str, total: int, *, quiet: bool = False,
     yield update
     if time.monotonic() - t0 >= every:
         log(final=True)
+
+
+class TrialProgress:
+    """:func:`progress` for a study on Dask (the ablation, the simulated user study): the total
+    is known only once the stored trials are counted (``on_start``), and each finished trial
+    (``on_trial``) is logged as it is stored, since trials take minutes and logs are read later.
+    """
+
+    def __init__(self, noun: str = "trials") -> None:
+        self.noun = noun
+        self._stack = ExitStack()
+        self._update: Update = lambda done, info: None
+
+    def __enter__(self) -> TrialProgress:
+        self._stack.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stack.__exit__(*exc)
+
+    def on_start(self, total: int, skipped: int) -> None:
+        if skipped:
+            print(f"{skipped} of {total} {self.noun} already stored; running the other "
+                  f"{total - skipped}", file=sys.stderr, flush=True)
+        self._update = self._stack.enter_context(progress(self.noun, total, every=0.0))
+        self._update(skipped, "")
+
+    def on_trial(self, result: dict[str, Any], stored: int, total: int) -> None:
+        last = result["records"][-min(4, len(result["records"])):]
+        cost = sum(r["realised"]["cost"] for r in last) / len(last)
+        self._update(stored, f"{result['run_id']} {result['seconds']:.0f} s, "
+                             f"last-4 cost {cost:.2f}")

@@ -6,18 +6,19 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import typer
 
 from rapidds.cli import app
-from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, StudyConfig
+from rapidds.cli._progress import TrialProgress
+from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, AblationConfig
 from rapidds.loop.config import ADAPT_LEVELS
 
 if TYPE_CHECKING:
     from rich.console import Console
 
-_S = StudyConfig()
+_S = AblationConfig()
 
 
 def _split(value: str) -> tuple[str, ...]:
@@ -27,13 +28,13 @@ def _split(value: str) -> tuple[str, ...]:
 def _print_report(out: Path, as_json: bool, console: Console) -> None:
     from rapidds.experiments.report import (
         claims_markdown,
-        load_study,
+        load_ablation,
         table_markdown,
         table_rows,
         write_report,
     )
 
-    data = load_study(out)
+    data = load_ablation(out)
     paths = write_report(data)
     summary = json.loads(paths["summary"].read_text())
     if as_json:
@@ -81,15 +82,15 @@ def ablation_cmd(
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
     from rapidds.experiments.ablation import (
+        ablation_store,
         check_scheduler_address,
         check_settings,
         dask_client,
-        log_session,
-        run_study,
-        study_store,
+        run_ablation,
     )
+    from rapidds.experiments.sessions import log_session
 
-    study = StudyConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
+    study = AblationConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
                         cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
                         generations=generations, samples=samples, patience=patience,
                         particles=particles, candidates=candidates)
@@ -100,62 +101,20 @@ def ablation_cmd(
     where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
     if scheduler:
         check_scheduler_address(scheduler)  # before the study's folder is made
-    with study_store(out) as store:
+    with ablation_store(out) as store:
         check_settings(study, store)  # before starting a cluster for nothing
         try:
-            with dask_client(workers, scheduler) as client, _Progress(err) as bar:
-                outcome = run_study(study, store, client, bar.on_trial, bar.on_start)
+            with dask_client(workers, scheduler) as client, TrialProgress() as bar:
+                outcome = run_ablation(study, store, client, bar.on_trial, bar.on_start)
         except KeyboardInterrupt:
             n = len(store.run_ids())
             err.print(f"interrupted; {n} trials are stored in {out}; rerun the same command "
                       "to finish", highlight=False)
             raise typer.Exit(130) from None
-    log_session(out, study, outcome, where)
+    log_session(out, outcome, where, study=study.model_dump())
     err.print(f"{outcome.ran} trials run, {outcome.skipped} already stored, "
               f"{outcome.wall_s:.1f} s on {outcome.workers} workers ({where})", highlight=False)
     _print_report(out, as_json, console)
-
-
-class _Progress:
-    """A bar counting stored trials on a terminal; one line per trial otherwise (logs)."""
-
-    def __init__(self, err: Console):
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.err = err
-        self.bar = Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(),
-                            TimeElapsedColumn(), TimeRemainingColumn(),
-                            TextColumn("{task.fields[info]}"), console=err, transient=False,
-                            disable=not err.is_terminal)
-        self.task: Any = None
-
-    def __enter__(self) -> _Progress:
-        self.bar.__enter__()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.bar.__exit__(None, None, None)
-
-    def on_start(self, total: int, skipped: int) -> None:
-        self.task = self.bar.add_task("trials", total=total, completed=skipped, info="")
-        if skipped:
-            self.err.print(f"{skipped} of {total} trials already stored; running the other "
-                           f"{total - skipped}", highlight=False)
-
-    def on_trial(self, result: dict[str, Any], stored: int, total: int) -> None:
-        last = result["records"][-min(4, len(result["records"])):]
-        cost = sum(r["realised"]["cost"] for r in last) / len(last)
-        info = f"{result['run_id']} {result['seconds']:.0f} s, last-4 cost {cost:.2f}"
-        self.bar.update(self.task, completed=stored, info=info)
-        if not self.err.is_terminal:
-            self.err.print(f"[{stored}/{total}] {info}", highlight=False, markup=False)
 
 
 @app.command("report")

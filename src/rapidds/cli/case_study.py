@@ -6,10 +6,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app, fail
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from rapidds.experiments.painting import Setting
+    from rapidds.motion.policy import DiffusionPolicy
 
 _STUDIES = ("painting",)
 _SETTINGS = "unconstrained-g12,constrained-g12,unconstrained-g25,unconstrained-g85"
@@ -37,18 +44,14 @@ def case_study_cmd(
         fail(f"no case study for world {world!r}; case studies: {', '.join(_STUDIES)}")
     from rich.console import Console
 
-    from rapidds.cli.run import console, execute, set_threads
+    from rapidds.cli.run import console, set_threads
     from rapidds.experiments.painting import (
         check_setting_names,
-        save_cycle_gif,
-        save_frames,
-        setting_behaviours,
         table_markdown,
         table_rows,
         write_tables,
     )
     from rapidds.loop.run import load_policy
-    from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
     chosen = check_setting_names([s.strip() for s in settings.split(",") if s.strip()])
@@ -64,27 +67,8 @@ def case_study_cmd(
     runs = {}
     behaviours = {}
     for setting in chosen:
-        cfg = setting.config(human, seed, cycles)
-        sub = out / setting.name
-        rid = cfg.resolved(make_world(world, setting.variant)).run_id
-        resume = False
-        if (sub / "run.sqlite").exists():
-            with RunStore.open_readonly(sub / "run.sqlite") as st:
-                resume = st.last_cycle(rid) is not None
-        run = execute(cfg, policy, sub, resume, False, con,
-                      title=f"{setting.name}, teammate {human}, seed {seed}")
-        assert run.store is not None
-        records = run.store.records(rid)
-        runs[setting] = records
-        behaviours[setting.name] = [
-            {"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),
-             "shown": list(b.shown), "holds": b.holds}
-            for b in setting_behaviours(run.world, setting, human, records)]
-        last = records[-1]
-        arrays = run.store.arrays(rid, last["cycle"])
-        save_frames(run.world, last, arrays, sub / rid)
-        if gif:
-            save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last['cycle']:02d}.gif")
+        runs[setting], behaviours[setting.name] = _run_setting(
+            setting, world, human, seed, cycles, out / setting.name, policy, gif, con)
     rows = table_rows(w, human, runs)
     md, cs = write_tables(out, rows)
     if as_json:
@@ -97,3 +81,34 @@ def case_study_cmd(
                       f"{'holds' if b['holds'] else 'does not hold'} "
                       f"(shown in cycles {b['shown'] or '-'} of {b['tested']})", highlight=False)
     con.print(f"wrote {md}, {cs} and one folder per setting in {out}", highlight=False)
+
+
+def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: int, sub: Path,
+                 policy: DiffusionPolicy, gif: bool, con: Console
+                 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Run (or resume) one setting in its folder ``sub`` and draw its last cycle; its records
+    and the paper's behaviours tested on them."""
+    from rapidds.cli.run import execute
+    from rapidds.experiments.painting import save_cycle_gif, save_frames, setting_behaviours
+    from rapidds.store import RunStore
+    from rapidds.worlds.registry import make_world
+
+    cfg = setting.config(human, seed, cycles)
+    rid = cfg.resolved(make_world(world, setting.variant)).run_id
+    resume = False
+    if (sub / "run.sqlite").exists():
+        with RunStore.open_readonly(sub / "run.sqlite") as st:
+            resume = st.last_cycle(rid) is not None
+    run = execute(cfg, policy, sub, resume, False, con,
+                  title=f"{setting.name}, teammate {human}, seed {seed}")
+    assert run.store is not None
+    records = run.store.records(rid)
+    behaviours = [{"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),
+                   "shown": list(b.shown), "holds": b.holds}
+                  for b in setting_behaviours(run.world, setting, human, records)]
+    last = records[-1]
+    arrays = run.store.arrays(rid, last["cycle"])
+    save_frames(run.world, last, arrays, sub / rid)
+    if gif:
+        save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last['cycle']:02d}.gif")
+    return records, behaviours

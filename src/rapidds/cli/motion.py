@@ -21,6 +21,8 @@ from rapidds.errors import RapiddsError
 if TYPE_CHECKING:  # imported where used: `rapidds --help` does not pay for numpy
     import numpy as np
 
+    from rapidds.motion.policy import DiffusionPolicy
+
 
 def _read_config_file(path: Path) -> dict[str, Any]:
     from rapidds.motion.config import ConfigError
@@ -322,15 +324,24 @@ def sample_cmd(
     if policy_dir is None:
         fail("--policy is required without --world")
         return
+    _sample_from_checkpoint(policy_dir, task, n, seed, start, steer_cost or [], gamma, beta,
+                            candidates, alpha, tol, dt, device, as_json, out)
+
+
+def _sample_from_checkpoint(
+    policy_dir: Path, task: str, n: int, seed: int, start: str | None, steer_cost: list[str],
+    gamma: float, beta: float, candidates: int, alpha: float, tol: float | None, dt: float,
+    device: str | None, as_json: bool, out: Path | None,
+) -> None:
+    """``sample`` without a world: a checkpoint, people given as paths, the completion time
+    with a tolerance."""
     import numpy as np
 
-    from rapidds.motion.config import ConfigError, cpu_threads
+    from rapidds.motion.config import ConfigError
     from rapidds.motion.policy import DiffusionPolicy
     from rapidds.motion.steering import (
         completion_index,
         proximity_cost,
-        require_finite,
-        steer,
         value_function,
     )
 
@@ -349,24 +360,11 @@ def sample_cmd(
         norm = policy.normalizer
         extent = float(np.max(norm.high - norm.low)) or 1.0
         tol_v = 0.1 * extent if tol is None else tol
-        people = [_parse_path(s, cfg.state_dim) for s in steer_cost or []]
+        people = [_parse_path(s, cfg.state_dim) for s in steer_cost]
         value_fn = value_function([proximity_cost(p, beta) for p in people], gamma, tol=tol_v,
                                   dt=dt)
-        threads = cpu_threads(cfg.cpu_threads if policy.device.type == "cpu" else 0)
-        if people:
-            if cfg.sampler == "ddim" and cfg.ddim_eta == 0 and candidates > 1:
-                raise ConfigError("this policy samples with deterministic DDIM (ddim_eta = 0); "
-                                  "SVDD steering needs a stochastic sampler")
-            with threads:
-                result = steer(policy, task, n, value_fn, num_candidates=candidates,
-                               alpha=alpha, start=start_arr, generator=seed)
-            trajs, values = result.trajectories, result.values
-            passes = result.stats.network_passes
-        else:
-            with threads:
-                trajs = require_finite(policy.sample(task, n, start=start_arr, generator=seed))
-            values = value_fn(trajs)
-            passes = cfg.num_inference_steps
+        trajs, values, passes = _draw_samples(policy, task, n, value_fn, bool(people),
+                                              candidates, alpha, start_arr, seed)
         if out is not None:
             pad = 0.1 * extent
             pts = np.concatenate([trajs.reshape(-1, cfg.state_dim), *people], axis=0)
@@ -379,25 +377,56 @@ def sample_cmd(
         return
 
     completion = completion_index(trajs, tol_v)
-    if as_json:
-        typer.echo(json.dumps({
-            "policy": str(policy_dir), "task": task, "n": n, "seed": seed,
-            "steered": bool(people), "gamma": gamma, "beta": beta, "tol": tol_v, "dt": dt,
-            "candidates": candidates if people else 1, "network_passes": passes,
-            "completion_index": completion.tolist(), "values": values.tolist(),
-            "trajectories": trajs.tolist(), "picture": None if out is None else str(out),
-        }, allow_nan=False))
+    if not as_json:
+        _print_samples(task, trajs, values, completion * dt, passes, bool(people), out)
         return
+    typer.echo(json.dumps({
+        "policy": str(policy_dir), "task": task, "n": n, "seed": seed,
+        "steered": bool(people), "gamma": gamma, "beta": beta, "tol": tol_v, "dt": dt,
+        "candidates": candidates if people else 1, "network_passes": passes,
+        "completion_index": completion.tolist(), "values": values.tolist(),
+        "trajectories": trajs.tolist(), "picture": None if out is None else str(out),
+    }, allow_nan=False))
+
+
+def _draw_samples(policy: DiffusionPolicy, task: str, n: int, value_fn: Any, steered: bool,
+                  candidates: int, alpha: float, start: np.ndarray | None, seed: int
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
+    """``n`` trajectories (steered by ``value_fn`` or plain), their values V and the network
+    passes one sample took."""
+    from rapidds.motion.config import ConfigError, cpu_threads
+    from rapidds.motion.steering import require_finite, steer
+
+    cfg = policy.config
+    threads = cpu_threads(cfg.cpu_threads if policy.device.type == "cpu" else 0)
+    if not steered:
+        with threads:
+            trajs = require_finite(policy.sample(task, n, start=start, generator=seed))
+        return trajs, value_fn(trajs), cfg.num_inference_steps
+    if cfg.sampler == "ddim" and cfg.ddim_eta == 0 and candidates > 1:
+        raise ConfigError("this policy samples with deterministic DDIM (ddim_eta = 0); "
+                          "SVDD steering needs a stochastic sampler")
+    with threads:
+        result = steer(policy, task, n, value_fn, num_candidates=candidates, alpha=alpha,
+                       start=start, generator=seed)
+    return result.trajectories, result.values, result.stats.network_passes
+
+
+def _print_samples(task: str, trajs: np.ndarray, values: np.ndarray, completion_s: np.ndarray,
+                   passes: int, steered: bool, out: Path | None) -> None:
+    """The samples as a table: completion time, path length, end point and V of each."""
+    import numpy as np
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"{n} {'steered ' if people else ''}samples of task {task!r}")
+    n = len(trajs)
+    table = Table(title=f"{n} {'steered ' if steered else ''}samples of task {task!r}")
     for col in ("#", "completion (s)", "path length", "end", "V"):
         table.add_column(col, justify="right")
     lengths = np.linalg.norm(np.diff(trajs, axis=1), axis=-1).sum(axis=1)
     for k in range(n):
         end = ", ".join(f"{v:.2f}" for v in trajs[k, -1])
-        table.add_row(str(k), f"{completion[k] * dt:.1f}", f"{lengths[k]:.3f}", f"({end})",
+        table.add_row(str(k), f"{completion_s[k]:.1f}", f"{lengths[k]:.3f}", f"({end})",
                       f"{values[k]:.3f}")
     Console(width=100).print(table)
     typer.echo(f"mean V {np.mean(values):.3f} ({passes} network passes per sample)")

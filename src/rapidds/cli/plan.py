@@ -32,7 +32,6 @@ if TYPE_CHECKING:
     from rapidds.scheduler import Evaluation
 
 _GA = GAConfig()  # the defaults shown in --help are the scheduler's own
-SAMPLING_METHODS = ("predictive", "plugin")  # rapidds.human.temporal's, without importing it
 
 
 def sample_durations(
@@ -71,6 +70,8 @@ def _check_options(
     for name, w in (("--gamma", gamma), ("--lam", lam)):
         if w is not None and not (math.isfinite(w) and w >= 0):
             fail(f"{name} must be a finite number >= 0, got {w}")
+    from rapidds.human.temporal import SAMPLING_METHODS  # numpy: not at import (--help)
+
     if sampling not in SAMPLING_METHODS:
         fail(f"--sampling must be one of {', '.join(SAMPLING_METHODS)}, got {sampling!r}")
     if not (math.isfinite(time_limit) and time_limit > 0):

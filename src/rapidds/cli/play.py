@@ -108,7 +108,7 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
              resume: bool, threads: int) -> PlaySession:
     """The person's run: the fetch world, the policy, the player; Gantt charts and the run's
     pictures drawn when the game stops, as ``rapidds run`` draws them."""
-    from rapidds.cli.run import gantt_path, set_threads, write_pictures
+    from rapidds.cli.run import set_threads, write_pictures
     from rapidds.loop.run import load_policy
     from rapidds.web.player import BrowserPlayer
     from rapidds.web.session import PlaySession
@@ -128,6 +128,7 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
 
     def on_stop(run: AdaptiveRun) -> None:
         from rapidds.plots.gantt import save_gantt
+        from rapidds.plots.run import gantt_path
 
         rid = run.config.run_id
         for res in played:

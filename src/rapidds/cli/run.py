@@ -62,49 +62,22 @@ def _line(cells: list[str]) -> str:
 
 
 def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
-    """Cost curve over all stored cycles and the map of the latest cycle in each of the world's
-    views (the first ``{run}-map.png``, others ``{run}-map-{view}.png``), named after the run
-    (two runs in one folder keep their own pictures)."""
-    from functools import partial
-
-    import numpy as np
-
-    from rapidds.plots.curves import plot_run_costs
-    from rapidds.plots.run import save_cycle_map
+    """The run's pictures (:func:`rapidds.plots.run.save_run_pictures`) from its store."""
+    from rapidds.plots.run import save_run_pictures
 
     assert run.store is not None
     rid = run.config.run_id
     records = run.store.records(rid)
-    written = []
-    if records:
-        written.append(plot_run_costs(records, out / f"{rid}-cost.png", run.config.exploration_end))
-        rec = records[-1]
-        arrays = run.store.arrays(rid, rec["cycle"])
-        world = run.world
-        for k, (view, axes) in enumerate(world.views.items()):
-            name = f"{rid}-map.png" if k == 0 else f"{rid}-map-{view}.png"
-            written.append(save_cycle_map(
-                run.model.spatial, out / name,
-                human_paths={key.split("/", 1)[1]: v for key, v in arrays.items()
-                             if key.startswith("human/")},
-                robot_paths={key.split("/", 1)[1]: np.swapaxes(world.robot_points(v), 0, 1)
-                             for key, v in arrays.items() if key.startswith("robot/")},
-                overlaps=rec["realised"]["overlaps"],
-                scene=partial(world.draw, view=view), axes=axes,
-                title=f"{rid}, cycle {rec['cycle']} ({view}): learned spatial cost, "
-                      "human (gold) and concurrent robot (blue) paths",
-            ))
-    return written
-
-
-def gantt_path(out: Path, run_id: str, cycle: int) -> Path:
-    return out / "gantt" / f"{run_id}-cycle-{cycle:02d}.png"
+    arrays = run.store.arrays(rid, records[-1]["cycle"]) if records else {}
+    return save_run_pictures(out, rid, records, arrays, run.model.spatial, run.world,
+                             run.config.exploration_end)
 
 
 def redraw_missing_gantts(run: AdaptiveRun, out: Path) -> None:
     """Charts of stored cycles that a kill left undrawn (a cycle is stored before its chart)."""
     from rapidds.loop.run import timeline_of
     from rapidds.plots.gantt import save_gantt
+    from rapidds.plots.run import gantt_path
 
     assert run.store is not None
     rid = run.config.run_id
@@ -125,6 +98,7 @@ def execute(
 
     from rapidds.loop.run import AdaptiveRun
     from rapidds.plots.gantt import save_gantt
+    from rapidds.plots.run import gantt_path
     from rapidds.store import RunStore
 
     store = RunStore(out / "run.sqlite", lock_as="rapidds run") if out is not None else None

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app
+from rapidds.experiments.ablation import AblationConfig
+from rapidds.experiments.study.systems import SYSTEMS
 
 if TYPE_CHECKING:
     from rapidds.experiments.study.design import StudyDesign
@@ -26,9 +27,7 @@ study_app = typer.Typer(name="study", help="User studies: design, serve, simulat
 app.add_typer(study_app, name="study")
 
 
-SYSTEMS_DEFAULT = "full,spatial,temporal,none"
-"""``",".join(rapidds.experiments.study.systems.SYSTEMS)`` (a test checks): spelled out because
-importing that package loads the statistics (pingouin, matplotlib), which ``--help`` must not."""
+SYSTEMS_DEFAULT = ",".join(SYSTEMS)
 
 
 def _split(value: str) -> tuple[str, ...]:
@@ -48,12 +47,13 @@ _SEED = typer.Option(0, help="Study seed: which participant gets which order and
 _ITEMS = typer.Option(None, help="Survey items file (YAML: items: [{id, text}, ...]); default: "
                       "Hoffman's fluency items + 'The robot got in the way of me completing my "
                       "tasks'. Stored in the study.")
-_POP = typer.Option(24, help="GA population C.")
-_GEN = typer.Option(40, help="GA generations G.")
-_SAMPLES = typer.Option(32, help="Monte-Carlo duration samples K.")
-_PARTICLES = typer.Option(2, help="Steered samples per motion request B (2 x 4 as in the "
-                          "ablation: 2.5x faster than the loop's 4 x 8 on painting).")
-_CANDIDATES = typer.Option(4, help="SVDD candidates M per step.")
+_SEARCH = AblationConfig()  # the study searches as the ablation does; defaults live there
+_POP = typer.Option(_SEARCH.population, help="GA population C.")
+_GEN = typer.Option(_SEARCH.generations, help="GA generations G.")
+_SAMPLES = typer.Option(_SEARCH.samples, help="Monte-Carlo duration samples K.")
+_PARTICLES = typer.Option(_SEARCH.particles, help="Steered samples per motion request B (2 x 4 "
+                          "as in the ablation: 2.5x faster than the loop's 4 x 8 on painting).")
+_CANDIDATES = typer.Option(_SEARCH.candidates, help="SVDD candidates M per step.")
 _JSON = typer.Option(False, "--json", help="Print a JSON summary on stdout.")
 _MAX_TASK = typer.Option(None, "--max-task-seconds", help="Longest a person's task may take; "
                          "a longer typed duration or tracked task is refused (default: the "
@@ -147,8 +147,9 @@ def simulate_cmd(
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
     from rich.console import Console
 
-    from rapidds.cli.ablation import _Progress
+    from rapidds.cli._progress import TrialProgress
     from rapidds.experiments.ablation import check_scheduler_address, dask_client
+    from rapidds.experiments.sessions import log_session
     from rapidds.experiments.study.simulate import simulate_study
     from rapidds.experiments.study.store import create_study
 
@@ -162,21 +163,14 @@ def simulate_cmd(
     where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
     with create_study(out, design, run, lock_as="rapidds study simulate") as store:
         try:
-            with dask_client(workers, scheduler) as client, _Progress(err) as bar:
+            with dask_client(workers, scheduler) as client, TrialProgress() as bar:
                 outcome = simulate_study(store, client, bar.on_trial, bar.on_start)
         except KeyboardInterrupt:
             err.print(f"interrupted; finished runs are stored in {out}; rerun the same command "
                       "to finish", highlight=False)
             raise typer.Exit(130) from None
         summary = _summary(store, out)
-    line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "wall_s": round(outcome.wall_s, 2), "ran": outcome.ran, "skipped": outcome.skipped,
-            "total": outcome.total, "workers": outcome.workers, "cluster": where,
-            "run_seconds_sum": round(sum(outcome.trial_seconds), 2),
-            "load_average": list(os.getloadavg())}
-    with open(out / "sessions.jsonl", "a") as fh:
-        fh.write(json.dumps(line) + "\n")
-    summary.update(simulated=line)
+    summary.update(simulated=log_session(out, outcome, where))
     if as_json:
         print(json.dumps(summary), flush=True)
         return

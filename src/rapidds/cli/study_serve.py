@@ -10,6 +10,7 @@ import json
 import logging
 import secrets
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import typer
@@ -19,6 +20,26 @@ from rapidds.cli.study import study_app
 
 
 @study_app.command("serve")
+def _announce(as_json: bool, url: str, overview: str, store: Path, participants: int,
+              waiting: int, host: str, hosts: Sequence[str]) -> None:
+    """Say where the study is served: the experimenter's overview (with its token) and the
+    participants' address; a bind beyond loopback also says which names reach it."""
+    from rapidds.web.server import LOOPBACK
+
+    if as_json:
+        typer.echo(json.dumps({"url": url, "overview": overview, "study": str(store),
+                               "participants": participants, "unfinished": waiting}))
+    else:
+        typer.echo(f"rapidds study serve: the experimenter's overview is {overview} "
+                   f"(participants open {url}p/ID, no link leads there; "
+                   f"{participants} participants, {waiting} unfinished; Ctrl-C stops, "
+                   f"every submit is kept in {store})")
+    if host not in LOOPBACK:
+        typer.echo(f"rapidds study serve: listening on {host}: other machines can "
+                   f"reach it by the names {', '.join(hosts)}", err=True)
+    sys.stdout.flush()
+
+
 def serve_cmd(
     folder: Path = typer.Argument(..., help="The study's folder (from 'rapidds study design')."),
     host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
@@ -41,7 +62,7 @@ def serve_cmd(
     participant stopped."""
     from rapidds.cli.run import set_threads
     from rapidds.experiments.study.store import STORE_NAME, study_path
-    from rapidds.web.server import LOOPBACK, allowed_hosts, listen
+    from rapidds.web.server import allowed_hosts, listen
     from rapidds.web.study.app import StudyWorker, create_study_app
     from rapidds.web.study.runner import StudySession
 
@@ -72,22 +93,8 @@ def serve_cmd(
                 app, log_level="warning", lifespan="on", timeout_graceful_shutdown=3,
                 access_log=False))
 
-            def ready() -> None:
-                if as_json:
-                    typer.echo(json.dumps({"url": url, "overview": overview,
-                                           "study": str(study_path(folder)),
-                                           "participants": len(steps), "unfinished": waiting}))
-                else:
-                    typer.echo(f"rapidds study serve: the experimenter's overview is {overview} "
-                               f"(participants open {url}p/ID, no link leads there; "
-                               f"{len(steps)} participants, {waiting} unfinished; Ctrl-C stops, "
-                               f"every submit is kept in {study_path(folder)})")
-                if host not in LOOPBACK:
-                    typer.echo(f"rapidds study serve: listening on {host}: other machines can "
-                               f"reach it by the names {', '.join(hosts)}", err=True)
-                sys.stdout.flush()
-
-            ready()
+            _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
+                      host, hosts)
             with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the normal stop
                 server.run(sockets=[sock])
             final = worker.run(lambda s: s.store.progress())

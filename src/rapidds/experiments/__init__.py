@@ -17,22 +17,23 @@ if TYPE_CHECKING:
         ABLATION,
         BASELINES,
         PAPER_HUMANS,
-        StudyConfig,
+        AblationConfig,
         StudyOutcome,
-        run_study,
+        run_ablation,
         run_trial,
     )
-    from rapidds.experiments.report import StudyData, load_study, summarise, write_report
+    from rapidds.experiments.report import AblationData, load_ablation, summarise, write_report
 
 _WHERE = {
     "ABLATION": "ablation", "BASELINES": "ablation", "PAPER_HUMANS": "ablation",
-    "StudyConfig": "ablation", "StudyOutcome": "ablation", "run_study": "ablation",
+    "AblationConfig": "ablation", "StudyOutcome": "ablation", "run_ablation": "ablation",
     "run_trial": "ablation",
-    "StudyData": "report", "load_study": "report", "summarise": "report", "write_report": "report",
+    "AblationData": "report", "load_ablation": "report", "summarise": "report",
+    "write_report": "report",
 }
 __all__ = [
-    "ABLATION", "BASELINES", "PAPER_HUMANS", "StudyConfig", "StudyData", "StudyOutcome",
-    "load_study", "run_study", "run_trial", "summarise", "write_report",
+    "ABLATION", "BASELINES", "PAPER_HUMANS", "AblationConfig", "AblationData", "StudyOutcome",
+    "load_ablation", "run_ablation", "run_trial", "summarise", "write_report",
 ]
 
 

@@ -21,13 +21,16 @@ import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
+
+from pydantic import Field, field_validator
 
 from rapidds.errors import RapiddsError, StateError
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+from rapidds.settings import Int, Real, Settings
 from rapidds.store import RunStore
 
 if TYPE_CHECKING:
@@ -48,44 +51,53 @@ STORE_NAME = "study.sqlite"
 _PER_TRIAL = ("human", "adapt", "seed")  # what differs between the runs of one study
 
 
-@dataclass(frozen=True)
-class StudyConfig:
-    """One study: which cells and how many trials, and the settings every trial shares.
+_RUN = RunConfig.model_fields
 
-    The search settings default to the study's (chosen by measurement, docs/reproduction.md),
-    cheaper than a single ``rapidds run``: the full study has to fit in 30 minutes on 2 cores.
+
+def _levels_field(name: str, known: tuple[str, ...]) -> Callable[[Any], Any]:
+    def check(given: tuple[str, ...]) -> tuple[str, ...]:
+        if not given:
+            raise ValueError(f"is empty; choose from {', '.join(known)}")
+        unknown = [g for g in given if g not in known]
+        if unknown:
+            raise ValueError(f"unknown value '{unknown[0]}'; one of {', '.join(known)}")
+        if len(set(given)) != len(given):
+            raise ValueError(f"lists a value twice: {','.join(given)}")
+        return given
+    check.__name__ = f"_check_{name}"
+    return check
+
+
+class AblationConfig(Settings):
+    """One ablation study: which cells and how many trials, and the settings every trial shares.
+
+    The search settings are a run's (:class:`~rapidds.loop.config.RunConfig`, their one home)
+    except the steering, cheaper here (chosen by measurement, docs/reproduction.md): the full
+    study has to fit in 30 minutes on 2 cores. The user study's simulation uses the same.
     """
+
+    options: ClassVar[dict[str, str]] = {"levels": "adapt"}  # the CLI's name for a field
 
     humans: tuple[str, ...] = PAPER_HUMANS
     levels: tuple[str, ...] = ABLATION + BASELINES
-    trials: int = 20
-    cycles: int = 16
-    seed: int = 0
-    gamma: float = 1.75
-    lam: float = 15.0
-    population: int = 24
-    generations: int = 40
-    samples: int = 32
-    patience: int = 8
-    particles: int = 2
-    candidates: int = 4
+    trials: Annotated[Int, Field(ge=1, le=TRIAL_STRIDE)] = 20
+    cycles: Int = _RUN["cycles"].default
+    seed: Annotated[Int, Field(ge=0)] = 0
+    gamma: Real = 1.75
+    lam: Real = 15.0
+    population: Int = _RUN["population"].default
+    generations: Int = _RUN["generations"].default
+    samples: Int = _RUN["samples"].default
+    patience: Int = _RUN["patience"].default
+    particles: Int = 2
+    candidates: Int = 4
 
-    def __post_init__(self) -> None:
-        for name, given, known in (("humans", self.humans, ARCHETYPES),
-                                   ("adapt", self.levels, ADAPT_LEVELS)):
-            if not given:
-                raise RapiddsError(f"--{name} is empty; choose from {', '.join(known)}")
-            unknown = [g for g in given if g not in known]
-            if unknown:
-                raise RapiddsError(f"unknown --{name} value '{unknown[0]}'; "
-                                   f"one of {', '.join(known)}")
-            if len(set(given)) != len(given):
-                raise RapiddsError(f"--{name} lists a value twice: {','.join(given)}")
-        if not 1 <= self.trials <= TRIAL_STRIDE:
-            raise RapiddsError(f"--trials must be between 1 and {TRIAL_STRIDE}, got {self.trials}")
-        if self.seed < 0:
-            raise RapiddsError(f"--seed must be >= 0, got {self.seed}")
-        self._trial(self.humans[0], self.levels[0], 0)  # validates the shared settings
+    _humans = field_validator("humans")(_levels_field("humans", ARCHETYPES))
+    _levels = field_validator("levels")(_levels_field("levels", ADAPT_LEVELS))
+
+    def __init__(self, **data: Any) -> None:
+        super().__init__(**data)
+        self._trial(self.humans[0], self.levels[0], 0)  # the shared settings, checked as a run's
 
     def trial_seed(self, index: int) -> int:
         return self.seed * TRIAL_STRIDE + index
@@ -209,14 +221,14 @@ TrialCallback = Callable[[dict[str, Any], int, int], None]
 
 
 @contextmanager
-def study_store(out: Path) -> Iterator[RunStore]:
+def ablation_store(out: Path) -> Iterator[RunStore]:
     """``DIR/study.sqlite``, with ``DIR/.lock`` held so two studies never write one folder (the
     lock dies with its process, so a killed run never leaves it behind)."""
     with RunStore(out / STORE_NAME, lock_as="rapidds ablation") as store:
         yield store
 
 
-def check_settings(study: StudyConfig, store: RunStore) -> None:
+def check_settings(study: AblationConfig, store: RunStore) -> None:
     """A folder holds one study: more trials, archetypes or levels may be added to it later,
     other cycles, seeds or search settings may not (their curves could not be compared)."""
     ids = store.run_ids()
@@ -241,8 +253,8 @@ def _task_key(cfg: RunConfig) -> str:
     return f"rapidds-trial-{cfg.run_id}-{digest}"
 
 
-def run_study(
-    study: StudyConfig, store: RunStore, client: Client, on_trial: TrialCallback | None = None,
+def run_ablation(
+    study: AblationConfig, store: RunStore, client: Client, on_trial: TrialCallback | None = None,
     on_start: Callable[[int, int], None] | None = None,
 ) -> StudyOutcome:
     """Submit every trial not yet stored, store each as it finishes; returns the counts.
@@ -362,14 +374,3 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         Client(cluster) as client,
     ):
         yield client
-
-
-def log_session(out: Path, study: StudyConfig, outcome: StudyOutcome, where: str) -> None:
-    """Append this invocation's wall time to ``DIR/sessions.jsonl`` (the report lists them)."""
-    line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": round(outcome.wall_s, 2),
-            "ran": outcome.ran, "skipped": outcome.skipped, "total": outcome.total,
-            "workers": outcome.workers, "cluster": where,
-            "trial_seconds_sum": round(sum(outcome.trial_seconds), 2),
-            "study": asdict(study)}
-    with open(out / "sessions.jsonl", "a") as fh:
-        fh.write(json.dumps(line) + "\n")

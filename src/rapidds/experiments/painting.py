@@ -171,19 +171,21 @@ def cell_state(world: PaintingWorld, record: Mapping[str, Any],
     one leaves the arm at rest), rest otherwise."""
     import numpy as np
 
+    from rapidds.store import cycle_paths
+
     times = record["realised"]["timeline"]
     q, body = world.robot_rest(), world.human_rest()
-    for key, arr in arrays.items():
-        kind, task = key.split("/", 1)
-        start, finish = times[task]
-        if not start <= t <= finish:
-            continue
-        a = np.asarray(arr, dtype=float)
-        row = min(round((t - start) / world.dt), len(a) - 1)
-        if kind == "robot":
-            q = a[row]
-        else:
-            body = a[row].reshape(-1, 3)
+    for kind, paths in cycle_paths(arrays).items():
+        for task, arr in sorted(paths.items()):
+            start, finish = times[task]
+            if not start <= t <= finish:
+                continue
+            a = np.asarray(arr, dtype=float)
+            row = min(round((t - start) / world.dt), len(a) - 1)
+            if kind == "robot":
+                q = a[row]
+            else:
+                body = a[row].reshape(-1, 3)
     return q, body
 
 

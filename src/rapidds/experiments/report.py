@@ -38,6 +38,7 @@ from rapidds.experiments.ablation import (
     STORE_NAME,
     shared_settings,
 )
+from rapidds.experiments.sessions import read_sessions
 from rapidds.fileio import atomic_write_text
 from rapidds.store import RunStore
 
@@ -55,7 +56,7 @@ _LEVEL_ORDER = ABLATION + BASELINES
 
 
 @dataclass
-class StudyData:
+class AblationData:
     """Complete trials of a stored study.
 
     trials[human][level][seed] is a (cycles, len(METRICS)) array: realised values, then the
@@ -100,7 +101,7 @@ def _ordered(keys: set[str], order: tuple[str, ...]) -> list[str]:
     return [k for k in order if k in keys] + sorted(keys - set(order))
 
 
-def load_study(out: Path) -> StudyData:
+def load_ablation(out: Path) -> AblationData:
     """Read ``out/study.sqlite``; a run missing cycles is listed in ``incomplete``, not used."""
     path = out / STORE_NAME
     if not path.is_file():
@@ -132,15 +133,7 @@ def load_study(out: Path) -> StudyData:
         raise StateError(f"{out} holds no finished trial yet")
     trials = {h: {lv: raw[h][lv] for lv in _ordered(set(raw[h]), _LEVEL_ORDER)}
               for h in _ordered(set(raw), PAPER_HUMANS)}
-    sessions = []
-    log = out / "sessions.jsonl"
-    if log.is_file():
-        for line in log.read_text().splitlines():
-            try:
-                sessions.append(json.loads(line))
-            except ValueError:
-                continue  # a line cut short by a kill: the others still count
-    return StudyData(out, cycles, settings, trials, incomplete, sessions)
+    return AblationData(out, cycles, settings, trials, incomplete, read_sessions(out))
 
 
 def _plan_cost(record: Mapping[str, Any]) -> float:
@@ -157,7 +150,7 @@ def _quartiles(x: np.ndarray, axis: int | None = None) -> tuple[Any, Any, Any]:
     return q1, med, q3
 
 
-def summarise_curves(data: StudyData, measure: str = "cost"
+def summarise_curves(data: AblationData, measure: str = "cost"
                      ) -> dict[str, dict[str, dict[str, Any]]]:
     """{human: {level: {"median", "q1", "q3": per-cycle lists, "trials": n}}}."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
@@ -172,7 +165,7 @@ def summarise_curves(data: StudyData, measure: str = "cost"
     return out
 
 
-def table_rows(data: StudyData) -> list[dict[str, Any]]:
+def table_rows(data: AblationData) -> list[dict[str, Any]]:
     """One row per archetype and level: trial-score median, IQR, gap to the oracle, and the
     median makespan and spatial cost of the same cycles (where the cost comes from); then the
     same median, IQR and gap for the plan cost when the study has it."""
@@ -224,7 +217,7 @@ def verdict(lo: float, hi: float) -> str:
     return "better" if hi < 0 else "worse" if lo > 0 else "tie"
 
 
-def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED,
+def check_claims(data: AblationData, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED,
                  measure: str = "cost") -> dict[str, Any]:
     """Per archetype, full against each ablation level on ``measure`` (realised "cost" or
     "plan_cost"); counts set beside the paper's. The bootstrap streams do not depend on the
@@ -270,7 +263,7 @@ def check_claims(data: StudyData, resamples: int = RESAMPLES, seed: int = BOOTST
     }
 
 
-def summarise(data: StudyData) -> dict[str, Any]:
+def summarise(data: AblationData) -> dict[str, Any]:
     """The ``--json`` summary: per-cycle curves of the realised cost per archetype and level,
     plus ``claims``; with plan costs stored, also ``plan_cost`` (the same curves) and
     ``claims_plan_cost``."""
@@ -340,12 +333,12 @@ def claims_markdown(claims: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _curves_for_plot(data: StudyData, measure: str = "cost") -> dict[str, dict[str, np.ndarray]]:
+def _curves_for_plot(data: AblationData, measure: str = "cost") -> dict[str, dict[str, np.ndarray]]:
     return {h: {LABELS.get(lv, lv): data.metric(h, lv, measure) for lv in data.levels(h)}
             for h in data.humans}
 
 
-def plot_settled(data: StudyData, path: Path, measure: str = "cost") -> Path:
+def plot_settled(data: AblationData, path: Path, measure: str = "cost") -> Path:
     """The cycles after exploration only, on their own scale: exploration's alternating
     allocations cost up to twice as much and flatten the differences that remain after it."""
     from rapidds.plots._mpl import plt, save
@@ -369,7 +362,7 @@ def plot_settled(data: StudyData, path: Path, measure: str = "cost") -> Path:
     return save(fig, path)
 
 
-def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
+def write_report(data: AblationData, out: Path | None = None) -> dict[str, Path]:
     """Write the figure (PNG, PDF; and the cycles after exploration alone, PNG), the same for
     the plan cost when stored (``ablation-plan*``), the table (Markdown, CSV), summary.json
     and report.md."""
@@ -408,7 +401,7 @@ def write_report(data: StudyData, out: Path | None = None) -> dict[str, Path]:
     return paths
 
 
-def report_markdown(data: StudyData, md_table: str, claims: dict[str, Any],
+def report_markdown(data: AblationData, md_table: str, claims: dict[str, Any],
                     plan_claims: dict[str, Any] | None = None) -> str:
     s = data.settings
     n = sum(len(c) for lv in data.trials.values() for c in lv.values())

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from rapidds.codec import decode_array, encode_array
 from rapidds.errors import StateError
 from rapidds.human.spatial import SpatialModel
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
@@ -75,12 +76,13 @@ class CarriedMotions:
 
 
 def encode_plans(carried: Mapping[MotionKey, Stamped]) -> list[dict[str, Any]]:
-    """JSON-safe list (floats as repr-exact Python floats)."""
+    """JSON-safe list; trajectories in the models' array codec (:mod:`rapidds.codec`)."""
     out = []
     for (task, concurrent), (plan, stamps) in carried.items():
         out.append({"task": task, "concurrent": sorted(concurrent), "duration": plan.duration,
                     "spatial": plan.spatial_cost, "stamps": stamps,
-                    "trajectory": None if plan.trajectory is None else plan.trajectory.tolist()})
+                    "trajectory": None if plan.trajectory is None else encode_array(
+                        np.asarray(plan.trajectory, dtype=float))})
     return out
 
 
@@ -90,7 +92,7 @@ def decode_plans(items: Sequence[Mapping[str, Any]]) -> dict[MotionKey, Stamped]
     try:
         for d in items:
             key = (str(d["task"]), frozenset(str(t) for t in d["concurrent"]))
-            traj = None if d["trajectory"] is None else np.asarray(d["trajectory"], dtype=float)
+            traj = _trajectory(d["trajectory"], key[0])
             if traj is not None and (traj.ndim != 2 or not np.isfinite(traj).all()):
                 raise ValueError(f"trajectory of {key[0]} is not a finite (H, d) array")
             plan = MotionPlan(key[0], key[1], float(d["duration"]), float(d["spatial"]), traj)
@@ -98,3 +100,13 @@ def decode_plans(items: Sequence[Mapping[str, Any]]) -> dict[MotionKey, Stamped]
     except (KeyError, TypeError, ValueError) as exc:
         raise StateError(f"stored motions are corrupt ({exc})") from None
     return out
+
+
+def _trajectory(stored: Any, task: str) -> np.ndarray | None:
+    """A carried trajectory as stored: encoded (:func:`rapidds.codec.encode_array`), or a list
+    of lists as stores written before the codec was shared hold it."""
+    if stored is None:
+        return None
+    if isinstance(stored, dict):
+        return decode_array(stored, f"stored motions: trajectory of {task}")
+    return np.asarray(stored, dtype=float)

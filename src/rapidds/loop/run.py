@@ -48,7 +48,7 @@ from rapidds.scheduler import (
     solve_exact,
 )
 from rapidds.settings import require_memory
-from rapidds.store import RunStore
+from rapidds.store import RunStore, path_arrays
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.registry import make_world
 
@@ -528,8 +528,7 @@ class AdaptiveRun:
                         "total": plan.seconds + deploy_s + update_s},
         }
         if self.store is not None:
-            arrays = {f"robot/{j}": p for j, p in dep.robot.items()}
-            arrays.update({f"human/{t}": ex.trajectory for t, ex in dep.human.items()})
+            arrays = path_arrays(dep.robot, {t: ex.trajectory for t, ex in dep.human.items()})
             self.store.record_cycle(cfg.run_id, plan.cycle, record, arrays, self.model.to_bytes())
         self.next_cycle += 1
         return record

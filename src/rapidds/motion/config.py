@@ -1,29 +1,27 @@
 """Configuration of the trajectory diffusion policy: network, noise schedule, sampler, training.
 
-One frozen dataclass, validated on construction, stored as JSON inside every checkpoint so a
+One frozen settings model, validated on construction, stored as JSON inside every checkpoint so a
 policy is always rebuilt with the settings it was trained with.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import torch
+from pydantic import Field, field_validator, model_validator
 
 from rapidds.errors import ConfigError
+from rapidds.settings import Flag, Int, Real, Settings
 
 BETA_SCHEDULES = ("linear", "scaled_linear", "squaredcos_cap_v2")
 SAMPLERS = ("ddim", "ddpm")
 DEVICES = ("auto", "cpu", "cuda")
 
 
-@dataclass(frozen=True)
-class DiffusionConfig:
+class DiffusionConfig(Settings):
     """Everything needed to rebuild, train and sample a trajectory diffusion policy.
 
     Trajectory shape
@@ -69,126 +67,79 @@ class DiffusionConfig:
             measured 50x slower.
     """
 
-    horizon: int = 16
-    state_dim: int = 2
-    task_names: tuple[str, ...] = ("task",)
-    start_conditioned: bool = False
-    down_dims: tuple[int, ...] = (32, 64, 128)
-    kernel_size: int = 5
-    n_groups: int = 8
-    step_embed_dim: int = 64
-    num_train_timesteps: int = 100
-    beta_schedule: str = "squaredcos_cap_v2"
-    beta_start: float = 1e-4
-    beta_end: float = 0.02
+    label: ClassVar[str] = "DiffusionConfig"
+
+    horizon: Annotated[Int, Field(ge=8, multiple_of=8)] = 16
+    state_dim: Annotated[Int, Field(ge=1)] = 2
+    task_names: Annotated[tuple[str, ...], Field(min_length=1)] = ("task",)
+    start_conditioned: Flag = False
+    down_dims: Annotated[tuple[Annotated[Int, Field(gt=0)], ...], Field(min_length=1)] = (
+        32, 64, 128)
+    kernel_size: Annotated[Int, Field(ge=1)] = 5
+    n_groups: Annotated[Int, Field(ge=1)] = 8
+    step_embed_dim: Annotated[Int, Field(ge=2, multiple_of=2)] = 64
+    num_train_timesteps: Annotated[Int, Field(ge=2)] = 100
+    beta_schedule: Literal["linear", "scaled_linear", "squaredcos_cap_v2"] = "squaredcos_cap_v2"
+    beta_start: Annotated[Real, Field(gt=0, lt=1)] = 1e-4
+    beta_end: Annotated[Real, Field(gt=0, lt=1)] = 0.02
     sampler: Literal["ddim", "ddpm"] = "ddim"
-    num_inference_steps: int = 20
-    ddim_eta: float = 1.0
-    clip_sample: bool = True
-    lr: float = 1e-3
-    weight_decay: float = 1e-6
-    batch_size: int = 64
-    steps: int = 2000
-    epochs: int | None = None
-    lr_warmup_steps: int = 50
-    use_ema: bool = True
-    ema_decay: float = 0.995
-    seed: int = 0
+    num_inference_steps: Annotated[Int, Field(ge=1)] = 20
+    ddim_eta: Annotated[Real, Field(ge=0, le=1)] = 1.0
+    clip_sample: Flag = True
+    lr: Annotated[Real, Field(gt=0)] = 1e-3
+    weight_decay: Annotated[Real, Field(ge=0)] = 1e-6
+    batch_size: Annotated[Int, Field(ge=1)] = 64
+    steps: Annotated[Int, Field(ge=1)] = 2000
+    epochs: Annotated[Int, Field(ge=1)] | None = None
+    lr_warmup_steps: Annotated[Int, Field(ge=0)] = 50
+    use_ema: Flag = True
+    ema_decay: Annotated[Real, Field(ge=0, lt=1)] = 0.995
+    seed: Annotated[Int, Field(ge=0)] = 0
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    cpu_threads: int = 1
+    cpu_threads: Annotated[Int, Field(ge=0)] = 1
 
-    def __post_init__(self) -> None:
-        # Lists from JSON become tuples so a config read back compares equal to the original.
-        for name in ("task_names", "down_dims"):
-            if isinstance(getattr(self, name), str | bytes | int):
-                raise ConfigError(f"DiffusionConfig: {name} must be a list, got "
-                                  f"{getattr(self, name)!r}")
-        object.__setattr__(self, "task_names", tuple(self.task_names))
-        object.__setattr__(self, "down_dims", tuple(self.down_dims))
-        self._check()
+    @field_validator("task_names", "down_dims", mode="before")
+    @classmethod
+    def _a_list(cls, v: Any) -> Any:
+        # A string is a sequence to Python but never the list these fields mean.
+        if isinstance(v, str | bytes | int):
+            raise ValueError(f"must be a list, got {v!r}")
+        return v
 
-    def _check(self) -> None:
-        def bad(msg: str) -> ConfigError:
-            return ConfigError(f"DiffusionConfig: {msg}")
+    @field_validator("task_names")
+    @classmethod
+    def _task_names(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        if not all(t.strip() for t in v):
+            raise ValueError(f"must be non-empty strings, got {list(v)}")
+        if len(set(v)) != len(v):
+            dup = sorted({t for t in v if v.count(t) > 1})
+            raise ValueError(f"must be unique, repeated: {', '.join(dup)}")
+        return v
 
-        def is_int(v: Any) -> bool:
-            return isinstance(v, int) and not isinstance(v, bool)
+    @field_validator("kernel_size")
+    @classmethod
+    def _odd(cls, v: int) -> int:
+        if v % 2 == 0:
+            raise ValueError(f"must be a positive odd integer, got {v}")
+        return v
 
-        def is_num(v: Any) -> bool:
-            return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-        for name in ("horizon", "state_dim", "kernel_size", "n_groups", "step_embed_dim",
-                     "num_train_timesteps", "num_inference_steps", "batch_size", "steps",
-                     "lr_warmup_steps", "seed", "cpu_threads"):
-            if not is_int(getattr(self, name)):
-                raise bad(f"{name} must be an integer, got {getattr(self, name)!r}")
-        for name in ("beta_start", "beta_end", "ddim_eta", "lr", "weight_decay", "ema_decay"):
-            if not is_num(getattr(self, name)):
-                raise bad(f"{name} must be a finite number, got {getattr(self, name)!r}")
-        for name in ("start_conditioned", "clip_sample", "use_ema"):
-            if not isinstance(getattr(self, name), bool):
-                raise bad(f"{name} must be true or false, got {getattr(self, name)!r}")
-
-        if not self.down_dims or not all(is_int(c) and c > 0 for c in self.down_dims):
-            raise bad(f"down_dims must be a non-empty list of positive integers, got "
-                      f"{list(self.down_dims)}")
-        if self.horizon < 8 or self.horizon % 8:
-            raise bad(f"horizon must be a positive multiple of 8, got {self.horizon}")
+    @model_validator(mode="after")
+    def _consistent(self) -> DiffusionConfig:
+        """The checks that involve two fields."""
         levels = 2 ** (len(self.down_dims) - 1)
         if self.horizon % levels:
-            raise bad(f"horizon {self.horizon} is not divisible by 2**(len(down_dims)-1) = "
-                      f"{levels}; use fewer U-Net levels or a longer horizon")
-        if self.state_dim < 1:
-            raise bad(f"state_dim must be >= 1, got {self.state_dim}")
-        if not self.task_names:
-            raise bad("task_names must name at least one task")
-        if not all(isinstance(t, str) and t.strip() for t in self.task_names):
-            raise bad(f"task_names must be non-empty strings, got {list(self.task_names)}")
-        if len(set(self.task_names)) != len(self.task_names):
-            dup = sorted({t for t in self.task_names if self.task_names.count(t) > 1})
-            raise bad(f"task_names must be unique, repeated: {', '.join(dup)}")
-        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
-            raise bad(f"kernel_size must be a positive odd integer, got {self.kernel_size}")
-        if self.n_groups < 1 or any(c % self.n_groups for c in self.down_dims):
-            raise bad(f"n_groups ({self.n_groups}) must be >= 1 and divide every down_dims "
-                      f"entry {list(self.down_dims)}")
-        if self.step_embed_dim < 2 or self.step_embed_dim % 2:
-            raise bad(f"step_embed_dim must be an even integer >= 2, got {self.step_embed_dim}")
-        if self.num_train_timesteps < 2:
-            raise bad(f"num_train_timesteps must be >= 2, got {self.num_train_timesteps}")
-        if self.beta_schedule not in BETA_SCHEDULES:
-            raise bad(f"beta_schedule must be one of {', '.join(BETA_SCHEDULES)}, got "
-                      f"{self.beta_schedule!r}")
-        if not 0 < self.beta_start < self.beta_end < 1:
-            raise bad(f"need 0 < beta_start < beta_end < 1, got {self.beta_start}, "
-                      f"{self.beta_end}")
-        if self.sampler not in SAMPLERS:
-            raise bad(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
-        if not 1 <= self.num_inference_steps <= self.num_train_timesteps:
-            raise bad(f"num_inference_steps must be in 1..num_train_timesteps "
-                      f"({self.num_train_timesteps}), got {self.num_inference_steps}")
-        if not 0 <= self.ddim_eta <= 1:
-            raise bad(f"ddim_eta must be in [0, 1], got {self.ddim_eta}")
-        if self.lr <= 0:
-            raise bad(f"lr must be > 0, got {self.lr}")
-        if self.weight_decay < 0:
-            raise bad(f"weight_decay must be >= 0, got {self.weight_decay}")
-        if self.batch_size < 1:
-            raise bad(f"batch_size must be >= 1, got {self.batch_size}")
-        if self.steps < 1:
-            raise bad(f"steps must be >= 1, got {self.steps}")
-        if self.epochs is not None and (not is_int(self.epochs) or self.epochs < 1):
-            raise bad(f"epochs must be a positive integer or null, got {self.epochs!r}")
-        if self.lr_warmup_steps < 0:
-            raise bad(f"lr_warmup_steps must be >= 0, got {self.lr_warmup_steps}")
-        if not 0 <= self.ema_decay < 1:
-            raise bad(f"ema_decay must be in [0, 1), got {self.ema_decay}")
-        if self.seed < 0:
-            raise bad(f"seed must be >= 0, got {self.seed}")
-        if self.cpu_threads < 0:
-            raise bad(f"cpu_threads must be >= 0, got {self.cpu_threads}")
-        if self.device not in DEVICES:
-            raise bad(f"device must be one of {', '.join(DEVICES)}, got {self.device!r}")
+            raise ValueError(f"horizon {self.horizon} is not divisible by 2**(len(down_dims)-1) "
+                             f"= {levels}; use fewer U-Net levels or a longer horizon")
+        if any(c % self.n_groups for c in self.down_dims):
+            raise ValueError(f"n_groups ({self.n_groups}) must divide every down_dims entry "
+                             f"{list(self.down_dims)}")
+        if not self.beta_start < self.beta_end:
+            raise ValueError(f"need 0 < beta_start < beta_end < 1, got {self.beta_start}, "
+                             f"{self.beta_end}")
+        if self.num_inference_steps > self.num_train_timesteps:
+            raise ValueError(f"num_inference_steps must be in 1..num_train_timesteps "
+                             f"({self.num_train_timesteps}), got {self.num_inference_steps}")
+        return self
 
     # -- derived ----------------------------------------------------------------------------
     @property
@@ -200,28 +151,16 @@ class DiffusionConfig:
         """Width of the conditioning vector: task one-hot, then the start pose if used."""
         return self.num_tasks + (self.state_dim if self.start_conditioned else 0)
 
-    def replace(self, **changes: Any) -> DiffusionConfig:
-        """A copy with ``changes`` applied and validated again."""
-        return dataclasses.replace(self, **changes)
-
     # -- JSON -------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict (tuples become lists)."""
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            out[f.name] = list(v) if isinstance(v, tuple) else v
-        return out
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DiffusionConfig:
         """Inverse of :meth:`to_dict`; unknown keys are an error (they usually are typos)."""
         if not isinstance(data, dict):
             raise ConfigError(f"DiffusionConfig: expected a JSON object, got {type(data).__name__}")
-        known = {f.name for f in dataclasses.fields(cls)}
-        extra = sorted(set(data) - known)
-        if extra:
-            raise ConfigError(f"DiffusionConfig: unknown field(s): {', '.join(extra)}")
         return cls(**data)
 
 

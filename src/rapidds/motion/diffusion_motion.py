@@ -8,16 +8,17 @@ network sees requests x particles x candidates rows per pass.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from typing import Annotated, ClassVar
 
 import numpy as np
+from pydantic import Field
 
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.motion.steering import particle_temperatures, steer
 from rapidds.problem import Problem
+from rapidds.settings import Int, Real, Settings
 
 SpatialCost = Callable[[Iterable[str], np.ndarray], np.ndarray]
 """(task_ids, xi (N, H, d)) -> (N,): max over the tasks of S_i; 0 for no tasks."""
@@ -25,8 +26,7 @@ CompletionTime = Callable[[str, np.ndarray], np.ndarray]
 """(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
 
 
-@dataclass(frozen=True)
-class SteeringConfig:
+class SteeringConfig(Settings):
     """How robot motions are sampled for the scheduler.
 
     particles: B, steered samples per request; the best one is kept.
@@ -45,24 +45,14 @@ class SteeringConfig:
         network rows, so halving S halves the cost (docs/benchmarks.md, "Motion", has V per S).
     """
 
-    particles: int = 4
-    candidates: int = 8
-    alpha: float = 0.0
-    soft_share: float = 0.5
-    seed: int = 0
-    steps: int | None = None
+    label: ClassVar[str] = "SteeringConfig"
 
-    def __post_init__(self) -> None:
-        for name in ("particles", "candidates", "steps"):
-            v = getattr(self, name)
-            if name == "steps" and v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        if not (math.isfinite(self.alpha) and self.alpha >= 0):
-            raise ValueError(f"alpha must be a finite number >= 0, got {self.alpha}")
-        if not (math.isfinite(self.soft_share) and 0 <= self.soft_share <= 1):
-            raise ValueError(f"soft_share must be in [0, 1], got {self.soft_share}")
+    particles: Annotated[Int, Field(ge=1)] = 4
+    candidates: Annotated[Int, Field(ge=1)] = 8
+    alpha: Annotated[Real, Field(ge=0)] = 0.0
+    soft_share: Annotated[Real, Field(ge=0, le=1)] = 0.5
+    seed: Int = 0
+    steps: Annotated[Int, Field(ge=1)] | None = None
 
     def temperatures(self) -> np.ndarray:
         """(particles,) SVDD temperature of each particle of a request."""

@@ -4,14 +4,51 @@ both agents' paths over the learned spatial cost of each human task (paper Figur
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.axes import Axes
 
 from rapidds.human.spatial import SpatialModel
 from rapidds.plots._mpl import plt, save
+from rapidds.plots.curves import plot_run_costs
 from rapidds.plots.maps import plot_paths, plot_spatial_cost
+from rapidds.store import cycle_paths
+
+if TYPE_CHECKING:  # a type only: worlds sit above plots
+    from rapidds.worlds.base import World
+
+
+def gantt_path(out: Path, run_id: str, cycle: int) -> Path:
+    """Where a run's Gantt chart of ``cycle`` goes in its folder ``out``."""
+    return out / "gantt" / f"{run_id}-cycle-{cycle:02d}.png"
+
+
+def save_run_pictures(out: Path, run_id: str, records: Sequence[Mapping[str, Any]],
+                      arrays: Mapping[str, np.ndarray], spatial: SpatialModel, world: World,
+                      exploration_end: float) -> list[Path]:
+    """Cost curve over ``records`` (a run's stored cycles) and the map of the last cycle
+    (``arrays``: its stored arrays) in each of the world's views (the first ``{run}-map.png``,
+    others ``{run}-map-{view}.png``), named after the run (two runs in one folder keep their
+    own pictures)."""
+    if not records:
+        return []
+    written = [plot_run_costs(records, out / f"{run_id}-cost.png", exploration_end)]
+    rec = records[-1]
+    paths = cycle_paths(arrays)
+    for k, (view, axes) in enumerate(world.views.items()):
+        name = f"{run_id}-map.png" if k == 0 else f"{run_id}-map-{view}.png"
+        written.append(save_cycle_map(
+            spatial, out / name, human_paths=paths["human"],
+            robot_paths={j: np.swapaxes(world.robot_points(v), 0, 1)
+                         for j, v in paths["robot"].items()},
+            overlaps=rec["realised"]["overlaps"], scene=partial(world.draw, view=view),
+            axes=axes, title=f"{run_id}, cycle {rec['cycle']} ({view}): learned spatial cost, "
+                             "human (gold) and concurrent robot (blue) paths",
+        ))
+    return written
 
 
 def save_cycle_map(

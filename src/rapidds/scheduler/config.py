@@ -2,24 +2,20 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from typing import Annotated, ClassVar
+
+from pydantic import Field, field_validator
+
+from rapidds.settings import Flag, Int, Real, Settings
 
 MUTATIONS: tuple[str, ...] = ("move", "reorder", "crossover", "add_wait", "remove_wait")
-
-
-def _number(value: object) -> bool:
-    """A finite int or float, not a bool."""
-    return (isinstance(value, int | float) and not isinstance(value, bool)
-            and math.isfinite(value))
 
 
 def _default_weights() -> dict[str, float]:
     return {"move": 0.35, "reorder": 0.3, "crossover": 0.15, "add_wait": 0.1, "remove_wait": 0.1}
 
 
-@dataclass
-class GAConfig:
+class GAConfig(Settings):
     """Configuration of :class:`~rapidds.scheduler.ga.GeneticScheduler`.
 
     The defaults were tuned with ``benchmarks/bench_scheduler.py`` on random deterministic
@@ -108,74 +104,40 @@ class GAConfig:
             (with ``time_limit_s``, only if the limit is not reached).
     """
 
-    population: int = 48
-    generations: int = 150
-    samples: int = 64
-    elite_fraction: float = 0.25
-    mutation_weights: dict[str, float] = field(default_factory=_default_weights)
-    max_overlap_iters: int = 8
-    patience: int = 15
-    restart_after: int = 10
-    elites_per_allocation: int = 1
-    activate_children: bool = True
-    polish: bool = True
-    polish_passes: int = 20
-    polish_window: int = 10
-    polish_allocations: int = 16
-    polish_budget: float = 0.5
-    order_search_nodes: int = 300
-    exact_seed_work: float = 1.0
-    exact_seed_tasks: int = 40
-    exact_seed_min_tasks: int = 11
-    time_limit_s: float | None = None
-    seed: int = 0
+    label: ClassVar[str] = "GAConfig"
 
-    def __post_init__(self) -> None:
-        for name in ("population", "generations", "samples", "max_overlap_iters"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"GAConfig.{name} must be an integer >= 1, got {value!r}")
-        for name in ("patience", "restart_after", "elites_per_allocation", "polish_passes",
-                     "polish_allocations", "order_search_nodes", "polish_window",
-                     "exact_seed_tasks", "exact_seed_min_tasks", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"GAConfig.{name} must be an integer >= 0, got {value!r}")
-        if self.population < 2:
-            raise ValueError(f"GAConfig.population must be >= 2, got {self.population}")
-        if not (isinstance(self.polish_budget, int | float) and math.isfinite(self.polish_budget)
-                and self.polish_budget >= 0):
-            raise ValueError(
-                f"GAConfig.polish_budget must be a finite number >= 0, got {self.polish_budget!r}"
-            )
-        if not (_number(self.exact_seed_work) and self.exact_seed_work >= 0):
-            raise ValueError(f"GAConfig.exact_seed_work must be a finite number >= 0, "
-                             f"got {self.exact_seed_work!r}")
-        if self.time_limit_s is not None and not (
-                _number(self.time_limit_s) and self.time_limit_s > 0):
-            raise ValueError(f"GAConfig.time_limit_s must be None or a finite number > 0, "
-                             f"got {self.time_limit_s!r}")
-        if not (0.0 < self.elite_fraction < 1.0):
-            raise ValueError(
-                f"GAConfig.elite_fraction must be in (0, 1), got {self.elite_fraction!r}"
-            )
-        unknown = set(self.mutation_weights) - set(MUTATIONS)
+    population: Annotated[Int, Field(ge=2)] = 48
+    generations: Annotated[Int, Field(ge=1)] = 150
+    samples: Annotated[Int, Field(ge=1)] = 64
+    elite_fraction: Annotated[Real, Field(gt=0, lt=1)] = 0.25
+    mutation_weights: dict[str, Annotated[Real, Field(ge=0)]] = Field(
+        default_factory=_default_weights)
+    max_overlap_iters: Annotated[Int, Field(ge=1)] = 8
+    patience: Annotated[Int, Field(ge=0)] = 15
+    restart_after: Annotated[Int, Field(ge=0)] = 10
+    elites_per_allocation: Annotated[Int, Field(ge=0)] = 1
+    activate_children: Flag = True
+    polish: Flag = True
+    polish_passes: Annotated[Int, Field(ge=0)] = 20
+    polish_window: Annotated[Int, Field(ge=0)] = 10
+    polish_allocations: Annotated[Int, Field(ge=0)] = 16
+    polish_budget: Annotated[Real, Field(ge=0)] = 0.5
+    order_search_nodes: Annotated[Int, Field(ge=0)] = 300
+    exact_seed_work: Annotated[Real, Field(ge=0)] = 1.0
+    exact_seed_tasks: Annotated[Int, Field(ge=0)] = 40
+    exact_seed_min_tasks: Annotated[Int, Field(ge=0)] = 11
+    time_limit_s: Annotated[Real, Field(gt=0)] | None = None
+    seed: Annotated[Int, Field(ge=0)] = 0
+
+    @field_validator("mutation_weights")
+    @classmethod
+    def _known_operators(cls, weights: dict[str, float]) -> dict[str, float]:
+        unknown = set(weights) - set(MUTATIONS)
         if unknown:
-            raise ValueError(
-                f"GAConfig.mutation_weights: unknown operators {sorted(unknown)}; "
-                f"known: {list(MUTATIONS)}"
-            )
-        for key, w in self.mutation_weights.items():
-            if not isinstance(w, int | float) or not math.isfinite(w) or w < 0:
-                raise ValueError(
-                    f"GAConfig.mutation_weights['{key}'] must be a finite number >= 0, got {w!r}"
-                )
-        if sum(self.mutation_weights.values()) <= 0:
-            raise ValueError("GAConfig.mutation_weights: at least one weight must be > 0")
-        for name in ("polish", "activate_children"):
-            value = getattr(self, name)
-            if not isinstance(value, bool):
-                raise ValueError(f"GAConfig.{name} must be True or False, got {value!r}")
+            raise ValueError(f"unknown operators {sorted(unknown)}; known: {list(MUTATIONS)}")
+        if sum(weights.values()) <= 0:
+            raise ValueError("at least one weight must be > 0")
+        return weights
 
     @property
     def n_elite(self) -> int:

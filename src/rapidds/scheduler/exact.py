@@ -86,6 +86,43 @@ def solve_exact(
     }
     ticks = {a: {t.id: max(1, round(float(dur[a][k]) * scale))
                  for k, t in enumerate(problem.tasks) if t.can(a)} for a in AGENTS}
+    model, start, present = _cp_model(problem, ticks, load_bound)
+
+    solver = cp_model.CpSolver()
+    solver.parameters.max_time_in_seconds = float(time_limit_s)
+    solver.parameters.num_workers = int(workers)
+    if deterministic_time is not None:
+        solver.parameters.max_deterministic_time = float(deterministic_time)
+    status = solver.solve(model)
+    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        what = "is infeasible" if status == cp_model.INFEASIBLE else "was not solved"
+        raise ProblemError(
+            f"CP-SAT: problem '{problem.name}' {what} within {time_limit_s:g} s "
+            f"(status {solver.status_name(status)})"
+        )
+
+    schedule = _schedule(problem, solver, start, present)
+    compiled = CompiledSchedule.build(problem, schedule)
+    if compiled is None:  # pragma: no cover - start-time order respects precedence
+        raise ProblemError(f"CP-SAT: solution of '{problem.name}' deadlocks as a sequence")
+    d = np.where(np.isnan(dur["human"]), dur["robot"], dur["human"]).reshape(1, n)
+    real = float(compiled.simulate(compiled.durations(d, dur["robot"])).makespan[0])
+    return ExactResult(
+        schedule=schedule,
+        makespan=real,
+        optimal=status == cp_model.OPTIMAL,
+        status=solver.status_name(status),
+        bound=solver.best_objective_bound / scale,
+    )
+
+
+_Present = dict[Agent, dict[str, cp_model.IntVar]]
+
+
+def _cp_model(problem: Problem, ticks: dict[Agent, dict[str, int]], load_bound: bool
+              ) -> tuple[cp_model.CpModel, dict[str, cp_model.IntVar], _Present]:
+    """The minimum-makespan model: each task on one agent that may do it, no overlap per agent,
+    precedence; its start variables and each (agent, task)'s presence literal."""
     horizon = sum(max(ticks[a].get(t.id, 0) for a in AGENTS) for t in problem.tasks)
 
     model = cp_model.CpModel()
@@ -120,39 +157,19 @@ def solve_exact(
         for a in AGENTS:
             model.add(sum(ticks[a][t] * lit for t, lit in present[a].items()) <= makespan)
     model.minimize(makespan)
+    return model, start, present
 
-    solver = cp_model.CpSolver()
-    solver.parameters.max_time_in_seconds = float(time_limit_s)
-    solver.parameters.num_workers = int(workers)
-    if deterministic_time is not None:
-        solver.parameters.max_deterministic_time = float(deterministic_time)
-    status = solver.solve(model)
-    if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-        what = "is infeasible" if status == cp_model.INFEASIBLE else "was not solved"
-        raise ProblemError(
-            f"CP-SAT: problem '{problem.name}' {what} within {time_limit_s:g} s "
-            f"(status {solver.status_name(status)})"
-        )
 
+def _schedule(problem: Problem, solver: cp_model.CpSolver, start: dict[str, cp_model.IntVar],
+              present: _Present) -> Schedule:
+    """The solved sequences: each task with the agent it was given to, by start time."""
     seqs: dict[Agent, list[str]] = {a: [] for a in AGENTS}
     for t in problem.tasks:
         agent = next(a for a in AGENTS if t.id in present[a] and solver.value(present[a][t.id]))
         seqs[agent].append(t.id)
     for a in AGENTS:
         seqs[a].sort(key=lambda tid: solver.value(start[tid]))
-    schedule = Schedule(tuple(seqs["human"]), tuple(seqs["robot"]))
-    compiled = CompiledSchedule.build(problem, schedule)
-    if compiled is None:  # pragma: no cover - start-time order respects precedence
-        raise ProblemError(f"CP-SAT: solution of '{problem.name}' deadlocks as a sequence")
-    d = np.where(np.isnan(dur["human"]), dur["robot"], dur["human"]).reshape(1, n)
-    real = float(compiled.simulate(compiled.durations(d, dur["robot"])).makespan[0])
-    return ExactResult(
-        schedule=schedule,
-        makespan=real,
-        optimal=status == cp_model.OPTIMAL,
-        status=solver.status_name(status),
-        bound=solver.best_objective_bound / scale,
-    )
+    return Schedule(tuple(seqs["human"]), tuple(seqs["robot"]))
 
 
 def _durations(problem: Problem, agent: Agent, given: np.ndarray | None) -> np.ndarray:

@@ -39,7 +39,7 @@ import numpy as np
 
 from rapidds.motion.interface import MotionPlan
 from rapidds.problem import AGENTS, Agent, Problem
-from rapidds.schedule import Schedule, Wait, compile_schedule
+from rapidds.schedule import Schedule, Wait, compile_schedule, item_json
 from rapidds.worlds.base import HumanExecution
 from rapidds.worlds.fetch.map import DESCRIPTIONS
 from rapidds.worlds.fetch.world import FetchWorld
@@ -256,6 +256,8 @@ class FetchGame:
             "type": "plan",
             "cycle": self.cycle,
             "sequences": {a: [str(x) for x in self.schedule.sequence(a)] for a in AGENTS},
+            # the same, structured: the page reads these and never parses a wait's text
+            "items": {a: [item_json(x) for x in self.schedule.sequence(a)] for a in AGENTS},
             "owner": dict(self.schedule.assignment),
             "preceding": {t: list(self.problem.preceding[t]) for t in self.problem.ids},
             "expected": {t: [_r(s), _r(f)] for t, (s, f) in expected.items()},

@@ -23,6 +23,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from rapidds.settings import error_line
+
 __all__ = [
     "MAX_MESSAGE_BYTES",
     "MAX_RATE",
@@ -73,12 +75,6 @@ class Refused(Exception):
     """A message the gate refused; ``str(self)`` says why (sent back and logged)."""
 
 
-def _reason(exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    loc = ".".join(str(x) for x in err["loc"]) or "message"
-    return f"{loc}: {err['msg']}"
-
-
 class Gate:
     """Validates one connection's messages in order (see the module docstring)."""
 
@@ -114,7 +110,7 @@ class Gate:
         try:
             msg = _ADAPTER.validate_json(raw)
         except ValidationError as exc:
-            raise Refused(_reason(exc)) from None
+            raise Refused(error_line(exc, empty="message")) from None
         if msg.seq <= self.last_seq:
             raise Refused(f"seq {msg.seq} is not above the last accepted {self.last_seq}: "
                           "replayed or out of order")

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
+from rapidds.schedule import task_items
 from rapidds.store import RunStore
 from rapidds.web.player import BrowserPlayer, PlayerGone
 from rapidds.worlds.fetch.world import FetchWorld
@@ -181,7 +182,7 @@ class PlaySession:
         assert run.store is not None
         records = run.store.records(self.run_id)
         real, exp = record["realised"], record["expected"]
-        human = [t for t in record["human"] if not t.startswith("wait:")]
+        human = task_items(record["human"])
         timeline = real["timeline"]
         spatial = run.model.spatial
         n = spatial.config.shape
@@ -198,7 +199,7 @@ class PlaySession:
             "spatial": _r(real["spatial"]),
             "cost": _r(real["cost"]),
             "human": human,
-            "robot": [t for t in record["robot"] if not t.startswith("wait:")],
+            "robot": task_items(record["robot"]),
             "routes": record["routes"],
             "observed": {t: _r(d) for t, d in record["observed"].items()},
             "timeline": {t: [_r(s), _r(f)] for t, (s, f) in timeline.items()},

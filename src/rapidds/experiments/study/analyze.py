@@ -21,22 +21,28 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
+from rapidds.experiments.study.art import art_by_item
 from rapidds.experiments.study.stats import (
-    art_by_item,
     cost_reduction,
     ranking_test,
     rankings_from_orders,
     rm_anova_2x2,
 )
 from rapidds.experiments.study.store import StudyStore, study_path
-from rapidds.experiments.study.systems import ADAPTATION, FACTORS
+from rapidds.experiments.study.systems import ADAPTATION, ANALYSIS_FACTORS, adapts
 from rapidds.fileio import atomic_write_text
+
+if TYPE_CHECKING:
+    from rapidds.experiments.study.design import StudyDesign
+    from rapidds.experiments.study.store import Participant, SurveyItems
+    from rapidds.loop.config import RunConfig
 
 __all__ = ["COSTS", "Analysis", "analyze_study", "round_table"]
 
@@ -102,13 +108,6 @@ def _md_anova(title: str, rows: list[dict[str, Any]]) -> list[str]:
 def analyze_study(folder: str | Path) -> Analysis:
     """Run every analysis the stored data allows; write report.md, summary.json and the figures
     into ``folder``."""
-    from rapidds.plots.study import (
-        plot_cost_reductions,
-        plot_ranking_distribution,
-        plot_round_costs,
-        plot_survey,
-    )
-
     folder = Path(folder)
     with StudyStore.open_readonly(study_path(folder)) as store:
         design, run, items = store.design, store.base_config, store.items
@@ -117,7 +116,27 @@ def analyze_study(folder: str | Path) -> Analysis:
         rankings = store.rankings()
         survey = store.survey_frame()
     systems = list(design.systems)
+    s, md = _design_section(design, run, systems)
     files: list[Path] = []
+    for key, title, (part, lines, drawn) in (
+            ("objective", "Objective measures",
+             _objective_section(design, participants, rounds, systems, folder)),
+            ("ranking", "Ranking", _ranking_section(rankings, systems, folder)),
+            ("survey", "Survey", _survey_section(survey, items, systems, folder))):
+        s[key] = part
+        md += [f"## {title}", "", *lines]
+        files += drawn
+    report = "\n".join(md)
+    s = _finite(s)
+    atomic_write_text(folder / "report.md", report + "\n")
+    atomic_write_text(folder / "summary.json", json.dumps(s, indent=1) + "\n")
+    files[:0] = [folder / "report.md", folder / "summary.json"]
+    return Analysis(s, report, files)
+
+
+def _design_section(design: StudyDesign, run: RunConfig, systems: list[str]
+                    ) -> tuple[dict[str, Any], list[str]]:
+    """The summary's design, world and definitions, and the report's opening paragraphs."""
     s: dict[str, Any] = {
         "design": {"participants": design.participants, "systems": systems,
                    "rounds": design.rounds, "factors": {k: list(v) for k, v in
@@ -144,19 +163,27 @@ def analyze_study(folder: str | Path) -> Analysis:
           "round's realised spatial cost (sum over robot tasks of the largest S_i over the "
           "person's tasks that overlapped it, against the person's actual paths). Reduction = "
           f"first round minus the mean of the last {LAST}; positive = the cost fell.", ""]
+    return s, md
 
-    # -- objective ------------------------------------------------------------------------
+
+def _objective_section(design: StudyDesign, participants: Sequence[Participant],
+                       rounds: pd.DataFrame, systems: list[str], folder: Path
+                       ) -> tuple[dict[str, Any], list[str], list[Path]]:
+    """Cost reductions per system and the rm-ANOVAs that test the paper's claims on them."""
+    from rapidds.plots.study import plot_cost_reductions, plot_round_costs
+
+    files: list[Path] = []
+    md: list[str] = []
     done = rounds.groupby(["participant", "system"]).size()
     complete = [p.id for p in participants
                 if all(done.get((p.id, sys_), 0) >= design.rounds for sys_ in p.systems)]
-    s["objective"] = {"n": len(complete), "rounds_stored": len(rounds)}
-    md += ["## Objective measures", ""]
+    part: dict[str, Any] = {"n": len(complete), "rounds_stored": len(rounds)}
     four = set(systems) == set(ADAPTATION)
     if len(complete) < 2 or design.rounds < LAST + 1:
         why = (f"{len(complete)} participant(s) have finished every system" if
                design.rounds >= LAST + 1 else f"{design.rounds} rounds < {LAST + 1}")
         md += [f"Not analysed: {why}; the analysis needs at least 2 and {LAST + 1} rounds.", ""]
-        s["objective"]["skipped"] = why
+        part["skipped"] = why
     else:
         data = rounds[rounds["participant"].isin(complete)]
         red = cost_reduction(data, [c for c, _ in COSTS], last=LAST)
@@ -165,7 +192,7 @@ def analyze_study(folder: str | Path) -> Analysis:
         files.append(plot_cost_reductions(red, cols, systems, folder / "study_costs.png"))
         files.append(plot_round_costs(data, COSTS, systems, folder / "study_rounds.png"))
         means = red.groupby("system")[[c for c, _ in cols]].agg(["mean", "std"])
-        s["objective"]["reduction_by_system"] = {
+        part["reduction_by_system"] = {
             sys_: {c: {"mean": float(means.loc[sys_, (c, "mean")]),
                        "sd": float(means.loc[sys_, (c, "std")])} for c, _ in cols}
             for sys_ in systems}
@@ -180,24 +207,22 @@ def analyze_study(folder: str | Path) -> Analysis:
         md.append("")
         if not four:
             md += [f"rm-ANOVA not run: it needs the four systems {', '.join(ADAPTATION)} "
-                   f"(the 2 x 2 of {' x '.join(FACTORS)} adaptation).", ""]
+                   f"(the 2 x 2 of {' x '.join(ANALYSIS_FACTORS)} adaptation).", ""]
         else:
-            s["objective"]["anova"] = {}
-            s["objective"]["claims"] = {}
+            part["anova"] = {}
+            part["claims"] = {}
             for (c, label), (_, cost) in zip(cols, COSTS, strict=True):
                 cost = cost.split(" (")[0]
                 rows = _anova_rows(rm_anova_2x2(red, c))
-                s["objective"]["anova"][c] = rows
+                part["anova"][c] = rows
                 md += _md_anova(f"Two-way rm-ANOVA of the {label} (spatial x temporal "
                                 "adaptation)", rows)
                 factor, alpha = PAPER[c]
                 row = next(r for r in rows if r["effect"] == factor)
-                adaptive = red[red["system"].map(lambda x, f=factor: ADAPTATION[x][
-                    FACTORS.index(f)])][c].mean()
-                other = red[~red["system"].map(lambda x, f=factor: ADAPTATION[x][
-                    FACTORS.index(f)])][c].mean()
+                adaptive = red[red["system"].map(lambda x, f=factor: adapts(x, f))][c].mean()
+                other = red[~red["system"].map(lambda x, f=factor: adapts(x, f))][c].mean()
                 holds = bool(row["p"] < alpha and adaptive > other)
-                s["objective"]["claims"][c] = {
+                part["claims"][c] = {
                     "claim": f"{factor} adaptation lowers the {cost} (paper p < {alpha:g})",
                     "p": row["p"], "F": row["F"], "mean_with": float(adaptive),
                     "mean_without": float(other), "holds": holds}
@@ -206,19 +231,26 @@ def analyze_study(folder: str | Path) -> Analysis:
                        f"adaptation vs {other:.3f} without, F({row['df1']:g}, {row['df2']:g}) = "
                        f"{row['F']:.2f}, p {_fmt_p(row['p'])}: "
                        f"**{'holds' if holds else 'does not hold'}**.", ""]
+    return part, md, files
 
-    # -- ranking --------------------------------------------------------------------------
-    md += ["## Ranking", ""]
-    s["ranking"] = {"n": len(rankings)}
-    spatial_split = len({ADAPTATION[x][0] for x in systems}) == 2
+
+def _ranking_section(rankings: pd.DataFrame, systems: list[str], folder: Path
+                     ) -> tuple[dict[str, Any], list[str], list[Path]]:
+    """The signed-rank test of the forced-choice rankings (spatial adaptation preferred?)."""
+    from rapidds.plots.study import plot_ranking_distribution
+
+    files: list[Path] = []
+    md: list[str] = []
+    part: dict[str, Any] = {"n": len(rankings)}
+    spatial_split = len({adapts(x, "spatial") for x in systems}) == 2
     if len(rankings) < 2 or not spatial_split:
         why = (f"{len(rankings)} ranking(s) stored (simulated participants rank nothing)"
                if len(rankings) < 2 else "no systems both with and without spatial adaptation")
         md += [f"Not analysed: {why}.", ""]
-        s["ranking"]["skipped"] = why
+        part["skipped"] = why
     else:
         test = ranking_test(rankings_from_orders(rankings), systems=systems)
-        s["ranking"].update(statistic=float(test.statistic), p=float(test.p), r=float(test.r),
+        part.update(statistic=float(test.statistic), p=float(test.p), r=float(test.r),
                             n_nonzero=test.n, n_zero=test.n_zero,
                             mean_rank={k: float(v) for k, v in test.mean_rank.items()})
         files.append(plot_ranking_distribution(test.distribution.reindex(systems),
@@ -231,23 +263,31 @@ def analyze_study(folder: str | Path) -> Analysis:
                f"W = {test.statistic:g}, p {_fmt_p(test.p)}, matched-pairs rank-biserial r = "
                f"{test.r:.2f} ({test.n} nonzero differences, {test.n_zero} zero). Mean rank: "
                + ", ".join(f"{k} {v:.2f}" for k, v in test.mean_rank.items()) + ".", ""]
+    return part, md, files
 
-    # -- survey ---------------------------------------------------------------------------
-    md += ["## Survey", ""]
+
+def _survey_section(survey: pd.DataFrame, items: SurveyItems, systems: list[str], folder: Path
+                    ) -> tuple[dict[str, Any], list[str], list[Path]]:
+    """The ART ANOVA of every survey item."""
+    from rapidds.plots.study import plot_survey
+
+    files: list[Path] = []
+    md: list[str] = []
+    four = set(systems) == set(ADAPTATION)
     n_items = len(items.ids)
     answered = survey.groupby("participant")["system"].nunique() if len(survey) else pd.Series()
     full = [p for p, k in answered.items() if k == len(systems)]
-    s["survey"] = {"n": len(full), "items": list(items.ids)}
+    part: dict[str, Any] = {"n": len(full), "items": list(items.ids)}
     if len(full) < 2 or not four:
         why = (f"{len(full)} participant(s) answered the survey about every system "
                "(simulated participants answer nothing)" if len(full) < 2 else
                f"ART needs the four systems {', '.join(ADAPTATION)} (a 2 x 2)")
         md += [f"Not analysed: {why}.", ""]
-        s["survey"]["skipped"] = why
+        part["skipped"] = why
     else:
         data = survey[survey["participant"].isin(full)]
         art = art_by_item(data, response="value")
-        s["survey"]["art"] = [
+        part["art"] = [
             {"item": str(i), "effect": str(e), **{k: (bool(v) if k == "alignment_ok" else
                                                       float(v)) for k, v in row.items()}}
             for (i, e), row in art.iterrows()]
@@ -258,14 +298,9 @@ def analyze_study(folder: str | Path) -> Analysis:
                "|---|---|---|---|---|---|---|"]
         md += [f"| {r['item']} | {r['effect']} | {r['F']:.2f} | {r['df1']:g}, {r['df2']:g} | "
                f"{_fmt_p(r['p'])} | {r['partial_eta_sq']:.3f} | {r['alignment_ok']} |"
-               for r in s["survey"]["art"]]
+               for r in part["art"]]
         md.append("")
-    report = "\n".join(md)
-    s = _finite(s)
-    atomic_write_text(folder / "report.md", report + "\n")
-    atomic_write_text(folder / "summary.json", json.dumps(s, indent=1) + "\n")
-    files[:0] = [folder / "report.md", folder / "summary.json"]
-    return Analysis(s, report, files)
+    return part, md, files
 
 
 def _finite(obj: Any) -> Any:

@@ -40,6 +40,7 @@ from pydantic import (
 from rapidds.errors import StudyDesignError
 from rapidds.experiments.study.systems import SYSTEMS
 from rapidds.fileio import atomic_write_text
+from rapidds.settings import error_line
 
 if TYPE_CHECKING:
     from rapidds.worlds.base import World
@@ -50,22 +51,18 @@ TABLE_COLUMNS: tuple[str, ...] = ("participant", "row", "order", "group")
 """Columns of :meth:`StudyDesign.assign` before the one column per priming factor."""
 _NAME = r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$"  # no separators: names go into CSV cells and group names
 _ORDER_SEP = ";"
-PRIMING: dict[str, dict[str, tuple[str, ...]]] = {
-    "painting": {"hand": ("left", "right"), "speed": ("fast", "slow")},
-    "fetch": {"speed": ("fast", "slow"), "route": ("middle", "outside")},
-}
-"""Priming factors per world. Their factorial names the world's simulated teammates (painting
-``left-fast`` ..., fetch ``fast-middle`` ...), so a group's simulated cell and typed-in rounds
-have a person to act; a world not listed gets one factor ``teammate`` (:func:`priming_factors`)."""
 MAX_TASK_S_LIMIT = 3600.0
 """The largest ``max_task_s`` a design may set: an hour, far beyond a task of any world here,
 and still a small path (24 000 rows at painting's dt)."""
 
 
 def priming_factors(world: World) -> dict[str, tuple[str, ...]]:
-    """The priming factors of a study on ``world``: :data:`PRIMING`, else one factor
-    ``teammate`` whose levels are the world's simulated teammates."""
-    return dict(PRIMING.get(world.name, {"teammate": tuple(world.teammate_names)}))
+    """The priming factors of a study on ``world``: the world's ``priming_factors`` (factors
+    whose factorial names its simulated teammates, painting ``left-fast`` ..., fetch
+    ``fast-middle`` ..., so a group's simulated cell and typed-in rounds have a person to act),
+    else one factor ``teammate`` whose levels are the world's simulated teammates."""
+    own = getattr(world, "priming_factors", None)
+    return dict(own if own else {"teammate": tuple(world.teammate_names)})
 
 
 def world_task_bound(world: World) -> float:
@@ -145,10 +142,7 @@ class StudyDesign(BaseModel):
         try:
             super().__init__(**data)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            msg = err["msg"].removeprefix("Value error, ")
-            raise StudyDesignError(f"study design: {where + ': ' if where else ''}{msg}") from None
+            raise StudyDesignError(f"study design: {error_line(exc)}") from None
 
     @field_validator("systems")
     @classmethod

@@ -14,10 +14,10 @@ import numpy as np
 import pandas as pd
 
 from rapidds.experiments.study.stats import adaptation_factors, rankings_from_orders
-from rapidds.experiments.study.systems import ADAPTATION, SYSTEMS
+from rapidds.experiments.study.systems import SYSTEMS, adapts
 
 N_PARTICIPANTS = 32
-_SPATIAL = np.array([ADAPTATION[s][0] for s in SYSTEMS])
+_SPATIAL = np.array([adapts(s, "spatial") for s in SYSTEMS])
 
 
 def study_frame(n: int = N_PARTICIPANTS) -> pd.DataFrame:

@@ -58,6 +58,7 @@ from rapidds.errors import ConfigError, StateError, StudyDataError, StudyDesignE
 from rapidds.experiments.study.design import MAX_TASK_S_LIMIT, StudyDesign
 from rapidds.experiments.study.systems import ADAPTATION
 from rapidds.loop.config import RunConfig
+from rapidds.settings import error_line
 from rapidds.store import DEFAULT_TIMEOUT, RunStore
 
 __all__ = [
@@ -166,7 +167,7 @@ class SurveyItems(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            raise StudyDesignError(f"{where}: {_first(exc)}") from None
+            raise StudyDesignError(f"{where}: {error_line(exc)}") from None
 
     @classmethod
     def load(cls, path: str | Path) -> SurveyItems:
@@ -185,13 +186,6 @@ def default_items() -> SurveyItems:
     """The packaged survey: Hoffman's fluency measures and the paper's interference item."""
     text = resources.files("rapidds.experiments.study").joinpath("items.yaml").read_text()
     return SurveyItems.parse(yaml.safe_load(text), "items.yaml")
-
-
-def _first(exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    where = ".".join(str(p) for p in err["loc"])
-    msg = err["msg"].removeprefix("Value error, ")
-    return f"{where}: {msg}" if where else msg
 
 
 # -- submissions -------------------------------------------------------------------------------
@@ -219,11 +213,8 @@ def _validated(model: type[BaseModel], what: str, **data: Any) -> Any:
     try:
         return model(**data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = [str(p) for p in err["loc"][1:]]
-        where = f" '{loc[0]}'" if loc else ""
-        got = f" (got {err['input']!r})" if "input" in err and loc else ""
-        raise StudyDataError(f"{what}{where}: {err['msg']}{got}") from None
+        line = error_line(exc, prefix=f"{what} ", skip=1, quote=True, with_input=True)
+        raise StudyDataError(line) from None
 
 
 def validate_durations(durations: Mapping[str, Any], tasks: Iterable[str],

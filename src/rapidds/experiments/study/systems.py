@@ -12,11 +12,21 @@ SYSTEMS: tuple[str, ...] = ("full", "spatial", "temporal", "none")
 
 ADAPTATION: dict[str, tuple[bool, bool]] = {
     "full": (True, True),
-    "spatial": (True, False),
-    "temporal": (False, True),
+    "spatial": (False, True),
+    "temporal": (True, False),
     "none": (False, False),
 }
-"""System -> (spatial adaptation, temporal adaptation)."""
+"""System -> (temporal adaptation, spatial adaptation): the order of the loop's flags
+(``rapidds.loop.run.LEARNS``), so a pair means the same wherever it is read."""
 
-FACTORS: tuple[str, str] = ("spatial", "temporal")
+FACTORS: tuple[str, str] = ("temporal", "spatial")
 """Names of the two adaptation factors, in the order of :data:`ADAPTATION`'s pairs."""
+
+ANALYSIS_FACTORS: tuple[str, str] = ("spatial", "temporal")
+"""The factors in the order the analyses and their tables present them (the paper's: spatial x
+temporal); read a system's flags by name, :func:`adapts`, never by position."""
+
+
+def adapts(system: str, factor: str) -> bool:
+    """Whether ``system`` has the ``factor`` ("temporal" or "spatial") adaptation."""
+    return ADAPTATION[system][FACTORS.index(factor)]

@@ -159,13 +159,20 @@ function drawMap() {
   }
 }
 
+// plan.items: per agent, [{task: id} | {wait: id}], structured by the server (the text of a wait
+// item is rapidds.schedule's business, not the page's)
+const tasksOf = (items) => items.filter((x) => x.task !== undefined).map((x) => x.task);
+function waitsBefore(items, task) {
+  const k = items.findIndex((x) => x.task === task);
+  return items.slice(0, k).filter((x) => x.wait !== undefined).map((x) => x.wait);
+}
+
 function robotWaits() {
   // what the robot is waiting for, if it is standing still before its next task
   const st = R.state, plan = R.plan, next = st.rcur;
   if (!next || !["locked", "queued"].includes(st.tasks[next])) return null;
-  const seq = plan.sequences.robot, k = seq.indexOf(next);
-  const open = [...seq.slice(0, k).filter((x) => x.startsWith("wait:")).map((x) => x.slice(5)),
-    ...plan.preceding[next]].filter((t) => st.tasks[t] !== "done");
+  const open = [...waitsBefore(plan.items.robot, next), ...plan.preceding[next]]
+    .filter((t) => st.tasks[t] !== "done");
   return open.length ? `waits for ${[...new Set(open)].join(", ")}` : null;
 }
 
@@ -212,8 +219,7 @@ function drawAgent(p, color, text, square) {
 
 function orderOf(task) {
   if (!R.plan) return null;
-  const own = R.plan.owner[task], seqs = R.plan.sequences[own].filter((x) => !x.startsWith("wait:"));
-  return seqs.indexOf(task) + 1;
+  return tasksOf(R.plan.items[R.plan.owner[task]]).indexOf(task) + 1;
 }
 
 function drawObject(task, p) {
@@ -293,8 +299,7 @@ function drawGantt() {
   for (const [agent, y] of Object.entries(rows)) {
     c.fillStyle = agent === "human" ? COLORS.human : COLORS.robot;
     c.font = "700 12px system-ui, sans-serif"; c.fillText(agent === "human" ? "you" : "robot", 10, y + bh / 2);
-    for (const item of plan.sequences[agent]) {
-      if (item.startsWith("wait:")) continue;
+    for (const item of tasksOf(plan.items[agent])) {
       const [s, f] = plan.expected[item];
       const color = agent === "human" ? COLORS.human : COLORS.robot;
       c.globalAlpha = 0.22; c.fillStyle = color; roundRect(c, X(s), y, Math.max(2, X(f) - X(s)), bh, 4); c.fill();
@@ -308,14 +313,14 @@ function drawGantt() {
     }
     // waits: where an agent stands still until the other's task is done
     let prevEnd = 0;
-    for (const item of plan.sequences[agent]) {
-      if (item.startsWith("wait:")) {
-        const w = item.slice(5), until = plan.expected[w][1];
+    for (const item of plan.items[agent]) {
+      if (item.wait !== undefined) {
+        const w = item.wait, until = plan.expected[w][1];
         c.strokeStyle = "#475569"; c.setLineDash([3, 3]); c.lineWidth = 1.5;
         c.beginPath(); c.moveTo(X(prevEnd), y + bh / 2); c.lineTo(X(until), y + bh / 2); c.stroke(); c.setLineDash([]);
         c.fillStyle = "#475569"; c.font = "10px system-ui, sans-serif";
         c.fillText(`waits for ${w}`, X(prevEnd) + 2, y - 5);
-      } else prevEnd = plan.expected[item][1];
+      } else prevEnd = plan.expected[item.task][1];
     }
   }
   if (live && live.started) {
@@ -359,8 +364,7 @@ function instructions() {
 }
 function lockedBy(task) {
   const st = R.state, plan = R.plan, out = [];
-  const seqs = plan.sequences.human, k = seqs.indexOf(task);
-  const waits = seqs.slice(0, k).filter((x) => x.startsWith("wait:")).map((x) => x.slice(5));
+  const waits = waitsBefore(plan.items.human, task);
   for (const p of [...plan.preceding[task], ...waits]) if (st.tasks[p] !== "done") out.push(plan.owner[p] === "robot" ? `the robot's ${p}` : p);
   return out;
 }
@@ -374,7 +378,7 @@ function render() {
   $("clock").textContent = st && plan && st.cycle === plan.cycle ? st.t.toFixed(1) : "0.0";
   $("expected").textContent = plan ? `· planned ${plan.expected_makespan.toFixed(1)} s` : "";
   // plan card
-  const mine = plan ? plan.sequences.human.filter((x) => !x.startsWith("wait:")) : [];
+  const mine = plan ? tasksOf(plan.items.human) : [];
   $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in order` : "Your tasks";
   const ol = $("mytasks"); ol.innerHTML = "";
   for (const t of mine) {
@@ -385,7 +389,7 @@ function render() {
     ol.appendChild(li);
   }
   if (plan && !mine.length) ol.innerHTML = "<li>none this cycle: watch the robot</li>";
-  $("robottasks").textContent = plan ? "Robot: " + plan.sequences.robot.map((x) => x.startsWith("wait:") ? `(waits for ${x.slice(5)})` : `${x} ${plan.routes[x] ? "via " + plan.routes[x] : ""}`).join(" → ") : "";
+  $("robottasks").textContent = plan ? "Robot: " + plan.items.robot.map((x) => x.wait !== undefined ? `(waits for ${x.wait})` : `${x.task} ${plan.routes[x.task] ? "via " + plan.routes[x.task] : ""}`).join(" → ") : "";
   const btn = $("start");
   const between = ["ready", "over", "waiting", "done"].includes(R.phase) && R.summary;
   btn.classList.toggle("hidden", !(R.phase === "ready" || (between && R.phase !== "done")));

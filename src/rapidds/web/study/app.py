@@ -48,6 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
+from rapidds.settings import error_line
 from rapidds.web.server import HostCheck, game_page, refuse_socket, same_origin
 from rapidds.web.study import pages
 from rapidds.web.study.play import GameRound, open_round
@@ -125,12 +126,6 @@ def _error(status: int, message: str, **extra: Any) -> JSONResponse:
 
 def _html(text: str, status: int = 200) -> HTMLResponse:
     return HTMLResponse(text, status_code=status, headers=_HEADERS)
-
-
-def _validation_line(exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    loc = ".".join(str(p) for p in err["loc"]) or "body"
-    return f"{loc}: {err['msg']}"
 
 
 def create_study_app(worker: StudyWorker, hosts: Sequence[str],
@@ -305,7 +300,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
         try:
             sub = Submit.model_validate(raw)
         except ValidationError as exc:
-            return _error(422, _validation_line(exc))
+            return _error(422, error_line(exc, empty="body"))
         try:
             _pid(pid)
             if kind == "round":

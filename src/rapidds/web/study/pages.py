@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from html import escape
 from typing import Any
 
-from rapidds.schedule import Timeline
+from rapidds.schedule import Timeline, Wait, parse_item, task_items
 
 __all__ = [
     "demographics_page",
@@ -93,10 +93,11 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
     """The plan of the round and the form for what the person did; game: the address where
     the round can be played in the browser game instead (fetch studies); sources: the form's
     choices that can work for this participant (a tracker file always)."""
-    human = [t for t in view["human"] if not t.startswith("wait:")]
+    human = task_items(view["human"])
     seq = lambda items, cls: " → ".join(  # noqa: E731
-        f"<span class={cls}>{e(t)}</span>" if not t.startswith("wait:")
-        else f"<span class=muted>wait for {e(t[5:])}</span>" for t in items) or "—"
+        f"<span class={cls}>{e(t)}</span>" if not isinstance(t, Wait)
+        else f"<span class=muted>wait for {e(t.task)}</span>" for t in map(parse_item, items)
+    ) or "—"
     motions = "".join(f"<tr><td class=robot>{e(j)}</td><td>{e(m)}</td></tr>"
                       for j, m in view["routes"].items()) or "<tr><td>—</td></tr>"
     typed = "".join(

@@ -166,7 +166,22 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
         raise TrackerError("the tracker file is not UTF-8 text (CSV or JSON)") from None
     rest = np.asarray(world.human_rest(), dtype=float)
     k, dim = rest.shape
-    axes = _AXES[:dim]
+    table = _columns(table, k, _AXES[:dim], line0)
+    point, t, xyz = _samples(table, world, k, _AXES[:dim], line0)
+    names = table["task"].to_numpy()
+    wanted = list(dict.fromkeys(tasks))
+    extra = sorted(set(names) - set(wanted))
+    if extra:
+        raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
+                           f"does not do this round (their tasks: {', '.join(wanted)})")
+    limit = world_task_bound(world) if at_most is None else at_most
+    return {task: _execution(world, task, names == task, point, t, xyz, k, limit, wanted)
+            for task in wanted}
+
+
+def _columns(table: pd.DataFrame, k: int, axes: Sequence[str], line0: int) -> pd.DataFrame:
+    """The table's columns the format needs (``point`` implied for one body point), with the
+    text columns stripped; TrackerError for a missing column or an empty cell."""
     table.columns = [str(c).strip().lower() for c in table.columns]
     if "point" not in table.columns and k == 1:
         table["point"] = "0"
@@ -183,6 +198,13 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
         if len(null):
             raise TrackerError(f"tracker file row {int(null[0]) + line0}: {c} is empty")
         table[c] = table[c].astype(str).str.strip()
+    return table
+
+
+def _samples(table: pd.DataFrame, world: World, k: int, axes: Sequence[str],
+             line0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(point index, t, coordinates) of every row, checked: a body point of this world, and
+    coordinates near the workspace (a file in millimetres or another frame is refused)."""
     point = _numbers(table, "point", line0)
     bad = np.flatnonzero((point != np.round(point)) | (point < 0) | (point >= k))
     if len(bad):
@@ -201,42 +223,38 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
             f"outside the workspace [{', '.join(f'{v:g}' for v in lo)}] .. "
             f"[{', '.join(f'{v:g}' for v in hi)}]: are the coordinates in metres, in the "
             "world's frame?")
-    names = table["task"].to_numpy()
-    wanted = list(dict.fromkeys(tasks))
-    extra = sorted(set(names) - set(wanted))
-    if extra:
-        raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
-                           f"does not do this round (their tasks: {', '.join(wanted)})")
-    limit = world_task_bound(world) if at_most is None else at_most
-    out: dict[str, HumanExecution] = {}
-    for task in wanted:
-        rows = names == task
-        if not rows.any():
-            raise TrackerError(f"the tracker file has no rows for task {task} (the person's "
-                               f"tasks this round: {', '.join(wanted)})")
-        t0, t1 = float(t[rows].min()), float(t[rows].max())
-        if not t1 > t0:
-            raise TrackerError(f"task {task}: all samples have t = {t0:g}; a task needs samples "
-                               "at two times at least")
-        if t1 - t0 > limit:  # before its path of (t1 - t0) / dt rows is allocated
-            raise TrackerError(f"task {task}: its samples span {t1 - t0:g} s, longer than any "
-                               f"task of this study ({limit:g} s): are t in seconds, one "
-                               "round per file?")
-        grid = _rows_of(world, t1 - t0)
-        path = np.empty((len(grid), k, dim))
-        for j in range(k):
-            sel = rows & (point == j)
-            if not sel.any():
-                raise TrackerError(f"task {task}: no samples of body point {j} (this world's "
-                                   f"person has points 0..{k - 1}, all needed)")
-            order = np.argsort(t[sel], kind="stable")
-            tj, pj = t[sel][order] - t0, xyz[sel][order]
-            if np.any(np.diff(tj) <= 0):
-                raise TrackerError(f"task {task}, point {j}: two samples at the same t; each "
-                                   "time once per point")
-            path[:, j] = resample(tj, pj[:, None, :], grid)[:, 0]
-        out[task] = HumanExecution(task, t1 - t0, path)
-    return out
+    return point, t, xyz
+
+
+def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: np.ndarray,
+               xyz: np.ndarray, k: int, limit: float, wanted: Sequence[str]) -> HumanExecution:
+    """One task's execution from its ``rows``: duration from first to last sample, every body
+    point resampled at the world's dt."""
+    if not rows.any():
+        raise TrackerError(f"the tracker file has no rows for task {task} (the person's "
+                           f"tasks this round: {', '.join(wanted)})")
+    t0, t1 = float(t[rows].min()), float(t[rows].max())
+    if not t1 > t0:
+        raise TrackerError(f"task {task}: all samples have t = {t0:g}; a task needs samples "
+                           "at two times at least")
+    if t1 - t0 > limit:  # before its path of (t1 - t0) / dt rows is allocated
+        raise TrackerError(f"task {task}: its samples span {t1 - t0:g} s, longer than any "
+                           f"task of this study ({limit:g} s): are t in seconds, one "
+                           "round per file?")
+    grid = _rows_of(world, t1 - t0)
+    path = np.empty((len(grid), k, xyz.shape[1]))
+    for j in range(k):
+        sel = rows & (point == j)
+        if not sel.any():
+            raise TrackerError(f"task {task}: no samples of body point {j} (this world's "
+                               f"person has points 0..{k - 1}, all needed)")
+        order = np.argsort(t[sel], kind="stable")
+        tj, pj = t[sel][order] - t0, xyz[sel][order]
+        if np.any(np.diff(tj) <= 0):
+            raise TrackerError(f"task {task}, point {j}: two samples at the same t; each "
+                               "time once per point")
+        path[:, j] = resample(tj, pj[:, None, :], grid)[:, 0]
+    return HumanExecution(task, t1 - t0, path)
 
 
 def tracker_csv(executions: Mapping[str, HumanExecution], dt: float, t0: float = 0.0) -> str:

@@ -143,6 +143,11 @@ class FetchWorld:
         return tuple(ARCHETYPES)
 
     @property
+    def priming_factors(self) -> dict[str, tuple[str, ...]]:
+        """A user study's priming factors: their factorial names :attr:`teammate_names`."""
+        return {"speed": ("fast", "slow"), "route": ("middle", "outside")}
+
+    @property
     def policy_defaults(self) -> dict[str, object]:
         return dict(POLICY_DEFAULTS)
 

@@ -177,6 +177,11 @@ class PaintingWorld:
         return tuple(ARCHETYPES)
 
     @property
+    def priming_factors(self) -> dict[str, tuple[str, ...]]:
+        """A user study's priming factors: their factorial names :attr:`teammate_names`."""
+        return {"hand": ("left", "right"), "speed": ("fast", "slow")}
+
+    @property
     def policy_defaults(self) -> dict[str, object]:
         return dict(POLICY_DEFAULTS)
 

@@ -1,0 +1,462 @@
+"""The grid belief of one person's expected point cost for one task (paper Eqs. 7-11):
+:func:`point_cost` (Eq. 7) and :class:`SpatialCostModel` (the conjugate Normal belief at the
+grid points, evaluated by multilinear interpolation or the MLP surrogate)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any, TypeVar
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike
+
+from rapidds.codec import decode_array, encode_array
+from rapidds.errors import StateError
+from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
+from rapidds.human.spatial.surrogate import FitReport, Surrogate, SurrogateError
+
+__all__ = ["Points", "SpatialCostModel", "point_cost"]
+
+# Elements of the largest temporary (chunk x T x d) array point_cost builds: 8 MiB of float64.
+_POINT_COST_ELEMS = 1 << 20
+
+Points = TypeVar("Points", np.ndarray, torch.Tensor)
+
+
+def _check_points(a: ArrayLike, what: str, d: int | None = None) -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"{what} must be a non-empty (n, d) array, got shape {arr.shape}")
+    if d is not None and arr.shape[1] != d:
+        raise ValueError(f"{what} has {arr.shape[1]} coordinates per point, the model has {d}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{what} contains NaN or infinite coordinates")
+    return arr
+
+
+def _check_path(a: ArrayLike, what: str, d: int) -> np.ndarray:
+    """A validated human path, (T, d) (one body point) or (T, K, d) (K body points, each a
+    polyline over the same T samples), as float64 in the same layout."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim == 3:
+        if 0 in arr.shape:
+            raise ValueError(f"{what} must be a non-empty (T, K, d) array, got shape {arr.shape}")
+        if arr.shape[2] != d:
+            raise ValueError(f"{what} has {arr.shape[2]} coordinates per point, the model has {d}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{what} contains NaN or infinite coordinates")
+        return arr
+    if arr.ndim != 2:
+        raise ValueError(f"{what} must be a non-empty (T, d) or (T, K, d) array, got shape "
+                         f"{arr.shape}")
+    return _check_points(arr, what, d)
+
+
+def point_cost(
+    points: ArrayLike, human_traj: ArrayLike, beta: float, *, polyline: bool = True
+) -> np.ndarray:
+    """Eq. 7: s(x, xi_h) = max over the human path of exp(-beta ||x_h - x||), for every x.
+
+    Args:
+        points: (V, d) robot points x.
+        human_traj: (T, d) human path xi_h, T >= 1 samples in time order; or (T, K, d), K body
+            points (hands, elbows, ...) each followed over the same T samples: the cost is then
+            the max over the K paths, i.e. set by the body point nearest to x.
+        beta: distance decay, > 0.
+        polyline: True takes each path as the piecewise-linear route through its samples (the
+            person is between two samples between time steps); False takes the samples alone,
+            as Eq. 7 is printed, which leaves dips between samples spaced wider than ~1/beta.
+
+    Returns:
+        (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
+        exp(-beta * distance to the nearest path point or segment), computed in chunks of points
+        so the (chunk, S, d) temporaries stay near 8 MiB (S segments of all K paths together).
+    """
+    if not _is_real(beta) or not math.isfinite(beta) or beta <= 0:
+        raise ValueError(f"beta must be a finite number > 0, got {beta!r}")
+    pts = _check_points(points, "points")
+    traj = _check_path(human_traj, "human_traj", pts.shape[1])
+    paths = traj[None] if traj.ndim == 2 else traj.transpose(1, 0, 2)   # (K, T, d)
+    if polyline and paths.shape[1] > 1:
+        # The segments of every body point's path, and only those: no segment joins the end of
+        # one body point's path to the start of the next.
+        start = paths[:, :-1].reshape(-1, pts.shape[1])
+        seg = np.diff(paths, axis=1).reshape(-1, pts.shape[1])  # (S, d)
+        seg_len2 = np.einsum("sd,sd->s", seg, seg)
+        inv = np.divide(1.0, seg_len2, out=np.zeros_like(seg_len2), where=seg_len2 > 0)
+    else:
+        start = paths.reshape(-1, pts.shape[1])
+        seg, inv = np.zeros_like(start), np.zeros(len(start))
+    s, d = start.shape
+    step = max(1, _POINT_COST_ELEMS // (s * d))
+    nearest = np.empty(len(pts))
+    for k in range(0, len(pts), step):
+        rel = pts[k:k + step, None, :] - start[None]  # (c, S, d)
+        t = np.clip(np.einsum("csd,sd->cs", rel, seg) * inv, 0.0, 1.0)
+        rel -= t[..., None] * seg
+        nearest[k:k + step] = np.einsum("csd,csd->cs", rel, rel).min(axis=1)
+    return np.exp(-float(beta) * np.sqrt(nearest))
+
+
+class SpatialCostModel:
+    """Belief about one person's expected point cost s_i(x) for one human task.
+
+    Holds (V,) posterior mean and variance at the grid points of ``config`` and, when fitted, an
+    MLP approximating the mean. Build it with :meth:`from_population`.
+    """
+
+    def __init__(
+        self,
+        config: SpatialConfig,
+        mean: ArrayLike,
+        var: ArrayLike,
+        *,
+        prior_mean: ArrayLike | None = None,
+        prior_var: ArrayLike | None = None,
+        n_obs: int = 0,
+    ):
+        self.config = config
+        v = config.n_points
+        self._mean = np.array(mean, dtype=np.float64).reshape(-1)
+        self._var = np.array(var, dtype=np.float64).reshape(-1)
+        self._prior_mean = (self._mean.copy() if prior_mean is None
+                            else np.array(prior_mean, dtype=np.float64).reshape(-1))
+        self._prior_var = (self._var.copy() if prior_var is None
+                           else np.array(prior_var, dtype=np.float64).reshape(-1))
+        for name, a in (("mean", self._mean), ("var", self._var), ("prior_mean", self._prior_mean),
+                        ("prior_var", self._prior_var)):
+            if a.shape != (v,):
+                raise ValueError(f"{name} must have V = {v} values, got {a.shape}")
+            if not np.isfinite(a).all():
+                raise ValueError(f"{name} contains NaN or infinite values")
+        if (self._var <= 0).any() or (self._prior_var <= 0).any():
+            raise ValueError("var and prior_var must be > 0 at every grid point")
+        if not _is_int(n_obs) or n_obs < 0:
+            raise ValueError(f"n_obs must be an integer >= 0, got {n_obs!r}")
+        self.n_obs = int(n_obs)
+        self.n_fits = 0
+        self._grid = config.grid()
+        self._lo = np.array([b[0] for b in config.bounds])
+        self._hi = np.array([b[1] for b in config.bounds])
+        shape = config.shape
+        self._strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
+        self._net: Surrogate | None = None
+        self._stale = True
+        self._grid_cache: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
+        self._net_cache: dict[torch.device, Surrogate] = {}
+
+    @classmethod
+    def from_population(
+        cls, config: SpatialConfig, trajectories: Sequence[ArrayLike]
+    ) -> SpatialCostModel:
+        """Prior from M >= 1 other people's paths of this task (each (T_m, d), or (T_m, K, d)
+        for K body points; see :func:`point_cost`).
+
+        Mean: Eq. 9, the average over people of their point costs. Variance: ``config.prior_var``
+        or, when None, the per-point population variance floored at ``config.min_prior_var``.
+        """
+        if len(trajectories) == 0:
+            raise ValueError("from_population needs at least one population trajectory")
+        grid = config.grid()
+        costs = np.stack([
+            point_cost(grid, _check_path(t, f"population trajectory {m}", config.dim),
+                       config.beta, polyline=config.polyline)
+            for m, t in enumerate(trajectories)
+        ])
+        mean = costs.mean(axis=0)
+        if config.prior_var is None:
+            var = np.maximum(costs.var(axis=0), config.min_prior_var)
+        else:
+            var = np.full(config.n_points, config.prior_var)
+        return cls(config, mean, var)
+
+    # ----------------------------------------------------------------------------- belief
+    @property
+    def grid_points(self) -> np.ndarray:
+        """(V, d) grid points (a copy)."""
+        return self._grid.copy()
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(V,) posterior mean of s*(x) at the grid points (a copy)."""
+        return self._mean.copy()
+
+    @property
+    def var(self) -> np.ndarray:
+        """(V,) posterior variance at the grid points (a copy)."""
+        return self._var.copy()
+
+    @property
+    def prior_mean(self) -> np.ndarray:
+        """(V,) population prior mean, Eq. 9 (a copy)."""
+        return self._prior_mean.copy()
+
+    @property
+    def prior_var(self) -> np.ndarray:
+        """(V,) population prior variance (a copy): where forgetting and a reset return to."""
+        return self._prior_var.copy()
+
+    @property
+    def surrogate_stale(self) -> bool:
+        """True when the MLP is missing or was fitted to an older posterior."""
+        return self._stale
+
+    def observe(self, traj: ArrayLike) -> None:
+        """Conjugate update with one observed path (T, d) or (T, K, d) of this person
+        (Eqs. 10-11).
+
+        At every grid point s_obs = point_cost(x, traj);
+        1/var' = 1/var + 1/rho and mean' = var' (mean/var + s_obs/rho). Marks the MLP stale.
+        """
+        obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
+                         self.config.beta, polyline=self.config.polyline)
+        rho, f = self.config.rho, self.config.forgetting
+        var = self._var / f if f < 1 else self._var  # forgetting: precision times f
+        new_var = 1.0 / (1.0 / var + 1.0 / rho)
+        self._mean = new_var * (self._mean / var + obs / rho)
+        self._var = new_var
+        self.n_obs += 1
+        self._stale = True
+        self._grid_cache.clear()
+
+    def reset(self) -> None:
+        """Back to the population prior (a detected change: this person's old paths no longer
+        describe them). ``n_obs`` keeps counting what was observed."""
+        self._mean = self._prior_mean.copy()
+        self._var = self._prior_var.copy()
+        self._stale = True
+        self._grid_cache.clear()
+
+    # ------------------------------------------------------------------------- surrogate
+    def _new_net(self) -> Surrogate:
+        c = self.config
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(c.seed)
+            net = Surrogate(c.dim, c.hidden, c.layers, c.octaves)
+        return net
+
+    def _unit(self, x: np.ndarray) -> np.ndarray:
+        return 2.0 * (x - self._lo) / (self._hi - self._lo) - 1.0
+
+    def fit_surrogate(self, steps: int | None = None) -> FitReport:
+        """Fit the MLP to the posterior mean at the grid points (Adam on the squared error).
+
+        Warm-starts from the previous weights when there are any, so a refit after one cycle
+        usually stops after a few hundred steps at ``config.tol`` (0 steps when the old fit is
+        still within tol). Deterministic on CPU for a given history of observations and fits.
+        ``steps`` overrides ``config.steps``.
+        """
+        c = self.config
+        n_steps = c.steps if steps is None else steps
+        if not _is_int(n_steps) or n_steps < 1:
+            raise ValueError(f"steps must be an integer >= 1, got {n_steps!r}")
+        t0 = time.perf_counter()
+        if self._net is None:
+            self._net = self._new_net()
+        net = self._net
+        net.train()
+        u = torch.as_tensor(self._unit(self._grid), dtype=torch.float32)
+        target = torch.as_tensor(self._mean, dtype=torch.float32)
+        opt = torch.optim.Adam(net.parameters(), lr=c.lr)
+        gen = torch.Generator().manual_seed(c.seed * 1_000_003 + self.n_fits)
+        v = len(target)
+
+        def check() -> tuple[float, float]:
+            with torch.no_grad():
+                r = net(u).clamp(0.0, 1.0) - target
+            return float((r * r).mean()), float(r.abs().max())
+
+        done, (mse, err) = 0, ((math.inf, math.inf) if self.n_fits == 0 else check())
+        while done < n_steps and err > c.tol:
+            opt.zero_grad(set_to_none=True)
+            if v <= c.batch:
+                resid = net(u) - target
+            else:
+                idx = torch.randint(v, (c.batch,), generator=gen)
+                resid = net(u[idx]) - target[idx]
+            loss = (resid * resid).mean()
+            loss.backward()
+            opt.step()
+            done += 1
+            if done % 25 == 0 or done == n_steps:
+                mse, err = check()
+        net.eval()
+        self.n_fits += 1
+        self._stale = False
+        self._net_cache.clear()
+        return FitReport(done, time.perf_counter() - t0, mse, err)
+
+    def surrogate_error(self, n_random: int = 4096) -> SurrogateError:
+        """|MLP - grid interpolation| at the grid points and at ``n_random`` uniform random
+        points (seeded by ``config.seed``). Fits the MLP first if it is stale."""
+        if self._stale:
+            self.fit_surrogate()
+        rng = np.random.default_rng(self.config.seed)
+        rand = self._lo + (self._hi - self._lo) * rng.random((n_random, self.config.dim))
+        out = []
+        with torch.no_grad():
+            for pts in (self._grid, rand):
+                x = torch.as_tensor(pts)
+                diff = (self._eval_mlp(x) - self._eval_grid(x)).abs()
+                out += [float(diff.max()), float(diff.mean())]
+        return SurrogateError(*out)
+
+    # ------------------------------------------------------------------------ evaluation
+    def _grid_values(self, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+        key = (device, dtype)
+        if key not in self._grid_cache:
+            self._grid_cache[key] = torch.as_tensor(self._mean, dtype=dtype, device=device)
+        return self._grid_cache[key]
+
+    def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
+        """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
+        shape = self.config.shape
+        vals = self._grid_values(x.device, x.dtype)
+        lo = torch.as_tensor(self._lo, dtype=x.dtype, device=x.device)
+        hi = torch.as_tensor(self._hi, dtype=x.dtype, device=x.device)
+        top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype, device=x.device)
+        u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
+        i0 = torch.minimum(u.floor(), top - 1)
+        frac = u - i0
+        i0 = i0.long()
+        out = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+        for corner in itertools.product((0, 1), repeat=len(shape)):
+            idx = torch.zeros(x.shape[0], dtype=torch.long, device=x.device)
+            w = torch.ones_like(out)
+            for k, c in enumerate(corner):
+                idx += (i0[:, k] + c) * self._strides[k]
+                w *= frac[:, k] if c else 1.0 - frac[:, k]
+            out += w * vals[idx]
+        return out
+
+    def _mlp_on(self, device: torch.device) -> Surrogate:
+        assert self._net is not None
+        if device.type == "cpu":
+            return self._net
+        if device not in self._net_cache:
+            net = self._new_net().to(device)
+            net.load_state_dict(self._net.state_dict())
+            net.eval()
+            self._net_cache[device] = net
+        return self._net_cache[device]
+
+    def _eval_mlp(self, x: torch.Tensor) -> torch.Tensor:
+        net = self._mlp_on(x.device)
+        lo = torch.as_tensor(self._lo, dtype=torch.float32, device=x.device)
+        hi = torch.as_tensor(self._hi, dtype=torch.float32, device=x.device)
+        u = (2.0 * (x.to(torch.float32) - lo) / (hi - lo) - 1.0).clamp(-1.0, 1.0)
+        return net(u).clamp(0.0, 1.0).to(x.dtype)
+
+    def _eval_flat(self, x: torch.Tensor) -> torch.Tensor:
+        if not bool(torch.isfinite(x).all()):
+            raise ValueError("points contain NaN or infinite coordinates")
+        if self.config.use_surrogate and self._stale:
+            self.fit_surrogate()
+        fn = self._eval_mlp if self.config.use_surrogate else self._eval_grid
+        step = self.config.chunk
+        with torch.no_grad():
+            if x.shape[0] <= step:
+                return fn(x)
+            return torch.cat([fn(x[s:s + step]) for s in range(0, x.shape[0], step)])
+
+    def point_cost(self, x: Points) -> Points:
+        """s_i(x) for points x (..., d) -> (...), by MLP or grid interpolation per
+        ``config.use_surrogate``; points outside the bounds are clamped onto them.
+
+        NumPy in gives float64 NumPy out; a tensor gives a tensor of its dtype on its device
+        (integer tensors are evaluated as float32). A stale MLP is refitted first.
+        """
+        return _evaluate(self, x, ndim=None)
+
+    def trajectory_cost(self, xi: Points) -> Points:
+        """S_i(xi) = max over the path's points of s_i: xi (N, H, d) -> (N,).
+
+        One batched evaluation of all N*H points (the steering hot loop calls this with
+        N = particles x candidates).
+        """
+        return _evaluate(self, xi, ndim=3)
+
+    # ----------------------------------------------------------------------- persistence
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe: config, belief arrays, observation count, and the MLP (or None): weights,
+        number of fits so far and whether it was fitted to the current posterior."""
+        surrogate = None
+        if self._net is not None:
+            surrogate = {
+                "stale": self._stale,
+                "n_fits": self.n_fits,
+                "state": {k: encode_array(v.detach().cpu().numpy())
+                          for k, v in self._net.state_dict().items()},
+            }
+        return {
+            "config": self.config.to_dict(),
+            "n_obs": self.n_obs,
+            "mean": encode_array(self._mean),
+            "var": encode_array(self._var),
+            "prior_mean": encode_array(self._prior_mean),
+            "prior_var": encode_array(self._prior_var),
+            "surrogate": surrogate,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> SpatialCostModel:
+        """Inverse of :meth:`to_dict`; raises StateError when the dict is malformed or its
+        arrays do not fit its config."""
+        if not isinstance(data, Mapping):
+            raise StateError("spatial model: task entry is not a mapping")
+        try:
+            config = SpatialConfig.from_dict(data["config"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise StateError(f"spatial model: bad config ({e})") from None
+        v = (config.n_points,)
+        mean = decode_array(data.get("mean"), "spatial model: mean", v)
+        var = decode_array(data.get("var"), "spatial model: var", v)
+        prior = decode_array(data.get("prior_mean"), "spatial model: prior_mean", v)
+        # files written before forgetting existed hold no prior variance; only a model that
+        # forgets or resets reads it, and such a model always stored it
+        prior_var = (decode_array(data["prior_var"], "spatial model: prior_var", v)
+                     if "prior_var" in data else None)
+        try:
+            model = cls(config, mean, var, prior_mean=prior, prior_var=prior_var,
+                        n_obs=data.get("n_obs", -1))
+        except ValueError as e:
+            raise StateError(f"spatial model: {e}") from None
+        sur = data.get("surrogate")
+        if sur is not None:
+            net = model._new_net()
+            try:
+                state = {k: torch.from_numpy(decode_array(a, f"spatial model: MLP weight {k}"))
+                         for k, a in sur["state"].items()}
+                net.load_state_dict(state)
+                stale, n_fits = sur["stale"], sur["n_fits"]
+            except (KeyError, TypeError, AttributeError, RuntimeError) as e:
+                raise StateError(
+                    f"spatial model: MLP weights do not fit the config ({e})"
+                ) from None
+            if not isinstance(stale, bool) or not _is_int(n_fits) or n_fits < 1:
+                raise StateError("spatial model: bad surrogate.stale or surrogate.n_fits")
+            net.eval()
+            model._net, model._stale, model.n_fits = net, stale, int(n_fits)
+        return model
+
+
+def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
+    """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+    d = model.config.dim
+    is_tensor = isinstance(x, torch.Tensor)
+    t = x if is_tensor else torch.from_numpy(np.asarray(x, dtype=np.float64))
+    if not t.is_floating_point():
+        t = t.to(torch.float32)
+    if t.ndim < 1 or t.shape[-1] != d:
+        raise ValueError(f"points must have shape (..., {d}), got {tuple(t.shape)}")
+    if ndim is not None and (t.ndim != ndim or t.shape[1] == 0):
+        raise ValueError(f"trajectories must have shape (N, H, {d}) with H >= 1, "
+                         f"got {tuple(t.shape)}")
+    out = model._eval_flat(t.reshape(-1, d)).reshape(t.shape[:-1])
+    if ndim is not None:
+        out = out.amax(dim=-1)
+    return out if is_tensor else out.numpy()
