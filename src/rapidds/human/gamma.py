@@ -62,10 +62,9 @@ def parse_gamma_prior(spec: str) -> tuple[float, float]:
         g0 = float(m.group(1))
         spread = float(m.group(2)) if m.group(2) is not None else DEFAULT_SPREAD
     except ValueError:
-        raise ValueError(f"a gamma prior is G or G:SPREAD (e.g. 1.75 or 1.75:4), got {spec!r}"
-                         ) from None
+        raise ValueError("a gamma prior is G or G:SPREAD (e.g. 1.75 or 1.75:4)") from None
     if not (math.isfinite(g0) and g0 > 0 and math.isfinite(spread) and spread > 1):
-        raise ValueError(f"a gamma prior needs G > 0 and SPREAD > 1, got {spec!r}")
+        raise ValueError("a gamma prior needs G > 0 and SPREAD > 1")
     return g0, spread
 
 
@@ -128,12 +127,18 @@ class GammaBelief:
         return w / w.sum()
 
     def mean(self) -> float:
-        """exp(E[log gamma]): the posterior's geometric mean (the prior's median g0 at first)."""
+        """exp(E[log gamma]): the posterior's geometric mean. Before any evidence it is the
+        prior's median g0 by symmetry; returned exactly, so grid rounding (~1e-15) cannot make
+        a run that learned nothing plan differently from one with the fixed prior gamma."""
+        if self.evidence == 0:
+            return self.g0
         return float(math.exp(float(self.weights @ self.grid)))
 
     def quantile(self, q: float) -> float:
-        """The q-quantile of gamma, interpolated on the grid's cumulative weights."""
-        cdf = np.cumsum(self.weights)
+        """The q-quantile of gamma, interpolated on the cumulative weights (each grid point's
+        weight spread over its cell, so the cdf at a point counts half of its own)."""
+        w = self.weights
+        cdf = np.cumsum(w) - 0.5 * w
         return float(math.exp(float(np.interp(q, cdf, self.grid))))
 
     def planning(self, setting: str) -> float:
