@@ -16,6 +16,7 @@ import pytest
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.cli import main
+from rapidds.experiments.report import gamma_markdown, gamma_rows
 from rapidds.human.gamma import GammaBelief, GammaEvidence, parse_gamma_prior
 from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
 from rapidds.loop.comfort import SimulatedComfort
@@ -109,6 +110,11 @@ def test_simulated_person_learns_and_answers_by_their_own_gamma(policy):
     assert [r["gamma"] for r in records[1:]] == [
         pytest.approx(r["gamma_belief"]["mean"]) for r in records[:-1]]
     assert abs(math.log(records[-1]["gamma_belief"]["mean"] / 8.0)) < math.log(2.0), records[-1]
+    rows = gamma_rows(records)
+    assert [r["planned"] for r in rows] == [r["gamma"] for r in records]
+    assert [r["answer"] for r in rows] == [r["comfort"]["answer"] for r in records]
+    table = gamma_markdown(rows).splitlines()
+    assert len(table) == 2 + len(records) and table[-1].endswith("| 8 |")
     # one cycle with the robot close (gamma 0), felt by a relaxed and a nervous simulated person
     dep = AdaptiveRun(RunConfig(human="fast-middle", cycles=1, gamma=0.0, **SMALL),
                       policy).step().deployment
@@ -160,6 +166,7 @@ def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
         mb = HumanModel.from_bytes(b.state(rid, 4))
         assert ma.gamma is not None and mb.gamma is not None
         assert ma.gamma.to_dict() == mb.gamma.to_dict()
+    assert (tmp_path / "b" / f"{rid}-gamma.png").stat().st_size > 0
 
 
 BAD = [

@@ -78,6 +78,10 @@ def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
     written = []
     if records:
         written.append(plot_run_costs(records, out / f"{rid}-cost.png", run.config.exploration_end))
+        if run.config.gamma_learn:
+            from rapidds.plots.curves import plot_gamma_posterior
+
+            written.append(plot_gamma_posterior(records, out / f"{rid}-gamma.png"))
         rec = records[-1]
         arrays = run.store.arrays(rid, rec["cycle"])
         world = run.world
@@ -258,6 +262,12 @@ def run_cmd(
     set_threads(threads)
     w = make_world(cfg.world, cfg.variant)
     run = execute(cfg, load_policy(w, policy), out, resume, as_json, con)
+    if run.config.gamma_learn and not as_json and run.store is not None:
+        from rapidds.experiments.report import gamma_markdown, gamma_rows
+
+        con.print("\nlearned gamma (docs/design-notes.md \"Learning each person's gamma\")")
+        con.print(gamma_markdown(gamma_rows(run.store.records(run.config.run_id))),
+                  highlight=False)
     if out is not None and not as_json:
         rid = run.config.run_id
         con.print(f"wrote {out / 'run.sqlite'}, {out / f'{rid}-cost.png'}, "
