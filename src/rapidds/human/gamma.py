@@ -13,7 +13,9 @@ Model (the LEARNER's; a simulated person answers through another one, :mod:`rapi
 * comfort answer a in 1..7 (agreement with "the robot came too close to me"): ordered logit on
   u = log(gamma / g_ref) + log(x / X_REF), P(a <= k) = sigmoid((CUT * (k - 3.5) - u) / SCALE):
   someone with the reference gamma g_ref (the world's default) is neutral (4) when the robot's
-  closest approach has closeness X_REF, i.e. at the decay's half distance;
+  closest approach has closeness X_REF, i.e. at the decay's half distance; a share LAPSE of
+  answers is taken as given at random (a lapse rate: people misread, misclick, or answer 1
+  whenever the robot was far, whatever their gamma), so no single answer is decisive;
 * "too close" signals: a Poisson process of intensity RATE * (gamma / g_ref) * c(t), so their
   count n ~ Poisson(RATE * gamma / g_ref * E) (the event times matter only through c, which
   does not depend on gamma: they are stored, not weighed).
@@ -46,6 +48,7 @@ DEFAULT_SPREAD = 4.0  # prior: one standard deviation of log gamma is a factor 4
 X_REF = 0.5  # closeness at which a reference person is neutral (exp(-beta d) at d = ln 2 / beta)
 CUT = 0.7  # log-units between neighbouring answers' cut points
 SCALE = 0.35  # logistic scale of an answer's noise, log-units
+LAPSE = 0.1  # share of answers taken as given at random (uniform over the scale)
 RATE = 0.3  # "too close" signals per second at closeness 1 for the reference gamma
 CAUTIOUS_Q = 0.8  # the quantile a cautious robot plans with
 _GRID = 241  # grid points over +-5 prior standard deviations
@@ -163,7 +166,8 @@ class GammaBelief:
         u = self.grid - math.log(self.g_ref) + math.log(max(peak, 1e-12) / X_REF)
         upper = 1.0 if answer == 7 else _sigmoid((CUT * (answer - 3.5) - u) / SCALE)
         lower = 0.0 if answer == 1 else _sigmoid((CUT * (answer - 4.5) - u) / SCALE)
-        return np.maximum(np.asarray(upper - lower, dtype=float), 1e-300)
+        p = np.asarray(upper - lower, dtype=float)
+        return np.maximum((1 - LAPSE) * p + LAPSE / len(ANSWERS), 1e-300)
 
     def log_likelihood(self, ev: GammaEvidence) -> np.ndarray:
         """log P(evidence | gamma) on the grid, up to a constant."""
