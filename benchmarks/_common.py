@@ -27,6 +27,14 @@ def load_average() -> str:
         return "n/a"
 
 
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds`` of the benchmark scripts: ``0-7`` (a range, both ends) or ``0,2,5``."""
+    if "-" in text:
+        a, b = text.split("-")
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",")]
+
+
 def update_docs_section(heading: str, body: str, path: Path = DOCS) -> None:
     """Replace (or append) the section that starts with ``heading`` (a ``## `` line)."""
     section = f"{heading}\n\n{body.strip()}\n"

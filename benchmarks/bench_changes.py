@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _common import cpu_model, load_average, update_docs_section
+from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
 SECTION = "## Teammates who change (fetch)"
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,13 +180,6 @@ def figure(results: list[dict[str, Any]], at: int, kind: str = "fatigue") -> Non
     fig.savefig(FIGURE, dpi=110)
 
 
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(s) for s in text.split(",")]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", default="0-3", help="e.g. 0-3 or 0,2,5")
@@ -200,7 +193,7 @@ def main() -> None:
     ap.add_argument("--update-docs", action="store_true")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    seeds = _seeds(args.seeds)
+    seeds = parse_seeds(args.seeds)
     if args.reuse:
         results = json.loads(RAW.read_text())
     else:

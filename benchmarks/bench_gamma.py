@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _common import cpu_model, load_average
+from _common import cpu_model, load_average, parse_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURE = ROOT / "docs" / "reproduction" / "gamma.png"
@@ -149,13 +149,6 @@ def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
     return path
 
 
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(s) for s in text.split(",")]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -173,7 +166,7 @@ def main() -> None:
         done = [json.loads(x) for x in args.runs.read_text().splitlines() if x.strip()]
     have = {(r["world"], r["arm"], r["seed"]) for r in done}
     jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles)
-            for s in _seeds(args.seeds) for arm in ARMS if (args.world, arm, s) not in have]
+            for s in parse_seeds(args.seeds) for arm in ARMS if (args.world, arm, s) not in have]
     if not args.reuse and jobs:
         t0 = time.perf_counter()
         with ProcessPoolExecutor(args.workers) as pool, args.runs.open("a") as f:

@@ -20,7 +20,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
-from _common import cpu_model, load_average, update_docs_section
+from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
 from rapidds.experiments.painting import SETTINGS, Setting, run_setting, setting_behaviours
 from rapidds.loop.run import load_policy
@@ -31,13 +31,6 @@ RUNS: tuple[tuple[Setting, str], ...] = (
     (SETTINGS[0], "left-fast"),
     (SETTINGS[0], "right-slow"),
 )
-
-
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(s) for s in text.split(",")]
 
 
 def main() -> None:
@@ -57,7 +50,7 @@ def main() -> None:
             d = json.loads(line)
             done[d["setting"], d["human"], d["seed"]] = d["records"]
     t0 = time.perf_counter()
-    for seed in _seeds(args.seeds):
+    for seed in parse_seeds(args.seeds):
         for setting, human in RUNS:
             key = (setting.name, human, seed)
             if key in done:
@@ -70,7 +63,7 @@ def main() -> None:
             print(f"{setting.name} {human} seed {seed}: "
                   f"{sum(r['seconds']['total'] for r in recs):.1f} s", flush=True)
     wall = time.perf_counter() - t0
-    seeds = _seeds(args.seeds)
+    seeds = parse_seeds(args.seeds)
     shown: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0])
     cycle_s = []
     by_name = {s.name: s for s in SETTINGS}

@@ -6,13 +6,12 @@ import json
 import math
 import os
 import shlex
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
+from cli_helpers import kill_run
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.cli import main
@@ -139,20 +138,8 @@ def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
                           text=True, env=env, timeout=300)
     assert full.returncode == 0, full.stderr
     db = tmp_path / "b" / "run.sqlite"
-    proc = subprocess.Popen(_cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env)
     kill_at = int(np.random.default_rng().integers(1, 4))
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None:
-        if db.exists():
-            with RunStore.open_readonly(db) as st:
-                if (st.last_cycle(rid) or -1) + 1 >= kill_at:
-                    break
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    with RunStore.open_readonly(db) as st:
-        stored = st.last_cycle(rid)
+    stored = kill_run(_cli(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
     resumed = subprocess.run(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
                              capture_output=True, text=True, env=env, timeout=300)
