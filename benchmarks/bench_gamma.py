@@ -141,8 +141,9 @@ def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
             ax.axhline(r["truth"], color=c, lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xlabel("cycle")
-        ax.set_ylabel("gamma planned with (dotted: the person's true gamma)")
-        ax.set_title(f"{world}: learned gamma, {len(learn)} simulated people")
+        ax.set_ylabel("gamma planned with")
+        ax.set_title(f"{world}: {len(learn)} simulated people (dotted: their true gamma)",
+                     fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
