@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 import pytest
-from cli_helpers import kill_run
+from cli_helpers import kill_run, run_main
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.cli import main
@@ -179,3 +179,16 @@ def test_bad_gamma_input_gets_one_line_and_exit_2(command, answer, monkeypatch, 
     lines = [x for x in err.splitlines() if x.strip()]
     assert exit_.value.code == 2, err
     assert len(lines) == 1 and lines[0].startswith("rapidds: error: ") and answer in lines[0], err
+
+
+def test_gamma_command_prints_the_posterior_after_each_answer(capsys):
+    code, out, err = run_main(capsys, "gamma", "--prior", "2:4", "--answer", "7@0.6",
+                              "--answer", "7@0.9", "--signals", "3@2", "--json")
+    assert code == 0, err
+    rows = [json.loads(x) for x in out.splitlines()]
+    assert [r["step"] for r in rows] == [0, 1, 2, 3] and rows[0]["mean"] == 2.0
+    assert [r["evidence"] for r in rows] == [0, 1, 2, 3]
+    assert rows[1]["given"]["answer"] == 7 and len(rows[3]["given"]["too_close"]) == 3
+    # "much too close" every time: a person more nervous than the prior, ever more surely
+    assert all(r["mean"] > 2 * rows[0]["mean"] for r in rows[1:])
+    assert rows[0]["sd_log"] > rows[1]["sd_log"] > rows[2]["sd_log"] > rows[3]["sd_log"]

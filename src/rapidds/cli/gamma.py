@@ -4,7 +4,8 @@ For cycles run with a person outside the browser (an experimenter asking, a ques
 ``--answer A@PEAK`` is one cycle's comfort answer (1-7, agreement with "the robot came too close
 to me") with the closeness the robot's nearest approach had that cycle (exp(-beta * distance),
 the ``comfort.peak`` of a learning run's record); ``--signals N@EXPOSURE`` adds a cycle's count
-of "too close" signals with its exposure. Prints the posterior after each piece of evidence.
+of "too close" signals with its exposure. Prints the posterior after each piece of evidence
+(``--json``: one object per step, ``given`` the evidence, ``evidence`` how many so far).
 """
 
 from __future__ import annotations
@@ -62,10 +63,10 @@ def gamma_cmd(
         steps.append(GammaEvidence(None, tuple(0.0 for _ in range(int(n))),
                                    tuple(1.0 for _ in range(int(n))), 1.0, exposure))
     belief = GammaBelief(g0, spread, g_ref)
-    rows = [{"step": 0, "evidence": None, **belief.summary()}]
+    rows = [{"step": 0, "given": None, **belief.summary()}]
     for k, ev in enumerate(steps, 1):
         belief.observe(ev)
-        rows.append({"step": k, "evidence": ev.to_dict(), **belief.summary()})
+        rows.append({"step": k, "given": ev.to_dict(), **belief.summary()})
     for row in rows:
         if as_json:
             typer.echo(json.dumps(row))
