@@ -29,7 +29,8 @@ from rapidds.human.gamma import GammaEvidence
 from rapidds.loop.deploy import Deployment, separations
 from rapidds.worlds.base import World
 
-__all__ = ["SimulatedComfort", "closeness", "cycle_evidence", "simulated_comfort"]
+__all__ = ["SimulatedComfort", "closeness", "cycle_evidence", "said_and_signalled",
+           "simulated_comfort"]
 
 TAU = 1.5  # s, how long felt intrusion lingers
 THETA = 0.4  # median threshold of the integrated intrusion that makes them signal
@@ -54,6 +55,23 @@ def cycle_evidence(world: World, dep: Deployment, beta: float, answer: int | Non
     at = tuple(float(v) for v in np.interp(too_close, times, c)) if times.size else ()
     return GammaEvidence(answer, tuple(float(t) for t in too_close), at,
                          float(c.max()) if c.size else 0.0, float(c.sum() * world.dt))
+
+
+def said_and_signalled(world: World, dep: Deployment, beta: float,
+                       comfort: SimulatedComfort | None, teammate: object, seed: int,
+                       cycle: int) -> GammaEvidence | None:
+    """Cycle ``cycle``'s evidence: from the SIMULATED person's response model (``comfort``,
+    drawing from (seed, cycle)), else from a live teammate's ``comfort_report(cycle)`` if they
+    offer one (None: they cannot say)."""
+    if comfort is not None:
+        rng = np.random.default_rng([seed, cycle, 26])
+        answer, signals = comfort.respond(world, dep, beta, rng)
+    else:
+        report = getattr(teammate, "comfort_report", None)
+        if report is None:
+            return None
+        answer, signals = report(cycle)
+    return cycle_evidence(world, dep, beta, answer, signals)
 
 
 @dataclass(frozen=True)

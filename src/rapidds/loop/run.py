@@ -26,7 +26,7 @@ from rapidds.human.changes import detect_change
 from rapidds.human.spatial import SpatialModel
 from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIGPrior
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
-from rapidds.loop.comfort import SimulatedComfort, cycle_evidence, simulated_comfort
+from rapidds.loop.comfort import SimulatedComfort, said_and_signalled, simulated_comfort
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment, deploy
 from rapidds.loop.model import (
@@ -387,16 +387,10 @@ class AdaptiveRun:
     def _learn_gamma(self, cycle: int, deployment: Deployment) -> None:
         """What the person said and signalled about the robot's closeness this cycle (kept for
         the record), and the gamma belief updated with it when the run learns gamma."""
-        beta = self.model.spatial.config.beta
-        if self.comfort is not None:
-            rng = np.random.default_rng([self.config.seed, cycle, 26])
-            answer, signals = self.comfort.respond(self.world, deployment, beta, rng)
-        else:
-            report = getattr(self.teammate, "comfort_report", None)
-            if report is None:
-                return
-            answer, signals = report(cycle)
-        ev = cycle_evidence(self.world, deployment, beta, answer, signals)
+        ev = said_and_signalled(self.world, deployment, self.model.spatial.config.beta,
+                                self.comfort, self.teammate, self.config.seed, cycle)
+        if ev is None:
+            return
         if self.model.gamma is not None:
             self.model.gamma.observe(ev)
         self._evidence[cycle] = {**ev.to_dict(), **(self.comfort.to_dict() if self.comfort
