@@ -45,3 +45,19 @@ def kill_run(cmd: list[str], db: Path, run_id: str, kill_at: int,
     proc.wait()
     with RunStore.open_readonly(db) as st:
         return st.last_cycle(run_id)
+
+
+def resume_and_compare(cmd: list[str], full: Path, resumed: Path, env: dict[str, str]
+                       ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], Any, Any]:
+    """Run ``cmd`` (``rapidds run ... --resume`` on the store ``resumed``); the records of the
+    uninterrupted store ``full`` and of the resumed one, and the last stored model of each."""
+    from rapidds.loop import HumanModel
+    from rapidds.store import RunStore
+
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    with RunStore.open_readonly(full) as a, RunStore.open_readonly(resumed) as b:
+        ra, rb = a.records(), b.records()
+        last = ra[-1]["cycle"]
+        return (ra, rb, HumanModel.from_bytes(a.state(ra[-1]["run_id"], last)),
+                HumanModel.from_bytes(b.state(rb[-1]["run_id"], last)))

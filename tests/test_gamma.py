@@ -11,15 +11,14 @@ import sys
 
 import numpy as np
 import pytest
-from cli_helpers import kill_run, run_main
+from cli_helpers import kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.cli import main
 from rapidds.experiments.report import gamma_markdown, gamma_rows
 from rapidds.human.gamma import GammaBelief, GammaEvidence, parse_gamma_prior
-from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
+from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.comfort import SimulatedComfort
-from rapidds.store import RunStore
 from rapidds.worlds.registry import make_world
 
 
@@ -141,18 +140,12 @@ def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
     kill_at = int(np.random.default_rng().integers(1, 4))
     stored = kill_run(_cli(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
-    resumed = subprocess.run(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
-                             capture_output=True, text=True, env=env, timeout=300)
-    assert resumed.returncode == 0, resumed.stderr
-    with RunStore.open_readonly(tmp_path / "a" / "run.sqlite") as a, \
-            RunStore.open_readonly(db) as b:
-        ra, rb = a.records(), b.records()
-        assert len(ra) == 5 and [_strip(r) for r in ra] == [_strip(r) for r in rb]
-        assert all("gamma_belief" in r for r in ra)
-        ma = HumanModel.from_bytes(a.state(rid, 4))
-        mb = HumanModel.from_bytes(b.state(rid, 4))
-        assert ma.gamma is not None and mb.gamma is not None
-        assert ma.gamma.to_dict() == mb.gamma.to_dict()
+    ra, rb, ma, mb = resume_and_compare(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+                                        tmp_path / "a" / "run.sqlite", db, env)
+    assert len(ra) == 5 and [_strip(r) for r in ra] == [_strip(r) for r in rb]
+    assert all("gamma_belief" in r for r in ra)
+    assert ma.gamma is not None and mb.gamma is not None
+    assert ma.gamma.to_dict() == mb.gamma.to_dict()
     assert (tmp_path / "b" / f"{rid}-gamma.png").stat().st_size > 0
 
 
