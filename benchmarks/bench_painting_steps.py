@@ -84,7 +84,7 @@ def main() -> None:
                                             for arm in arms) + " |\n" for b in behaviours))
     print(text)
     if args.docs:
-        update_docs_section("## Painting cycle with fewer reverse steps (issue 28)", text)
+        update_docs_section("## Painting cycle with fewer reverse steps", text)
 
 
 if __name__ == "__main__":

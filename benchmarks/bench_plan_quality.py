@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SIZES = (5, 5, 5, 6, 6, 6, 6, 7, 7, 7)
 STD = 0.3
 TRUTH_SAMPLES = 20_000
-SECTION = "## Plan quality under uncertainty (issue 28)"
+SECTION = "## Plan quality under uncertainty"
 NOTE = ("A gap of 0 on its 64 samples means the search found the best plan for the samples it "
         "was given; what remains of the gap on 20,000 samples is the price of planning on "
         "K = 64 samples, which no speed-up of the search changes.")

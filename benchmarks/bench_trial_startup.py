@@ -83,7 +83,7 @@ def main() -> None:
         + f"\nRecords identical: {'yes' if same else 'NO'}.")
     print(text)
     if args.docs:
-        update_docs_section("## Ablation trials per worker (issue 28)", text)
+        update_docs_section("## Ablation trials per worker", text)
 
 
 if __name__ == "__main__":

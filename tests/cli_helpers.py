@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import sys
+import time
+from pathlib import Path
 from typing import Any
 
 
@@ -21,3 +25,39 @@ def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:
         sys.argv = old
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def kill_run(cmd: list[str], db: Path, run_id: str, kill_at: int,
+             env: dict[str, str]) -> int | None:
+    """Start the ``rapidds run`` command ``cmd`` storing into ``db``, SIGKILL it once ``kill_at``
+    cycles of ``run_id`` are stored (or it ended, or 240 s passed): its last stored cycle."""
+    from rapidds.store import RunStore
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if db.exists():
+            with RunStore.open_readonly(db) as st:
+                if (st.last_cycle(run_id) or -1) + 1 >= kill_at:
+                    break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with RunStore.open_readonly(db) as st:
+        return st.last_cycle(run_id)
+
+
+def resume_and_compare(cmd: list[str], full: Path, resumed: Path, env: dict[str, str]
+                       ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], Any, Any]:
+    """Run ``cmd`` (``rapidds run ... --resume`` on the store ``resumed``); the records of the
+    uninterrupted store ``full`` and of the resumed one, and the last stored model of each."""
+    from rapidds.loop import HumanModel
+    from rapidds.store import RunStore
+
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    with RunStore.open_readonly(full) as a, RunStore.open_readonly(resumed) as b:
+        ra, rb = a.records(), b.records()
+        last = ra[-1]["cycle"]
+        return (ra, rb, HumanModel.from_bytes(a.state(ra[-1]["run_id"], last)),
+                HumanModel.from_bytes(b.state(rb[-1]["run_id"], last)))

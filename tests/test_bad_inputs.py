@@ -93,7 +93,7 @@ CASES: list[tuple[str, str]] = [
     ("case-study fetch --out {tmp}/cs", "no case study for world 'fetch'"),
     ("case-study painting --out {tmp}/cs --cycles 0", "Invalid value for '--cycles'"),
     ("case-study painting", "Missing option '--out'"),
-    # study (issue 27: the flag a user can type, bounds on a task's duration)
+    # study (the flag a user can type, bounds on a task's duration)
     ("study design --out {tmp}/s --participants 15", "--allow-unbalanced"),
     ("study design --out {tmp}/s --participants 16 --max-task-seconds 0",
      "max_task_s: Input should be greater than 0"),

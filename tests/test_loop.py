@@ -4,17 +4,15 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
+from cli_helpers import kill_run, resume_and_compare
 from conftest import SMALL_SEARCH as SMALL
 
-from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
-from rapidds.store import RunStore
+from rapidds.loop import AdaptiveRun, RunConfig
 
 
 @pytest.fixture(scope="module")
@@ -90,36 +88,18 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
 
     kill_at = int(np.random.default_rng().integers(1, 4))  # after 1, 2 or 3 stored cycles
     db = tmp_path / "b" / "run.sqlite"
-    proc = subprocess.Popen(_cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env)
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None:
-        if db.exists():
-            with RunStore.open_readonly(db) as st:
-                if (st.last_cycle("fetch-slow-middle-full-s3") or -1) + 1 >= kill_at:
-                    break
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    with RunStore.open_readonly(db) as st:
-        stored = st.last_cycle("fetch-slow-middle-full-s3")
+    stored = kill_run(_cli(*args, "--out", str(tmp_path / "b")), db,
+                      "fetch-slow-middle-full-s3", kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
 
     again = subprocess.run(_cli(*args, "--out", str(tmp_path / "b")), capture_output=True,
                            text=True, env=env, timeout=60)
     assert again.returncode == 2 and "--resume" in again.stderr  # nothing overwritten silently
-    resumed = subprocess.run(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
-                             capture_output=True, text=True, env=env, timeout=300)
-    assert resumed.returncode == 0, resumed.stderr
-    with RunStore.open_readonly(tmp_path / "a" / "run.sqlite") as a, \
-            RunStore.open_readonly(db) as b:
-        ra, rb = a.records(), b.records()
-        assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
-        last = ra[-1]["cycle"]
-        ma = HumanModel.from_bytes(a.state(ra[-1]["run_id"], last))
-        mb = HumanModel.from_bytes(b.state(rb[-1]["run_id"], last))
-        assert ma.temporal.to_dict() == mb.temporal.to_dict()
-        assert ma.spatial.to_dict() == mb.spatial.to_dict()
+    ra, rb, ma, mb = resume_and_compare(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+                                        tmp_path / "a" / "run.sqlite", db, env)
+    assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
+    assert ma.temporal.to_dict() == mb.temporal.to_dict()
+    assert ma.spatial.to_dict() == mb.spatial.to_dict()
 
 
 def test_exact_baseline_plans_with_cp_sat_and_learns_nothing(policy):

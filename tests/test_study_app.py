@@ -167,7 +167,7 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
     ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0,0,1,1\n*,0,1,900,1\n"},
      "metres"),
     ({"source": "teleport"}, {}, "choose where"),
-    # issue 27: bounds that no real task exceeds (fetch: 180 s), never a 500
+    # bounds that no real task exceeds (fetch: 180 s), never a 500
     ({"source": "typed", "d:*": "4500"}, {}, "longer than any task of this study (180 s"),
     ({"source": "typed", "d:*": "1e12"}, {}, "longer than any task"),
     ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0,0,1,1\n*,0,1e12,1,1\n"},

@@ -74,7 +74,7 @@ def test_samples_off_the_grid_are_interpolated_at_the_worlds_rows(painting) -> N
     (lambda s: s + s.split("\n")[-2] + "\n", "same t"),
     (lambda s: "[1, 2]", "list of objects"),
     (lambda s: "{oops", "not valid JSON"),
-    # issue 27: bounded before anything is allocated or parsed column by column
+    # bounded before anything is allocated or parsed column by column
     (lambda s: re.sub(r"brush,0,[^,]+,", "brush,0,1e12,", s, count=1), "longer than any task "
      "of this study (120 s"),
     (lambda s: "[" * 100_000, "nested too deeply"),

@@ -142,6 +142,17 @@ def execute(
     return run
 
 
+def parse_gamma(text: str | None) -> float | None:
+    """``--gamma``'s number (range checks are RunConfig's); one line and exit 2 otherwise."""
+    if text is None:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        fail(f"--gamma is a number >= 0 or 'learn', got {text!r}")
+        raise AssertionError from None  # fail() exits
+
+
 @app.command("run")
 def run_cmd(
     world: str = typer.Argument(_D["world"].default, help="World to run in (see "
@@ -154,8 +165,19 @@ def run_cmd(
     cycles: int = typer.Option(_D["cycles"].default, help="Cycles I."),
     adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: {', '.join(ADAPT_LEVELS)}."),
     seed: int = typer.Option(_D["seed"].default, help="Seed; the same seed gives the same run."),
-    gamma: float | None = typer.Option(None, help="Proximity weight.",
-                                       show_default="the world's"),
+    gamma: str | None = typer.Option(None, help="Proximity weight, or 'learn': learn this "
+                                     "person's from their comfort answers and 'too close' "
+                                     "signals.", show_default="the world's"),
+    gamma_prior: str | None = typer.Option(None, help="With --gamma learn: the prior G or "
+                                           "G:SPREAD (one log-sd is a factor SPREAD).",
+                                           show_default="the world's gamma, spread 4"),
+    gamma_plan: str = typer.Option(_D["gamma_plan"].default, help="With --gamma learn: plan "
+                                   "with the posterior's mean or an upper quantile "
+                                   "(cautious)."),
+    comfort: float | None = typer.Option(None, help="The simulated teammate's own gamma "
+                                         "(they answer and signal by it).",
+                                         show_default="drawn from a population with "
+                                         "--gamma learn"),
     lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
                                      "cycles.", show_default="the world's"),
     out: Path | None = typer.Option(None, help="Folder for run.sqlite and the pictures."),
@@ -194,8 +216,11 @@ def run_cmd(
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:
         fail("--resume needs --out (the folder of the run to continue)")
+    learn = gamma is not None and gamma.strip().lower() == "learn"
     cfg = RunConfig(world=world, variant=variant, human=human, adapt=adapt, cycles=cycles,
-                    gamma=gamma, lam=lam, seed=seed, population=population,
+                    gamma=None if learn else parse_gamma(gamma), gamma_learn=learn,
+                    gamma_prior=gamma_prior, gamma_plan=gamma_plan, comfort=comfort, lam=lam,
+                    seed=seed, population=population,
                     generations=generations, samples=samples, particles=particles,
                     candidates=candidates, surrogate=surrogate, change=change, drift=drift,
                     drift_from=drift_from, forgetting=forgetting, detect=detect, hazard=hazard,
@@ -207,7 +232,19 @@ def run_cmd(
     set_threads(threads)
     w = make_world(cfg.world, cfg.variant)
     run = execute(cfg, load_policy(w, policy), out, resume, as_json, con)
-    if out is not None and not as_json:
+    if not as_json:
+        _say_done(run, out, con)
+
+
+def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
+    """After a run (not with --json): the learned gamma per cycle, and what was written."""
+    if run.config.gamma_learn and run.store is not None:
+        from rapidds.experiments.report import gamma_markdown, gamma_rows
+
+        con.print("\nlearned gamma (docs/design-notes.md \"Learning each person's gamma\")")
+        con.print(gamma_markdown(gamma_rows(run.store.records(run.config.run_id))),
+                  highlight=False)
+    if out is not None:
         rid = run.config.run_id
         con.print(f"wrote {out / 'run.sqlite'}, {out / f'{rid}-cost.png'}, "
                   f"{out / f'{rid}-map.png'}, {out / 'gantt'}/")

@@ -429,3 +429,30 @@ def report_markdown(data: AblationData, md_table: str, claims: dict[str, Any],
            if plan_claims else "")
         + (f"\n## Sessions\n\n{timing}" if timing else "")
     )
+
+
+def gamma_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per cycle of a run that learned gamma (records with ``gamma_belief``): the gamma it was
+    planned with, what the person said and signalled, and the posterior after it."""
+    rows = []
+    for r in records:
+        if "gamma_belief" not in r:
+            continue
+        ev, post = r.get("comfort") or {}, r["gamma_belief"]
+        rows.append({"cycle": r["cycle"], "planned": r["gamma"], "answer": ev.get("answer"),
+                     "too_close": len(ev.get("too_close", [])), "peak": ev.get("peak"),
+                     "mean": post["mean"], "q10": post["q10"], "q90": post["q90"],
+                     "true": ev.get("true_gamma")})
+    return rows
+
+
+def gamma_markdown(rows: list[dict[str, Any]]) -> str:
+    """The gamma posterior per cycle as a Markdown table (true gamma: simulated people only)."""
+    lines = ["| cycle | planned with | answer (1-7) | too close | peak closeness "
+             "| posterior mean | 10-90 % | true (simulated) |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['cycle']} | {r['planned']:.3g} | {r['answer'] or '-'} | "
+                     f"{r['too_close']} | {_f(r['peak'])} | {r['mean']:.3g} | "
+                     f"{r['q10']:.3g}-{r['q90']:.3g} | "
+                     f"{'-' if r['true'] is None else format(r['true'], '.3g')} |")
+    return "\n".join(lines)

@@ -59,6 +59,14 @@ class RunConfig(Settings):
     whole_person: (with detect) a change acted on in some tasks is the whole person's: the
         other tasks' beliefs move by the same duration ratio (with ask: if the person says so).
     reexplore: cycles after a detected change planned with the exploration weight lambda again.
+
+    Learning each person's gamma (docs/design-notes.md "Learning each person's gamma"):
+    gamma_learn: plan every cycle with the belief's gamma (``--gamma learn``) instead of the
+        fixed ``gamma``; gamma_prior: that belief's prior ``G[:SPREAD]`` (None: the world's
+        gamma, spread 4); gamma_plan: ``mean`` or ``cautious`` (an upper quantile).
+    comfort: the SIMULATED teammate's true gamma (None: drawn from a population when learning).
+        With it (or when learning) the simulated teammate answers a comfort question and
+        signals "too close" every cycle, stored in the record.
     """
 
     world: str = "fetch"
@@ -91,6 +99,10 @@ class RunConfig(Settings):
     ask: bool = False
     whole_person: bool = False
     reexplore: Annotated[int, Field(ge=0)] = 0
+    gamma_learn: bool = False
+    gamma_prior: str | None = None
+    gamma_plan: Literal["mean", "cautious"] = "mean"
+    comfort: Annotated[float, Field(gt=0)] | None = None
 
     @field_validator("change")
     @classmethod
@@ -107,6 +119,22 @@ class RunConfig(Settings):
         if v and not info.data.get("detect"):
             raise ValueError("needs --detect (it acts on detected changes)")
         return v
+
+    @field_validator("gamma_prior")
+    @classmethod
+    def _check_gamma_prior(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is not None:
+            if not info.data.get("gamma_learn"):
+                raise ValueError("needs --gamma learn (it is the prior of the learned gamma)")
+            from rapidds.human.gamma import parse_gamma_prior  # numpy: not at `--help`
+
+            parse_gamma_prior(v)
+        return v
+
+    @property
+    def simulates_comfort(self) -> bool:
+        """Whether the simulated teammate answers about their comfort (and records say so)."""
+        return self.gamma_learn or self.comfort is not None
 
     def resolved(self, world: World) -> RunConfig:
         """Every None replaced by the world's value: what is stored, so a resumed run cannot
@@ -131,7 +159,10 @@ class RunConfig(Settings):
             human += "-to-" + "-to-".join(f"{n}@{c}" for n, c in parse_changes(self.change))
         if self.drift:
             human += f"-drift{self.drift:+g}@{self.drift_from}"
-        return f"{world}-{human}-{self.adapt}-s{self.seed}"
+        if self.comfort is not None:
+            human += f"-comfort{self.comfort:g}"
+        learn = f"-glearn{'-cautious' if self.gamma_plan == 'cautious' else ''}"
+        return f"{world}-{human}-{self.adapt}{learn if self.gamma_learn else ''}-s{self.seed}"
 
     def lam_at(self, cycle: int, last_change: int | None = None) -> float:
         """lambda for ``cycle``: constant for the first half of the cycles, then 0; again for

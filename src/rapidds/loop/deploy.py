@@ -21,7 +21,7 @@ from rapidds.problem import Problem
 from rapidds.schedule import Schedule, Timeline, compile_schedule
 from rapidds.worlds.base import HumanExecution, World, body_points
 
-__all__ = ["Deployment", "HumanExecution", "deploy"]
+__all__ = ["Deployment", "HumanExecution", "deploy", "separations"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,40 @@ def _spatial(robot_pts: np.ndarray, human_path: np.ndarray, beta: float) -> floa
     return max(float(point_cost(pts, body[:, k], beta).max()) for k in range(body.shape[1]))
 
 
+def _separations(
+    world: World, tl: Timeline, human: Mapping[str, HumanExecution],
+    robot_pts: Mapping[str, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """(times (T,), smallest distance between the person's and the robot's body points at each
+    time (T,)) over the realised cycle, every ``world.dt`` seconds."""
+    idx = tl.problem.index
+    start, finish = tl.start[0], tl.finish[0]
+    dt = world.dt
+    times = np.arange(0.0, float(tl.makespan[0]) + dt, dt)
+    h_pos = _positions(
+        np.asarray(world.human_rest(), float),
+        [(start[idx[i]], finish[idx[i]], body_points(human[i].trajectory))
+         for i in tl.schedule.tasks("human")],
+        times, dt,
+    )
+    r_pos = _positions(
+        world.robot_points(np.asarray(world.robot_rest(), float)[None])[0],
+        [(start[idx[j]], finish[idx[j]], p) for j, p in robot_pts.items()],
+        times, dt,
+    )
+    if not times.size:
+        return times, np.zeros(0)
+    gaps = np.linalg.norm(h_pos[:, :, None, :] - r_pos[:, None, :, :], axis=-1)
+    return times, gaps.min(axis=(1, 2))
+
+
+def separations(world: World, dep: Deployment) -> tuple[np.ndarray, np.ndarray]:
+    """Where the robot was relative to the person through a deployed cycle: (times, smallest
+    body-point distance at each time); what a "too close" signal at time t is tied to."""
+    pts = {j: world.robot_points(p) for j, p in dep.robot.items()}
+    return _separations(world, dep.timeline, dep.human, pts)
+
+
 def deploy(
     world: World,
     problem: Problem,
@@ -94,7 +128,6 @@ def deploy(
             robot[task] = np.asarray(plan.trajectory, dtype=float)
     tl = compiled.simulate(durations)
     overlaps = tl.overlaps()
-    start, finish = tl.start[0], tl.finish[0]
     robot_pts = {j: world.robot_points(p) for j, p in robot.items()}  # (H, P, d_ws)
 
     spatial_by_task = {}
@@ -107,24 +140,8 @@ def deploy(
     makespan = float(tl.makespan[0])
     spatial = float(sum(spatial_by_task.values()))
 
-    dt = world.dt
-    times = np.arange(0.0, makespan + dt, dt)
-    h_pos = _positions(
-        np.asarray(world.human_rest(), float),
-        [(start[idx[i]], finish[idx[i]], body_points(human[i].trajectory))
-         for i in schedule.tasks("human")],
-        times, dt,
-    )
-    r_pos = _positions(
-        world.robot_points(np.asarray(world.robot_rest(), float)[None])[0],
-        [(start[idx[j]], finish[idx[j]], p) for j, p in robot_pts.items()],
-        times, dt,
-    )
-    if times.size:
-        gaps = np.linalg.norm(h_pos[:, :, None, :] - r_pos[:, None, :, :], axis=-1)
-        min_sep = float(gaps.min())
-    else:
-        min_sep = float("inf")
+    times, gaps = _separations(world, tl, human, robot_pts)
+    min_sep = float(gaps.min()) if times.size else float("inf")
     return Deployment(
         timeline=tl,
         human={t: human[t] for t in schedule.tasks("human")},

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from rapidds.errors import RapiddsError, StateError
+from rapidds.human.gamma import DEFAULT_SPREAD, GammaBelief, parse_gamma_prior
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
@@ -48,6 +49,7 @@ __all__ = [
     "ChangeLog",
     "HumanModel",
     "check_teammate",
+    "gamma_prior",
     "oracle_spatial",
     "prior_model",
     "spatial_config",
@@ -66,11 +68,14 @@ class HumanModel:
     history: AllocationHistory = field(default_factory=AllocationHistory)
     motions: dict[MotionKey, Stamped] = field(default_factory=dict)
     changes: ChangeLog = field(default_factory=ChangeLog)
+    gamma: GammaBelief | None = None  # only when the run learns gamma
 
     def to_bytes(self) -> bytes:
         doc = {"temporal": self.temporal.to_dict(), "spatial": self.spatial.to_dict(),
                "history": self.history.to_dict(), "motions": encode_plans(self.motions),
                "changes": self.changes.to_dict()}
+        if self.gamma is not None:  # absent otherwise: models of fixed-gamma runs unchanged
+            doc["gamma"] = self.gamma.to_dict()
         return zlib.compress(json.dumps(doc, allow_nan=False).encode())
 
     @classmethod
@@ -81,7 +86,8 @@ class HumanModel:
                        SpatialModel.from_dict(doc["spatial"]),
                        AllocationHistory.from_dict(doc["history"]),
                        decode_plans(doc.get("motions", [])),
-                       ChangeLog.from_dict(doc["changes"]) if "changes" in doc else ChangeLog())
+                       ChangeLog.from_dict(doc["changes"]) if "changes" in doc else ChangeLog(),
+                       GammaBelief.from_dict(doc["gamma"]) if "gamma" in doc else None)
         except (zlib.error, ValueError, TypeError, KeyError) as exc:
             raise StateError(f"stored human model is corrupt ({exc})") from None
 
@@ -103,6 +109,15 @@ def prior_model(world: World, cfg: RunConfig) -> HumanModel:
     spatial.refit()
     return HumanModel(TemporalModel.from_population(world.problem(), prior.durations,
                                                     forgetting=cfg.forgetting), spatial)
+
+
+def gamma_prior(world: World, cfg: RunConfig) -> GammaBelief:
+    """The belief over a new person's gamma: ``cfg.gamma_prior`` or the world's gamma (spread
+    :data:`~rapidds.human.gamma.DEFAULT_SPREAD`); the likelihood's reference is the world's."""
+    g_ref = world.problem().objective.gamma
+    g0, spread = (parse_gamma_prior(cfg.gamma_prior) if cfg.gamma_prior is not None
+                  else (g_ref, DEFAULT_SPREAD))
+    return GammaBelief(g0, spread, g_ref)
 
 
 def oracle_spatial(world: World, cfg: RunConfig, teammate: SimulatedTeammate,

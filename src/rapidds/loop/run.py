@@ -26,11 +26,13 @@ from rapidds.human.changes import detect_change
 from rapidds.human.spatial import SpatialModel
 from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIGPrior
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
+from rapidds.loop.comfort import SimulatedComfort, said_and_signalled, simulated_comfort
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment, deploy
 from rapidds.loop.model import (
     HumanModel,
     check_teammate,
+    gamma_prior,
     oracle_spatial,
     prior_model,
     workspace_cost,
@@ -188,6 +190,14 @@ class AdaptiveRun:
         # copied: the run learns into its own model
         self.model = (HumanModel.from_bytes(prior.to_bytes()) if prior is not None
                       else prior_model(self.world, self.config))
+        if c.gamma_learn and self.model.gamma is None:
+            self.model.gamma = gamma_prior(self.world, c)
+        # the run's own simulated teammate answers about their comfort; an injected one (a
+        # person) may offer ``comfort_report(cycle)``
+        self.comfort: SimulatedComfort | None = (
+            simulated_comfort(self.world.problem().objective.gamma, c.seed, c.comfort)
+            if c.simulates_comfort and teammate is None else None)
+        self._evidence: dict[int, dict[str, Any]] = {}
         self._oracle_spatial: dict[str, SpatialModel] = {}
         self._changes: dict[int, list[dict[str, Any]]] = {}
         self.next_cycle = 0
@@ -297,6 +307,9 @@ class AdaptiveRun:
                                f"({self.config.cycles} cycles)")
         cfg, c = self.config, self.next_cycle
         t0 = time.perf_counter()
+        if self.model.gamma is not None:  # this person's gamma, as believed now
+            self.problem = self.problem.with_objective(gamma=self.model.gamma.planning(
+                cfg.gamma_plan))
         rng = np.random.default_rng([cfg.seed, c])
         samples, mean = self._durations(rng)
         exact = cfg.adapt == "exact"
@@ -368,7 +381,20 @@ class AdaptiveRun:
             self.model.spatial.refit(deployment.human)
         self.model.history.record(plan.best.schedule)
         self.model.motions = plan.motions
+        self._learn_gamma(plan.cycle, deployment)
         self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
+
+    def _learn_gamma(self, cycle: int, deployment: Deployment) -> None:
+        """What the person said and signalled about the robot's closeness this cycle (kept for
+        the record), and the gamma belief updated with it when the run learns gamma."""
+        ev = said_and_signalled(self.world, deployment, self.model.spatial.config.beta,
+                                self.comfort, self.teammate, self.config.seed, cycle)
+        if ev is None:
+            return
+        if self.model.gamma is not None:
+            self.model.gamma.observe(ev)
+        self._evidence[cycle] = {**ev.to_dict(), **(self.comfort.to_dict() if self.comfort
+                                                     else {})}
 
     def _detect(self, cycle: int, deployment: Deployment,
                 learn_space: bool) -> list[dict[str, Any]]:
@@ -524,6 +550,9 @@ class AdaptiveRun:
             "plan_cost": self.plan_cost(plan),
             "search": plan.search,
             **({"changes": self._changes.pop(plan.cycle, [])} if cfg.detect else {}),
+            **({"comfort": self._evidence.pop(plan.cycle, None)}
+               if cfg.simulates_comfort or plan.cycle in self._evidence else {}),
+            **({"gamma_belief": self.model.gamma.summary()} if self.model.gamma else {}),
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
         }

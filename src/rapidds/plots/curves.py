@@ -63,3 +63,34 @@ def plot_study_panels(
     axes[0][-1].legend(fontsize=8)
     fig.tight_layout()
     return save(fig, path)
+
+
+def plot_gamma_posterior(records: Sequence[Mapping], path: str | Path) -> Path:
+    """A run that learned gamma: the gamma each cycle was planned with, the posterior after it
+    (geometric mean, 10-90 % band), the comfort answers, and the person's true gamma when the
+    person was simulated."""
+    cyc = np.array([r["cycle"] for r in records])
+    post = [r["gamma_belief"] for r in records]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.2))
+    a.fill_between(cyc, [p["q10"] for p in post], [p["q90"] for p in post], alpha=0.2,
+                   label="posterior 10-90 %")
+    a.plot(cyc, [p["mean"] for p in post], "o-", label="posterior mean (after the cycle)")
+    a.plot(cyc, [r["gamma"] for r in records], "s--", alpha=0.7, label="planned with")
+    truth = {r["comfort"]["true_gamma"] for r in records
+             if r.get("comfort") and "true_gamma" in r["comfort"]}
+    for g in truth:
+        a.axhline(g, color="k", ls=":", lw=1, label="true gamma (simulated person)")
+    a.set_yscale("log")
+    a.set_ylabel("gamma")
+    answers = [(r["cycle"], r["comfort"]["answer"]) for r in records
+               if r.get("comfort") and r["comfort"]["answer"] is not None]
+    if answers:
+        b.plot(*zip(*answers, strict=True), "o-", label='"came too close" (1-7)')
+    b.bar(cyc, [len(r["comfort"]["too_close"]) if r.get("comfort") else 0 for r in records],
+          alpha=0.4, color="C3", label='"too close" signals')
+    b.set_ylim(0, 7.5)
+    for ax in (a, b):
+        ax.set_xlabel("cycle")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save(fig, path)

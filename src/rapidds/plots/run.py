@@ -29,13 +29,18 @@ def gantt_path(out: Path, run_id: str, cycle: int) -> Path:
 def save_run_pictures(out: Path, run_id: str, records: Sequence[Mapping[str, Any]],
                       arrays: Mapping[str, np.ndarray], spatial: SpatialModel, world: World,
                       exploration_end: float) -> list[Path]:
-    """Cost curve over ``records`` (a run's stored cycles) and the map of the last cycle
+    """Cost curve over ``records`` (a run's stored cycles), the gamma posterior of a run that
+    learns it, and the map of the last cycle
     (``arrays``: its stored arrays) in each of the world's views (the first ``{run}-map.png``,
     others ``{run}-map-{view}.png``), named after the run (two runs in one folder keep their
     own pictures)."""
     if not records:
         return []
     written = [plot_run_costs(records, out / f"{run_id}-cost.png", exploration_end)]
+    if any("gamma_belief" in r for r in records):  # a run that learns the person's gamma
+        from rapidds.plots.curves import plot_gamma_posterior
+
+        written.append(plot_gamma_posterior(records, out / f"{run_id}-gamma.png"))
     rec = records[-1]
     paths = cycle_paths(arrays)
     for k, (view, axes) in enumerate(world.views.items()):
