@@ -1,6 +1,6 @@
 """The import graph: arrows point one way, problem -> human models -> scheduler/motion -> worlds
--> loop -> experiments -> web -> cli, with no cycle and nothing in the library importing the
-CLI. Imports inside functions count too: they are arrows all the same, only later."""
+-> execution -> loop -> experiments -> web -> cli, with no cycle and nothing in the library
+importing the CLI. Imports inside functions count too: they are arrows all the same, only later."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("rapidds.scheduler", "rapidds.motion"),  # scheduler <-> motion: one layer
     ("rapidds.plots", "rapidds.render"),
     ("rapidds.worlds",),
+    ("rapidds.execution",),
     ("rapidds.loop",),
     ("rapidds.experiments",),
     ("rapidds.web",),

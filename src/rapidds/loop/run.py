@@ -27,7 +27,8 @@ from rapidds.human.spatial import SpatialModel
 from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIGPrior
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.config import RunConfig
-from rapidds.loop.deploy import Deployment, deploy
+from rapidds.loop.deploy import Deployment
+from rapidds.loop.execute import check_cell, cycle_record, execute_cycle, person_reaction
 from rapidds.loop.model import (
     HumanModel,
     check_teammate,
@@ -50,6 +51,7 @@ from rapidds.scheduler import (
 from rapidds.settings import require_memory
 from rapidds.store import RunStore
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.reactions import Deviation
 from rapidds.worlds.registry import make_world
 
 __all__ = [
@@ -192,6 +194,9 @@ class AdaptiveRun:
         self._changes: dict[int, list[dict[str, Any]]] = {}
         self.next_cycle = 0
         self._timing: dict[int, dict[str, float]] = {}
+        check_cell(self.config, self.teammate)
+        self._reaction = person_reaction(self.world, self.config)  # the person's, all run long
+        self._deviations: dict[int, Deviation | None] = {}
         if store is not None:
             self._attach(store)
 
@@ -344,8 +349,14 @@ class AdaptiveRun:
             self.teammate.show(plan)
         human = (dict(observed) if observed is not None
                  else self.teammate.execute(plan.cycle, tasks, plan.rng))
-        dep = deploy(self.world, self.problem, plan.best.schedule, plan.best.motions, human,
-                     beta=self.model.spatial.config.beta)
+        missing = set(tasks) - set(human)
+        if missing:
+            raise ValueError(f"no observation of human task(s) {sorted(missing)}")
+        dep, self._deviations[plan.cycle] = execute_cycle(
+            self.world, self.problem, self.config, plan.cycle, plan.best.schedule,
+            plan.best.motions, human, self.teammate, self._reaction,
+            (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
+            beta=self.model.spatial.config.beta)
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 
@@ -524,6 +535,7 @@ class AdaptiveRun:
             "plan_cost": self.plan_cost(plan),
             "search": plan.search,
             **({"changes": self._changes.pop(plan.cycle, [])} if cfg.detect else {}),
+            **cycle_record(cfg, dep, self._deviations.pop(plan.cycle, None)),
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
         }

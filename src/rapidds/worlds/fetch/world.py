@@ -45,6 +45,8 @@ from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_r
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
+    from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
+
 __all__ = ["POLICY_DEFAULTS", "PRIOR_SEED", "FetchWorld", "default_world", "fetch_problem"]
 
 PRIOR_SEED = 20_240_917  # the population of "other people" is the same for every run
@@ -137,6 +139,20 @@ class FetchWorld:
     @property
     def spatial_grid(self) -> int:
         return 32
+
+    @property
+    def reaction_population(self) -> ReactionPopulation:
+        """How this cell's people react to the robot (:mod:`rapidds.worlds.reactions`)."""
+        from rapidds.worlds.fetch.reactions import REACTIONS
+
+        return REACTIONS
+
+    @property
+    def safety_limits(self) -> SafetyLimits:
+        """The robot's stopping numbers for speed and separation monitoring."""
+        from rapidds.worlds.fetch.reactions import SAFETY
+
+        return SAFETY
 
     @property
     def teammate_names(self) -> tuple[str, ...]:

@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from rapidds.worlds.painting.kinematics import ArmKinematics
     from rapidds.worlds.painting.motions import Motion
     from rapidds.worlds.painting.teammates import PaintingTeammate
+    from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 __all__ = [
     "PRECEDENCE",
@@ -167,6 +168,20 @@ class PaintingWorld:
     @property
     def spatial_grid(self) -> int:
         return self.grid
+
+    @property
+    def reaction_population(self) -> ReactionPopulation:
+        """How this cell's people react to the robot (:mod:`rapidds.worlds.reactions`)."""
+        from rapidds.worlds.painting.reactions import REACTIONS
+
+        return REACTIONS
+
+    @property
+    def safety_limits(self) -> SafetyLimits:
+        """The robot's stopping numbers for speed and separation monitoring."""
+        from rapidds.worlds.painting.reactions import SAFETY
+
+        return SAFETY
 
     @property
     def teammate_names(self) -> tuple[str, ...]:
