@@ -27,7 +27,7 @@ import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Deployment, realise
-from rapidds.execution.policies import OpenLoop, RobotPolicy, SpeedSeparation, protective_distance
+from rapidds.execution.policies import OpenLoop, RobotPolicy
 from rapidds.execution.replan import replan_remainder
 from rapidds.execution.sources import HumanSource, RobotSource, RobotView, SimulatedHuman
 from rapidds.problem import Problem
@@ -72,10 +72,13 @@ class CycleExecutor:
         self.doer: dict[str, str] = {}
         self.running: dict[str, str | None] = {a: None for a in AGENTS}
         self.replans: list[dict[str, Any]] = []
-        self.trace: list[tuple[float, float, float, float]] = []  # (t, sep, S_p at rate, rate)
+        # every instant watched while the robot had a task: (t, separation, person's speed,
+        # robot's speed at full rate, rate), for checks of the protective distance
+        self.trace: list[tuple[float, float, float, float, float]] = []
         self._robot_held: tuple[float, str] | None = None
         self._robot_pauses: list[dict[str, Any]] = []
         self._overran: set[str] = set()
+        self._claimed: frozenset[str] = frozenset()  # robot tasks the person took
         self._last: tuple[float, np.ndarray] | None = None
         self._vh = 0.0
         reacts = getattr(human, "reaction", None) is not None
@@ -112,20 +115,56 @@ class CycleExecutor:
             mine = [t for t in self.queue["human"] if isinstance(t, str)]
             ready = [t for t in mine if self._gated(t)]
             takeable = [t for t in self.queue["robot"] if isinstance(t, str)
-                        and t not in self.start and self.problem.task(t).can("human")
-                        and self._gated(t)]
+                        and t not in self.start and self.problem.task(t).can("human")]
             choice = self.human.choose(now, planned, ready, takeable)
-            if choice is not None:
-                if choice not in mine and choice not in takeable:
+            if choice in takeable:  # the person claims a robot task: now, or once it may start
+                self.queue["robot"].remove(choice)
+                self._claim(choice)
+                deviations.append(("took", choice))
+                if self._gated(choice):
+                    self.queue["human"].remove(choice)
+                    self._begin("human", choice, now)
+            elif choice is not None:
+                if choice not in ready:
                     raise RapiddsError(f"the person started '{choice}', which they may not "
                                        f"start now (ready: {ready}, takeable: {takeable})")
-                for a in AGENTS:
-                    if choice in self.queue[a]:
-                        self.queue[a].remove(choice)
+                self.queue["human"].remove(choice)
                 self._begin("human", choice, now)
                 if choice != planned:
-                    deviations.append(("took" if choice in takeable else "order", choice))
+                    deviations.append(("order", choice))
         return deviations
+
+    def _claim(self, task: str) -> None:
+        """Put a claimed task into the person's queue right after the last of their tasks it
+        must follow (precedence, transitively), so their order stays feasible."""
+        before, stack = set(), list(self.problem.preceding[task])
+        while stack:
+            t = stack.pop()
+            if t not in before:
+                before.add(t)
+                stack.extend(self.problem.preceding[t])
+        self._claimed |= {task}
+        q = self.queue["human"]
+        at = max((k + 1 for k, t in enumerate(q) if isinstance(t, str) and t in before),
+                 default=0)
+        q.insert(at, task)
+
+    def _unstick(self, now: float) -> bool:
+        """Nothing runs and nothing may start (a deviation left an order that cannot go on):
+        the robot skips a wait it cannot pass, the person does a task they may start. False
+        when neither helps."""
+        q = self.queue["robot"]
+        if q and isinstance(q[0], Wait) and q[0].task not in self.finish:
+            q.pop(0)
+            return True
+        mine = [t for t in self.queue["human"] if isinstance(t, str) and self._gated(t)]
+        if mine:
+            self.queue["human"].remove(mine[0])
+            self.queue["human"].insert(0, mine[0])
+            self.queue["human"] = [x for x in self.queue["human"] if not (
+                isinstance(x, Wait) and x.task not in self.finish)]
+            return True
+        return False
 
     # -- the robot's rate -------------------------------------------------------------------------
     def _rate(self, now: float) -> tuple[float, RobotView]:
@@ -142,9 +181,7 @@ class CycleExecutor:
         sep = float(np.linalg.norm(h_pts[:, None] - r_pts[None], axis=-1).min())
         v_r = self.robot.speed()
         rate = self.policy.rate(sep, self._vh, v_r)
-        if isinstance(self.policy, SpeedSeparation):
-            self.trace.append((now, sep, protective_distance(self.policy.limits, self._vh,
-                                                             rate * v_r), rate))
+        self.trace.append((now, sep, self._vh, v_r, rate))
         return rate, RobotView(r_pts, rate > 0.0 and v_r > 0.0)
 
     def _log_robot(self, now: float, rate: float) -> None:
@@ -177,7 +214,7 @@ class CycleExecutor:
         mean = {f"human:{t}": m for t, m in rp.mean.items()}
         mean.update({f"robot:{t}": d for t, d in rp.robot.items()})
         rem = replan_remainder(self.problem, now, current, fixed, free, mean,
-                               frozenset(rp.robot), rp.spatial, rp.gamma)
+                               frozenset(rp.robot), rp.spatial, rp.gamma, self._claimed)
         changed = (list(rem.human), list(rem.robot)) != (current["human"], current["robot"])
         if changed:
             self.queue = {"human": list(rem.human), "robot": list(rem.robot)}
@@ -208,6 +245,8 @@ class CycleExecutor:
             until = min(self.human.next_event(now, view), self.robot.next_event(now, rate))
             if self.watching:
                 until = min(until, (math.floor(now / dt + 1e-9) + 1) * dt)
+            if not math.isfinite(until) and self._unstick(now):
+                continue
             if not math.isfinite(until) or until > self.max_time:
                 raise RapiddsError(f"the cycle is stuck at t = {now:.2f} s (running "
                                    f"{self.running}, waiting {self.queue})")

@@ -76,7 +76,7 @@ def replan_remainder(
     fixed: Mapping[str, tuple[str, float, float]], free: Mapping[str, float],
     mean: Mapping[str, float], robot_can: frozenset[str],
     spatial: Callable[[str, frozenset[str]], float], gamma: float,
-    max_candidates: int = 20_000,
+    claimed: frozenset[str] = frozenset(), max_candidates: int = 20_000,
 ) -> Remainder:
     """The best remainder of the cycle from ``now``.
 
@@ -85,7 +85,8 @@ def replan_remainder(
     it is expected to be free. mean: expected duration of every task still to start, for
     either agent that may do it (the person's learned mean, the robot's motion duration).
     robot_can: tasks the robot may take (a trajectory of its own exists). spatial(j, C): the
-    spatial cost of robot task j beside the person's tasks C.
+    spatial cost of robot task j beside the person's tasks C. claimed: tasks the person took
+    from the robot; they stay the person's.
     """
     cache: dict[tuple[str, frozenset[str]], float] = {}
 
@@ -104,7 +105,7 @@ def replan_remainder(
     options = []
     for t in tasks:
         can = [a for a in ("human", "robot") if problem.task(t).can(a)
-               and (a == "human" or t in robot_can)]
+               and (a == "human" or (t in robot_can and t not in claimed))]
         options.append(can)
     n = 1
     for opts in options:

@@ -43,8 +43,9 @@ class HumanSource(Protocol):
     def choose(self, now: float, planned: str | None, ready: Sequence[str],
                takeable: Sequence[str]) -> str | None:
         """The task the person starts at ``now``: the plan's next (``planned``, None when it
-        cannot start yet), another of their ``ready`` tasks, one of the robot's ``takeable``
-        ones, or None (not now)."""
+        cannot start yet), another of their ``ready`` tasks, or None (not now); or one of the
+        robot's ``takeable`` tasks (not started, a person may do them), which they claim: they
+        start it now if its predecessors are done, else as soon as they are."""
         ...
 
     def start(self, task: str, now: float) -> None:

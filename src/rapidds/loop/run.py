@@ -88,7 +88,8 @@ def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
 
 def timeline_of(problem: Problem, record: Mapping[str, Any]) -> Timeline:
     """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
-    schedule = Schedule.from_json({"human": record["human"], "robot": record["robot"]})
+    done = record.get("executed", record)  # who did what, where the person deviated
+    schedule = Schedule.from_json({"human": done["human"], "robot": done["robot"]})
     times = record["realised"]["timeline"]
     start = np.array([[times[t][0] for t in problem.ids]])
     finish = np.array([[times[t][1] for t in problem.ids]])
