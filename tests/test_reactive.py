@@ -179,3 +179,60 @@ def test_bad_execution_settings_are_one_line_errors(capsys, flag, value, says):
     code, _, err = run_main(capsys, "run", "--cycles", "1", flag, value)
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("rapidds: error:") and says in err, err
+
+
+def _same(rec: dict) -> dict:
+    """A record without what a clock measures (seconds, re-plan latencies)."""
+    out = _strip(rec)
+    out["replans"] = [{k: v for k, v in r.items() if k != "latency_s"} for r in rec["replans"]]
+    return out
+
+
+@pytest.mark.slow
+def test_a_killed_reactive_run_resumes_identically(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from rapidds.store import RunStore
+
+    def cli(*args: str) -> list[str]:
+        return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+
+    args = ["run", "--human", "slow-middle", "--cycles", "4", "--seed", "3",
+            "--population", "12", "--generations", "10", "--samples", "16",
+            "--particles", "2", "--candidates", "4", "--json",
+            "--execution", "reactive", "--reacts", "--deviate", "0.6"]
+    rid = "fetch-slow-middle-full-reactive-reacts-dev0.6-s3"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    full = subprocess.run(cli(*args, "--out", str(tmp_path / "a")), capture_output=True,
+                          text=True, env=env, timeout=400)
+    assert full.returncode == 0, full.stderr
+    lines = [json.loads(x) for x in full.stdout.splitlines()]
+    assert [r["cycle"] for r in lines] == list(range(4))
+    assert all("pauses" in r and "replans" in r for r in lines)
+
+    db = tmp_path / "b" / "run.sqlite"
+    proc = subprocess.Popen(cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if db.exists():
+            with RunStore.open_readonly(db) as st:
+                if st.last_cycle(rid) is not None:
+                    break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with RunStore.open_readonly(db) as st:
+        stored = st.last_cycle(rid)
+    assert stored is not None and stored < 3, "the run finished before it could be killed"
+    resumed = subprocess.run(cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+                             capture_output=True, text=True, env=env, timeout=400)
+    assert resumed.returncode == 0, resumed.stderr
+    with RunStore.open_readonly(tmp_path / "a" / "run.sqlite") as a, \
+            RunStore.open_readonly(db) as b:
+        assert [_same(r) for r in a.records()] == [_same(r) for r in b.records()]
+    assert (tmp_path / "b" / "gantt" / f"{rid}-cycle-03.png").exists()

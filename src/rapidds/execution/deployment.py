@@ -38,6 +38,9 @@ class Deployment:
     min_separation: float
     pauses: tuple[dict[str, Any], ...] = ()  # reactive execution: who paused, when, why
     replans: tuple[dict[str, Any], ...] = ()  # reactive execution: re-plans inside the cycle
+    # instants the executor watched with the robot on a task, those at which it moved while a
+    # person was inside the protective distance, and the smallest (separation - S_p) moving
+    protective: dict[str, Any] | None = None
 
 
 def _positions(

@@ -27,12 +27,13 @@ import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Deployment, realise
-from rapidds.execution.policies import OpenLoop, RobotPolicy
+from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_distance
 from rapidds.execution.replan import replan_remainder
 from rapidds.execution.sources import HumanSource, RobotSource, RobotView, SimulatedHuman
 from rapidds.problem import Problem
 from rapidds.schedule import Item, Schedule, Timeline, Wait
 from rapidds.worlds.base import World
+from rapidds.worlds.reactions import SafetyLimits
 
 __all__ = ["CycleExecutor", "Replanning"]
 
@@ -58,14 +59,18 @@ class Replanning:
 
 class CycleExecutor:
     """One cycle of ``schedule`` fed by a human and a robot source under a robot policy;
-    ``replanning`` (None: never) re-plans the rest when the person deviates."""
+    ``replanning`` (None: never) re-plans the rest when the person deviates; ``limits``: the
+    robot's safety numbers, against which every watched instant is checked (the result's
+    ``protective``), whichever policy runs."""
 
     def __init__(self, world: World, problem: Problem, schedule: Schedule, human: HumanSource,
                  robot: RobotSource, policy: RobotPolicy | None = None, *, beta: float,
-                 replanning: Replanning | None = None, max_time: float = 600.0):
+                 replanning: Replanning | None = None, limits: SafetyLimits | None = None,
+                 max_time: float = 600.0):
         self.world, self.problem, self.human, self.robot = world, problem, human, robot
         self.policy = policy or OpenLoop()
         self.beta, self.replanning, self.max_time = beta, replanning, max_time
+        self.limits = limits  # the protective distance measured against, whatever the policy
         self.queue: dict[str, list[Item]] = {a: list(schedule.sequence(a)) for a in AGENTS}
         self.start: dict[str, float] = {}
         self.finish: dict[str, float] = {}
@@ -275,4 +280,14 @@ class CycleExecutor:
             pauses += [{"agent": "person", "task": t, "start": s, "end": e, "reason": r}
                        for s, e, t, r in self.human.pauses]
         pauses.sort(key=lambda p: (p["start"], p["agent"]))
-        return dataclasses.replace(dep, pauses=tuple(pauses), replans=tuple(self.replans))
+        return dataclasses.replace(dep, pauses=tuple(pauses), replans=tuple(self.replans),
+                                   protective=self._protective())
+
+    def _protective(self) -> dict[str, Any] | None:
+        if self.limits is None or not self.watching:
+            return None
+        margins = [sep - protective_distance(self.limits, vh, rate * vr)
+                   for _, sep, vh, vr, rate in self.trace if rate > 0.0 and vr > 0.0]
+        return {"watched": len(self.trace), "moving": len(margins),
+                "moving_inside": sum(m < -1e-9 for m in margins),
+                "closest_margin": min(margins, default=None)}

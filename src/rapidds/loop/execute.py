@@ -89,7 +89,7 @@ def execute_cycle(
     executor = CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
         SpeedSeparation(limits) if config.execution == "reactive" else None,
-        beta=beta, replanning=replanning)
+        beta=beta, replanning=replanning, limits=limits)
     return executor.run(), deviation
 
 
@@ -102,4 +102,5 @@ def cycle_record(config: RunConfig, dep: Deployment,
     sched = dep.timeline.schedule
     return {"executed": {"human": list(sched.tasks("human")), "robot": list(sched.tasks("robot"))},
             "deviation": None if deviation is None else deviation.to_json(),
-            "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans]}
+            "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans],
+            "protective": dep.protective}
