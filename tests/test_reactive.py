@@ -171,12 +171,18 @@ def test_speed_and_separation_slows_before_it_stops():
     assert protective_distance(limits, 1.0, r * 2.0) == pytest.approx((still + full) / 2)
 
 
+@pytest.mark.parametrize("command", [["run", "--cycles", "1"], ["ablation", "--trials", "1"],
+                                     ["study", "simulate"]])
 @pytest.mark.parametrize(("flag", "value", "says"), [
     ("--deviate", "1.5", "deviate"), ("--execution", "sideways", "execution"),
     ("--deviate", "-0.1", "deviate"),
 ])
-def test_bad_execution_settings_are_one_line_errors(capsys, flag, value, says):
-    code, _, err = run_main(capsys, "run", "--cycles", "1", flag, value)
+def test_bad_execution_settings_are_one_line_errors(capsys, tmp_path, command, flag, value,
+                                                    says):
+    out = tmp_path / "out"
+    where = [] if command[0] == "run" else ["--out", str(out)]
+    code, _, err = run_main(capsys, *command, *where, flag, value)
+    assert not out.exists()  # refused before anything is written
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("rapidds: error:") and says in err, err
 

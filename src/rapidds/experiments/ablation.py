@@ -67,6 +67,9 @@ class StudyConfig:
     patience: int = 8
     particles: int = 2
     candidates: int = 4
+    execution: str = "planned"  # inside the cycle (RunConfig.execution, reacts, deviate)
+    reacts: bool = False
+    deviate: float = 0.0
 
     def __post_init__(self) -> None:
         for name, given, known in (("humans", self.humans, ARCHETYPES),
@@ -93,7 +96,9 @@ class StudyConfig:
                          gamma=self.gamma, lam=self.lam, seed=self.trial_seed(index),
                          population=self.population, generations=self.generations,
                          samples=self.samples, patience=self.patience,
-                         particles=self.particles, candidates=self.candidates)
+                         particles=self.particles, candidates=self.candidates,
+                         execution=self.execution, reacts=self.reacts,  # type: ignore[arg-type]
+                         deviate=self.deviate)
 
     def run_config(self, human: str, level: str, index: int) -> RunConfig:
         """The trial's settings, resolved against the fetch world (what is stored)."""
