@@ -241,6 +241,7 @@ class CycleExecutor:
     def run(self) -> Deployment:
         """Run the cycle to its end; what happened."""
         now, dt, n = 0.0, self.world.dt, len(self.problem.ids)
+        stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
         while len(self.finish) < n:
             for reason, task in self._dispatch(now):
                 self._replan(now, reason, task)
@@ -252,7 +253,8 @@ class CycleExecutor:
                 until = min(until, (math.floor(now / dt + 1e-9) + 1) * dt)
             if not math.isfinite(until) and self._unstick(now):
                 continue
-            if not math.isfinite(until) or until > self.max_time:
+            stalled = stalled + 1 if until <= now else 0
+            if not math.isfinite(until) or until > self.max_time or stalled > 1000:
                 raise RapiddsError(f"the cycle is stuck at t = {now:.2f} s (running "
                                    f"{self.running}, waiting {self.queue})")
             for agent, ended in (("human", self.human.advance(now, until, view)),

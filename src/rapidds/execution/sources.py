@@ -247,7 +247,7 @@ class SimulatedHuman:
     def _pace_now(self, robot: RobotView) -> tuple[float, str]:
         run = self._run
         assert run is not None
-        if self._pause_left > 0 and run.at(run.knots[-1][0]) >= self.deviation.at * run.duration:  # type: ignore[union-attr]
+        if self._pause_left > 0 and self._to_pause(run, run.knots[-1][0]) <= 1e-9:
             return 0.0, "deviation"
         if self.reaction is None:
             return 1.0, ""
@@ -263,11 +263,14 @@ class SimulatedHuman:
         if reason == "deviation":
             return now + self._pause_left
         end = run.end(now, self._pace)
-        if self._pause_left > 0 and self.deviation is not None:
-            start_pause = self.deviation.at * run.duration - run.at(now)
-            if self._pace > 0 and start_pause > 0:
-                end = min(end, now + start_pause / self._pace)
+        if self._pause_left > 0 and self._pace > 0:
+            end = min(end, now + self._to_pause(run, now) / self._pace)
         return end
+
+    def _to_pause(self, run: Progress, now: float) -> float:
+        """Progress (s) left before a deviation's pause starts in the running task."""
+        assert self.deviation is not None
+        return self.deviation.at * run.duration - run.at(now)
 
     def advance(self, now: float, until: float, robot: RobotView) -> str | None:
         run = self._run
@@ -275,7 +278,8 @@ class SimulatedHuman:
             return None
         pace, reason = self._pace_now(robot)
         if reason == "deviation":
-            self._pause_left = max(self._pause_left - (until - now), 0.0)
+            left = self._pause_left - (until - now)
+            self._pause_left = left if left > 1e-9 else 0.0  # not a sliver time cannot reach
         self._log_pause(now, until, run.task, reason if pace < 1.0 else "")
         if not run.advance(now, until, pace):
             return None
