@@ -133,6 +133,22 @@ def test_a_long_pause_is_an_overrun_that_triggers_a_replan(plans):
                for p in dep.pauses)
 
 
+def test_every_deviation_lets_the_cycle_finish(plans):
+    # pauses starting and ending anywhere in a task, taken tasks and other orders, with a
+    # reacting person and the monitoring robot: each cycle ends, every task done once
+    _, limits = cell_reactions(plans[0][0].world)
+    for k, (run, plan) in enumerate(plans):
+        for j, at in enumerate(np.linspace(0.2, 0.8, 7)):
+            kind = ("pause", "take", "order")[(j + k) % 3]
+            dev = Deviation(kind, pick=at - 0.2, task=j, at=float(at), seconds=1.0 + 0.37 * j)
+            _, person = _person(run, plan, j, Reaction(1.5, 0.7, 0.4), dev)
+            _, dep = _execute(run, plan, person, SpeedSeparation(limits),
+                              _replanning(run, plan))
+            done = [*dep.timeline.schedule.human, *dep.timeline.schedule.robot]
+            assert sorted(done) == sorted(run.problem.ids)
+            assert np.isfinite(dep.makespan) and dep.makespan < 120
+
+
 def _violations(ex, limits) -> int:
     """Ticks at which the robot moved while the person was within the protective distance."""
     return sum(rate > 0 and sep < protective_distance(limits, vh, rate * vr) - 1e-9
