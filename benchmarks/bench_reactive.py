@@ -88,7 +88,7 @@ def bench(args: argparse.Namespace) -> None:
             d = json.loads(line)
             done.add((d["world"], d["deviate"], d["system"], d["seed"], d["cycles"]))
     policy = load_policy(make_world(args.world))
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.seeds):
         for deviate in args.deviations:
             for system in SYSTEMS:
                 key = (args.world, deviate, system, seed, args.cycles)
@@ -197,6 +197,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--world", default="fetch")
     p.add_argument("--seeds", type=int, default=8)
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="Start at this seed (a second process can take the upper seeds).")
     p.add_argument("--cycles", type=int, default=4)
     p.add_argument("--deviations", type=lambda s: [float(x) for x in s.split(",")],
                    default=[0.0, 0.3, 0.6])

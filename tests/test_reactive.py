@@ -258,3 +258,19 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
             RunStore.open_readonly(db) as b:
         assert [_same(r) for r in a.records()] == [_same(r) for r in b.records()]
     assert (tmp_path / "b" / "gantt" / f"{rid}-cycle-03.png").exists()
+
+
+def test_the_gantt_chart_draws_pauses_and_replans(plans):
+    from rapidds.plots.gantt import plot_gantt
+
+    run, plan = plans[0]
+    _, limits = cell_reactions(run.world)
+    _, person = _person(run, plan, 0, Reaction(1.5, 0.7, 0.4), Deviation("take", pick=0.0))
+    _, dep = _execute(run, plan, person, SpeedSeparation(limits), _replanning(run, plan))
+    assert dep.pauses and dep.replans
+    plain = plot_gantt(dep.timeline)
+    drawn = plot_gantt(dep.timeline, pauses=dep.pauses, replans=dep.replans)
+    assert len(drawn.patches) == len(plain.patches) + len(dep.pauses)
+    marks = [ln for ln in drawn.lines if ln.get_marker() == "v"]
+    assert sorted(float(ln.get_xdata()[0]) for ln in marks) == sorted(
+        r["time"] for r in dep.replans)
