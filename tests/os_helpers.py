@@ -52,3 +52,27 @@ def open_rounds(barrier: Any, paths: list[str], worker: int, config: dict[str, A
             results.put((worker, k, None))
         except Exception:
             results.put((worker, k, traceback.format_exc(limit=3)))
+
+
+def kill_run_after(cmd: list[str], db: Any, run_id: str, cycles: int, env: dict[str, str],
+                   timeout: float = 240.0) -> int | None:
+    """Start ``cmd`` (a ``rapidds run`` storing into ``db``), SIGKILL it once ``cycles`` of
+    ``run_id`` are stored (or at ``timeout``); the last stored cycle then, if any."""
+    import signal
+    import subprocess
+    import time
+
+    from rapidds.store import RunStore
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    deadline = time.time() + timeout
+    while time.time() < deadline and proc.poll() is None:
+        if db.exists():
+            with RunStore.open_readonly(db) as st:
+                if (st.last_cycle(run_id) or -1) + 1 >= cycles:
+                    break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with RunStore.open_readonly(db) as st:
+        return st.last_cycle(run_id)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 from conftest import SMALL_SEARCH as SMALL
+from os_helpers import kill_run_after
 
 from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
 from rapidds.store import RunStore
@@ -90,19 +89,8 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
 
     kill_at = int(np.random.default_rng().integers(1, 4))  # after 1, 2 or 3 stored cycles
     db = tmp_path / "b" / "run.sqlite"
-    proc = subprocess.Popen(_cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env)
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None:
-        if db.exists():
-            with RunStore.open_readonly(db) as st:
-                if (st.last_cycle("fetch-slow-middle-full-s3") or -1) + 1 >= kill_at:
-                    break
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    with RunStore.open_readonly(db) as st:
-        stored = st.last_cycle("fetch-slow-middle-full-s3")
+    stored = kill_run_after(_cli(*args, "--out", str(tmp_path / "b")), db,
+                            "fetch-slow-middle-full-s3", kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
 
     again = subprocess.run(_cli(*args, "--out", str(tmp_path / "b")), capture_output=True,

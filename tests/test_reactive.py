@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_main
 from conftest import SMALL_SEARCH as SMALL
+from os_helpers import kill_run_after
 
 from rapidds.execution import (
     CycleExecutor,
@@ -213,10 +214,8 @@ def _same(rec: dict) -> dict:
 @pytest.mark.slow
 def test_a_killed_reactive_run_resumes_identically(tmp_path):
     import os
-    import signal
     import subprocess
     import sys
-    import time
 
     from rapidds.store import RunStore
 
@@ -237,19 +236,7 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
     assert all("pauses" in r and "replans" in r for r in lines)
 
     db = tmp_path / "b" / "run.sqlite"
-    proc = subprocess.Popen(cli(*args, "--out", str(tmp_path / "b")), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env)
-    deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None:
-        if db.exists():
-            with RunStore.open_readonly(db) as st:
-                if st.last_cycle(rid) is not None:
-                    break
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    with RunStore.open_readonly(db) as st:
-        stored = st.last_cycle(rid)
+    stored = kill_run_after(cli(*args, "--out", str(tmp_path / "b")), db, rid, 1, env, 300)
     assert stored is not None and stored < 3, "the run finished before it could be killed"
     resumed = subprocess.run(cli(*args, "--out", str(tmp_path / "b"), "--resume"),
                              capture_output=True, text=True, env=env, timeout=400)

@@ -30,13 +30,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from rapidds.problem import Objective, Problem, Task
 from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.worlds.painting.reactions import REACTIONS, SAFETY
 from rapidds.worlds.painting.scene import LAYOUT, Box, CellLayout
+from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -44,7 +46,6 @@ if TYPE_CHECKING:
     from rapidds.worlds.painting.kinematics import ArmKinematics
     from rapidds.worlds.painting.motions import Motion
     from rapidds.worlds.painting.teammates import PaintingTeammate
-    from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 __all__ = [
     "PRECEDENCE",
@@ -100,6 +101,10 @@ class PaintingWorld:
     beta: spatial decay, 1/m. grid: spatial grid points per axis. prior_people,
     prior_samples, prior_seed: the population the priors come from. layout: the cell.
     """
+
+    # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
+    reaction_population: ClassVar[ReactionPopulation] = REACTIONS
+    safety_limits: ClassVar[SafetyLimits] = SAFETY
 
     variant: str = "unconstrained"
     dt: float = 0.15
@@ -168,20 +173,6 @@ class PaintingWorld:
     @property
     def spatial_grid(self) -> int:
         return self.grid
-
-    @property
-    def reaction_population(self) -> ReactionPopulation:
-        """How this cell's people react to the robot (:mod:`rapidds.worlds.reactions`)."""
-        from rapidds.worlds.painting.reactions import REACTIONS
-
-        return REACTIONS
-
-    @property
-    def safety_limits(self) -> SafetyLimits:
-        """The robot's stopping numbers for speed and separation monitoring."""
-        from rapidds.worlds.painting.reactions import SAFETY
-
-        return SAFETY
 
     @property
     def teammate_names(self) -> tuple[str, ...]:
