@@ -26,16 +26,20 @@ from rapidds.execution import (
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
 from rapidds.loop.model import workspace_cost
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionPlan
+from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.reactions import Deviation, Reaction, cell_reactions, draw_deviation
 
-__all__ = ["check_cell", "cycle_record", "execute_cycle", "person_reaction"]
+__all__ = ["check_cell", "contingency_motions", "cycle_record", "execute_cycle",
+           "person_reaction"]
 
 _REACTION_STREAM = 24_023  # the person's reaction: drawn once per run
 _DEVIATION_STREAM = 24_024  # this cycle's deviation and any task the person takes on
+_CONTINGENCY_STREAM = 24_025  # the robot's motions for tasks it was not planned to do
 
 
 def person_reaction(world: World, config: RunConfig) -> Reaction | None:
@@ -53,15 +57,38 @@ def check_cell(config: RunConfig, teammate: Teammate) -> None:
                            "what they do")
 
 
+def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
+                        policy: DiffusionPolicy, spatial: SpatialModel,
+                        planned: Mapping[str, MotionPlan]) -> dict[str, MotionPlan]:
+    """For reactive execution: a steered motion (beside nothing) for every task the robot may
+    do but was not planned to, steered before the cycle starts, so that re-planning inside it
+    may hand the robot one of the person's tasks without steering (which costs far more than
+    its latency budget). Seeded by (seed, cycle), so a resumed run steers the same."""
+    if config.execution != "reactive":
+        return {}
+    todo = [t for t in problem.ids if problem.task(t).can("robot") and t not in planned]
+    if not todo:
+        return {}
+    seed = int(np.random.default_rng([config.seed, cycle, _CONTINGENCY_STREAM]).integers(2**31))
+    motion = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                             problem.objective.gamma,
+                             SteeringConfig(particles=config.particles,
+                                            candidates=config.candidates, seed=seed,
+                                            steps=config.steps))
+    return {m.task: m for m in motion.plan([(t, frozenset()) for t in todo])}
+
+
 def execute_cycle(
     world: World, problem: Problem, config: RunConfig, cycle: int, schedule: Schedule,
     motions: Mapping[str, MotionPlan], human: Mapping[str, HumanExecution],
     teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
-    spatial: SpatialModel, beta: float,
+    spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
     do (``human``), under the run's execution settings; the deviation it had, if any.
-    beliefs: the person's (mean, std) duration per problem task, for re-planning."""
+    beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
+    robot's motions for tasks it was not planned to do (:func:`contingency_motions`)."""
+    motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, limits = cell_reactions(world)
     deviation = draw_deviation(config.deviate, rng, population) if config.deviate else None

@@ -28,7 +28,13 @@ from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIG
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment
-from rapidds.loop.execute import check_cell, cycle_record, execute_cycle, person_reaction
+from rapidds.loop.execute import (
+    check_cell,
+    contingency_motions,
+    cycle_record,
+    execute_cycle,
+    person_reaction,
+)
 from rapidds.loop.model import (
     HumanModel,
     check_teammate,
@@ -357,7 +363,9 @@ class AdaptiveRun:
             self.world, self.problem, self.config, plan.cycle, plan.best.schedule,
             plan.best.motions, human, self.teammate, self._reaction,
             (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
-            beta=self.model.spatial.config.beta)
+            beta=self.model.spatial.config.beta,
+            spare=contingency_motions(self.world, self.problem, self.config, plan.cycle,
+                                      self.policy, self._spatial(), plan.best.motions))
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 
