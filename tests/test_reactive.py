@@ -261,3 +261,29 @@ def test_the_gantt_chart_draws_pauses_and_replans(plans):
     marks = [ln for ln in drawn.lines if ln.get_marker() == "v"]
     assert sorted(float(ln.get_xdata()[0]) for ln in marks) == sorted(
         r["time"] for r in dep.replans)
+
+
+def test_a_replan_can_hand_the_robot_a_task_of_the_person(plans):
+    from rapidds.loop.execute import contingency_motions
+
+    handed = 0
+    for run, plan in plans:
+        cfg = run.config.replace(execution="reactive")
+        spare = contingency_motions(run.world, run.problem, cfg, 0, run.policy,
+                                    run.model.spatial, plan.best.motions)
+        assert set(spare) == set(run.problem.ids) - set(plan.best.motions)
+        motions = {**spare, **plan.best.motions}
+        _, person = _person(run, plan, 0, deviation=Deviation("take", pick=0.0))
+        rp = _replanning(run, plan)
+        rp = Replanning(rp.mean, rp.std, {j: m.duration for j, m in motions.items()},
+                        rp.spatial, rp.gamma)
+        ex = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
+                           PlannedRobot(run.world, motions), beta=1.0, replanning=rp)
+        dep = ex.run()
+        mine = set(plan.best.schedule.tasks("human"))
+        robot_did = set(dep.timeline.schedule.tasks("robot"))
+        if robot_did & mine:
+            handed += 1
+            assert any(r["changed"] for r in dep.replans)
+            assert (robot_did & mine) <= set(dep.robot)  # it followed a trajectory for it
+    assert handed >= 1
