@@ -80,7 +80,8 @@ class CycleExecutor:
         # every instant watched while the robot had a task: (t, separation, person's speed,
         # robot's speed at full rate, rate), for checks of the protective distance
         self.trace: list[tuple[float, float, float, float, float]] = []
-        self._robot_held: tuple[float, str] | None = None
+        self._robot_held: tuple[float, str] | None = None  # since when, "stop" or "slow"
+        self._held_task: str | None = None
         self._robot_pauses: list[dict[str, Any]] = []
         self._overran: set[str] = set()
         self._claimed: frozenset[str] = frozenset()  # robot tasks the person took
