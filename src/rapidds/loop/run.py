@@ -348,7 +348,8 @@ class AdaptiveRun:
     def execute(self, plan: CyclePlan,
                 observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
-        live person did), and the cycle is realised with the robot's planned motions."""
+        live person did), and the cycle is realised with the robot's planned motions by the
+        clock-driven executor, under the run's execution settings (:mod:`.execute`)."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
