@@ -28,13 +28,14 @@ def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:
 
 
 def kill_run(cmd: list[str], db: Path, run_id: str, kill_at: int,
-             env: dict[str, str]) -> int | None:
+             env: dict[str, str], timeout: float = 240.0) -> int | None:
     """Start the ``rapidds run`` command ``cmd`` storing into ``db``, SIGKILL it once ``kill_at``
-    cycles of ``run_id`` are stored (or it ended, or 240 s passed): its last stored cycle."""
+    cycles of ``run_id`` are stored (or it ended, or ``timeout`` s passed): its last stored
+    cycle."""
     from rapidds.store import RunStore
 
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    deadline = time.time() + 240
+    deadline = time.time() + timeout
     while time.time() < deadline and proc.poll() is None:
         if db.exists():
             with RunStore.open_readonly(db) as st:

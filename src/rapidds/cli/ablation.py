@@ -78,6 +78,12 @@ def ablation_cmd(
     particles: int = typer.Option(_S.particles, help="Steered samples per motion request B."),
     candidates: int = typer.Option(_S.candidates, help="SVDD candidates M per step."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+    execution: str = typer.Option(_S.execution, help="Inside the cycle: planned (the paper) "
+                                  "or reactive (speed and separation monitoring, re-planning)."),
+    reacts: bool = typer.Option(False, help="Simulated people slow down or pause near the "
+                                "moving robot."),
+    deviate: float = typer.Option(0.0, help="Probability per cycle that a simulated person "
+                                  "deviates from the plan."),
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -93,7 +99,8 @@ def ablation_cmd(
     study = AblationConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
                         cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
                         generations=generations, samples=samples, patience=patience,
-                        particles=particles, candidates=candidates)
+                        particles=particles, candidates=candidates, execution=execution,
+                        reacts=reacts, deviate=deviate)
     from rich.console import Console
 
     console = Console(soft_wrap=True)

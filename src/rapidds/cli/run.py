@@ -85,7 +85,8 @@ def redraw_missing_gantts(run: AdaptiveRun, out: Path) -> None:
         path = gantt_path(out, rid, rec["cycle"])
         if not path.exists():
             save_gantt(timeline_of(run.problem, rec), path,
-                       title=f"{rid} cycle {rec['cycle']} (realised)")
+                       title=f"{rid} cycle {rec['cycle']} (realised)",
+                       pauses=rec.get("pauses", ()), replans=rec.get("replans", ()))
 
 
 def execute(
@@ -127,7 +128,8 @@ def execute(
                 con.print(_line(_cycle_row(rec)), highlight=False)
             if out is not None:
                 save_gantt(res.deployment.timeline, gantt_path(out, rid, rec["cycle"]),
-                           title=f"{rid} cycle {rec['cycle']} (realised)")
+                           title=f"{rid} cycle {rec['cycle']} (realised)",
+                           pauses=res.deployment.pauses, replans=res.deployment.replans)
             bar.update(task, advance=1, info=f"cost {rec['realised']['cost']:.2f}")
 
         try:
@@ -212,19 +214,23 @@ def run_cmd(
                                       "(fatigue, practice); with --ask, if the teammate agrees."),
     reexplore: int = typer.Option(0, help="Cycles planned with lambda again after a detected "
                                   "change."),
+    execution: str = typer.Option(_D["execution"].default, help="Inside the cycle: planned (the "
+                                  "paper: the robot follows its plan) or reactive (speed and "
+                                  "separation monitoring, re-planning on deviations)."),
+    reacts: bool = typer.Option(False, help="The simulated person slows down or pauses when "
+                                "the moving robot comes close."),
+    deviate: float = typer.Option(0.0, help="Probability per cycle that the simulated person "
+                                  "deviates from the plan (another order, a pause, a robot "
+                                  "task taken)."),
 ) -> None:
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:
         fail("--resume needs --out (the folder of the run to continue)")
+    # every option named after a RunConfig field is that setting (one name, one meaning)
+    settings = {k: v for k, v in locals().items() if k in RunConfig.model_fields}
     learn = gamma is not None and gamma.strip().lower() == "learn"
-    cfg = RunConfig(world=world, variant=variant, human=human, adapt=adapt, cycles=cycles,
-                    gamma=None if learn else parse_gamma(gamma), gamma_learn=learn,
-                    gamma_prior=gamma_prior, gamma_plan=gamma_plan, comfort=comfort, lam=lam,
-                    seed=seed, population=population,
-                    generations=generations, samples=samples, particles=particles,
-                    candidates=candidates, surrogate=surrogate, change=change, drift=drift,
-                    drift_from=drift_from, forgetting=forgetting, detect=detect, hazard=hazard,
-                    ask=ask, whole_person=whole_person, reexplore=reexplore)
+    cfg = RunConfig(**{**settings, "gamma": None if learn else parse_gamma(gamma),
+                       "gamma_learn": learn})
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 

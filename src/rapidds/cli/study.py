@@ -65,7 +65,7 @@ _UNBALANCED = typer.Option(False, "--allow-unbalanced", help="Accept a participa
 
 
 def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
-           gamma: float | None, seed: int, items: Path | None, search: dict[str, int],
+           gamma: float | None, seed: int, items: Path | None, search: dict[str, Any],
            unbalanced: bool = False, max_task_s: float | None = None
            ) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
     """Validate every option before anything is written: design, world, run settings, items.
@@ -142,6 +142,12 @@ def simulate_cmd(
     scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
                                          "e.g. tcp://host:8786, instead of a local cluster."),
     as_json: bool = _JSON,
+    execution: str = typer.Option("planned", help="Inside the cycle: planned (the paper) or "
+                                  "reactive (speed and separation monitoring, re-planning)."),
+    reacts: bool = typer.Option(False, help="Simulated participants slow down or pause near "
+                                "the moving robot."),
+    deviate: float = typer.Option(0.0, help="Probability per round that a simulated "
+                                  "participant deviates from the plan."),
 ) -> None:
     """The study's protocol with simulated participants drawn around their priming group, each
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
@@ -155,7 +161,8 @@ def simulate_cmd(
 
     design, run, _ = _build(participants, systems, world, variant, rounds, gamma, seed, None,
                             dict(population=population, generations=generations,
-                                 samples=samples, particles=particles, candidates=candidates),
+                                 samples=samples, particles=particles, candidates=candidates,
+                                 execution=execution, reacts=reacts, deviate=deviate),
                             allow_unbalanced, max_task_seconds)
     if scheduler:
         check_scheduler_address(scheduler)

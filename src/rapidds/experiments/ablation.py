@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 from pydantic import Field, field_validator
 
 from rapidds.errors import RapiddsError, StateError
-from rapidds.loop.config import ADAPT_LEVELS, RunConfig
-from rapidds.settings import Int, Real, Settings
+from rapidds.loop.config import ADAPT_LEVELS, Execution, RunConfig
+from rapidds.settings import Flag, Int, Real, Settings
 from rapidds.store import RunStore
 
 if TYPE_CHECKING:
@@ -91,6 +91,9 @@ class AblationConfig(Settings):
     patience: Int = _RUN["patience"].default
     particles: Int = 2
     candidates: Int = 4
+    execution: Execution = "planned"  # inside the cycle (RunConfig's)
+    reacts: Flag = False
+    deviate: Annotated[Real, Field(ge=0, le=1)] = 0.0
 
     _humans = field_validator("humans")(_levels_field("humans", ARCHETYPES))
     _levels = field_validator("levels")(_levels_field("levels", ADAPT_LEVELS))
@@ -107,7 +110,9 @@ class AblationConfig(Settings):
                          gamma=self.gamma, lam=self.lam, seed=self.trial_seed(index),
                          population=self.population, generations=self.generations,
                          samples=self.samples, patience=self.patience,
-                         particles=self.particles, candidates=self.candidates)
+                         particles=self.particles, candidates=self.candidates,
+                         execution=self.execution, reacts=self.reacts,  # type: ignore[arg-type]
+                         deviate=self.deviate)
 
     def run_config(self, human: str, level: str, index: int) -> RunConfig:
         """The trial's settings, resolved against the fetch world (what is stored)."""

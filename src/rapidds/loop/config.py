@@ -11,9 +11,11 @@ from rapidds.settings import Settings
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
-__all__ = ["ADAPT_LEVELS", "Adapt", "RunConfig"]
+__all__ = ["ADAPT_LEVELS", "EXECUTIONS", "Adapt", "Execution", "RunConfig"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
+Execution = Literal["planned", "reactive"]
+EXECUTIONS: tuple[str, ...] = ("planned", "reactive")
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
 _Count = Annotated[int, Field(ge=1)]
@@ -67,6 +69,13 @@ class RunConfig(Settings):
     comfort: the SIMULATED teammate's true gamma (None: drawn from a population when learning).
         With it (or when learning) the simulated teammate answers a comfort question and
         signals "too close" every cycle, stored in the record.
+    Inside the cycle (docs/design-notes.md "Reacting inside the cycle"):
+    execution: ``planned`` (the paper: the robot follows its plan whatever happens) or
+        ``reactive`` (speed and separation monitoring, and re-planning the rest of the cycle
+        when the person deviates).
+    reacts: the simulated person slows down or pauses when the moving robot comes close.
+    deviate: probability per cycle that the simulated person deviates from the plan (another
+        order, a pause, or taking a robot task).
     """
 
     world: str = "fetch"
@@ -103,6 +112,9 @@ class RunConfig(Settings):
     gamma_prior: str | None = None
     gamma_plan: Literal["mean", "cautious"] = "mean"
     comfort: Annotated[float, Field(gt=0)] | None = None
+    execution: Execution = "planned"
+    reacts: bool = False
+    deviate: Annotated[float, Field(ge=0, le=1)] = 0.0
 
     @field_validator("change")
     @classmethod
@@ -162,7 +174,19 @@ class RunConfig(Settings):
         if self.comfort is not None:
             human += f"-comfort{self.comfort:g}"
         learn = f"-glearn{'-cautious' if self.gamma_plan == 'cautious' else ''}"
-        return f"{world}-{human}-{self.adapt}{learn if self.gamma_learn else ''}-s{self.seed}"
+        return (f"{world}-{human}-{self.adapt}{learn if self.gamma_learn else ''}"
+                f"{self.cell_suffix}-s{self.seed}")
+
+    @property
+    def cell_suffix(self) -> str:
+        """What the run id says of execution inside the cycle; empty for the paper's."""
+        return ("-reactive" * (self.execution == "reactive") + "-reacts" * self.reacts
+                + (f"-dev{self.deviate:g}" if self.deviate else ""))
+
+    @property
+    def in_cycle(self) -> bool:
+        """Whether anything happens inside the cycle that the paper's execution lacks."""
+        return bool(self.cell_suffix)
 
     def lam_at(self, cycle: int, last_change: int | None = None) -> float:
         """lambda for ``cycle``: constant for the first half of the cycles, then 0; again for

@@ -22,13 +22,19 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from rapidds.errors import CheckpointError, RapiddsError, StateError
-from rapidds.human.changes import detect_change
 from rapidds.human.spatial import SpatialModel
-from rapidds.human.temporal import DEFAULT_ALPHA, DEFAULT_NU, DurationModel, NIGPrior
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
+from rapidds.loop.changes import detect_changes
 from rapidds.loop.comfort import SimulatedComfort, said_and_signalled, simulated_comfort
 from rapidds.loop.config import RunConfig
-from rapidds.loop.deploy import Deployment, deploy
+from rapidds.loop.deploy import Deployment
+from rapidds.loop.execute import (
+    check_cell,
+    contingency_motions,
+    cycle_record,
+    execute_cycle,
+    person_reaction,
+)
 from rapidds.loop.model import (
     HumanModel,
     check_teammate,
@@ -52,6 +58,7 @@ from rapidds.scheduler import (
 from rapidds.settings import require_memory
 from rapidds.store import RunStore, path_arrays
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.reactions import Deviation
 from rapidds.worlds.registry import make_world
 
 __all__ = [
@@ -88,7 +95,8 @@ def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
 
 def timeline_of(problem: Problem, record: Mapping[str, Any]) -> Timeline:
     """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
-    schedule = Schedule.from_json({"human": record["human"], "robot": record["robot"]})
+    done = record.get("executed", record)  # who did what, where the person deviated
+    schedule = Schedule.from_json({"human": done["human"], "robot": done["robot"]})
     times = record["realised"]["timeline"]
     start = np.array([[times[t][0] for t in problem.ids]])
     finish = np.array([[times[t][1] for t in problem.ids]])
@@ -202,6 +210,9 @@ class AdaptiveRun:
         self._changes: dict[int, list[dict[str, Any]]] = {}
         self.next_cycle = 0
         self._timing: dict[int, dict[str, float]] = {}
+        check_cell(self.config, self.teammate)
+        self._reaction = person_reaction(self.world, self.config)  # the person's, all run long
+        self._deviations: dict[int, Deviation | None] = {}
         if store is not None:
             self._attach(store)
 
@@ -349,7 +360,8 @@ class AdaptiveRun:
     def execute(self, plan: CyclePlan,
                 observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
-        live person did), and the cycle is realised with the robot's planned motions."""
+        live person did), and the cycle is realised with the robot's planned motions by the
+        clock-driven executor, under the run's execution settings (:mod:`.execute`)."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
@@ -357,8 +369,16 @@ class AdaptiveRun:
             self.teammate.show(plan)
         human = (dict(observed) if observed is not None
                  else self.teammate.execute(plan.cycle, tasks, plan.rng))
-        dep = deploy(self.world, self.problem, plan.best.schedule, plan.best.motions, human,
-                     beta=self.model.spatial.config.beta)
+        missing = set(tasks) - set(human)
+        if missing:
+            raise ValueError(f"no observation of human task(s) {sorted(missing)}")
+        dep, self._deviations[plan.cycle] = execute_cycle(
+            self.world, self.problem, self.config, plan.cycle, plan.best.schedule,
+            plan.best.motions, human, self.teammate, self._reaction,
+            (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
+            beta=self.model.spatial.config.beta,
+            spare=contingency_motions(self.world, self.problem, self.config, plan.cycle,
+                                      self.policy, self._spatial(), plan.best.motions))
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 
@@ -376,7 +396,8 @@ class AdaptiveRun:
             if learn_space:
                 self.model.spatial.observe(task, ex.trajectory)
         if self.config.detect and learn_time:
-            self._changes[plan.cycle] = self._detect(plan.cycle, deployment, learn_space)
+            self._changes[plan.cycle] = detect_changes(
+                self.config, self.model, self.teammate, plan.cycle, deployment, learn_space)
         if learn_space:
             self.model.spatial.refit(deployment.human)
         self.model.history.record(plan.best.schedule)
@@ -395,123 +416,6 @@ class AdaptiveRun:
             self.model.gamma.observe(ev)
         self._evidence[cycle] = {**ev.to_dict(), **(self.comfort.to_dict() if self.comfort
                                                      else {})}
-
-    def _detect(self, cycle: int, deployment: Deployment,
-                learn_space: bool) -> list[dict[str, Any]]:
-        """Change detection on the tasks observed this cycle; on a change (not denied by the
-        person) the task's beliefs restart from the observations since it. What happened goes
-        into the cycle's record."""
-        cfg, log, out = self.config, self.model.changes, []
-        olds: dict[str, NIGPrior] = {}  # the old person's belief of each reset task
-        for task, ex in deployment.human.items():
-            dm = self.model.temporal.models[task]
-            ch = detect_change(dm, hazard=cfg.hazard, threshold=cfg.detect_threshold)
-            if ch is None or ch.index < log.unchanged_until.get(task, 0):
-                continue
-            since = log.cycles[task][ch.index]
-            entry: dict[str, Any] = {
-                "task": task, "since_cycle": since, "probability": ch.probability,
-                "mean_before": ch.before, "mean_after": ch.after}
-            if cfg.ask:
-                entry["question"] = (f"you seem {ch.direction} on {task} since cycle {since} "
-                                     f"({ch.before:.1f} s -> {ch.after:.1f} s): has something "
-                                     "changed?")
-                entry["answer"] = answer = self._answer(task, log.cycles[task][ch.index - 1],
-                                                        cycle)
-                if answer is False:  # the person says they are who they were: an outlier
-                    log.unchanged_until[task] = len(dm.observations)
-                    entry["action"] = "kept"
-                    out.append(entry)
-                    continue
-            olds[task] = dm.fold(dm.observations[dm.start:ch.index], dm.base)
-            dm.restart(ch.index)
-            if learn_space:  # older paths are not kept: restart from the latest one
-                self.model.spatial[task].reset()
-                self.model.spatial.observe(task, ex.trajectory)
-            log.last_change = cycle
-            entry["action"] = "reset"
-            out.append(entry)
-        if cfg.whole_person and olds:
-            out.append(self._person_change(cycle, olds, [e for e in out
-                                                          if e["action"] == "reset"]))
-        return out
-
-    def _person_change(self, cycle: int, olds: dict[str, NIGPrior],
-                       resets: list[dict[str, Any]]) -> dict[str, Any]:
-        """The change on the tasks just reset (``olds``: their beliefs of the old person) taken
-        as the whole person's (fatigue, practice). Their durations scaled by a ratio r: each
-        reset task's r_i is the mean of what the new person did on it over the old belief's
-        mean (not the reset belief's, which the population prior pulls back). Every other task
-        with observations of the old person starts a new segment at the change from its old
-        belief moved by r = the geometric mean of the r_i (mean and spread times r), as
-        confident as the population prior of a new person (nu, alpha), updated with the
-        task's observations since; a reset task does the same with the other reset tasks' r
-        when there are any (so no observation counts twice). With ``ask`` the person is asked
-        first; a denial leaves it at the per-task resets."""
-        log, models = self.model.changes, self.model.temporal.models
-        since = min(e["since_cycle"] for e in resets)
-        logr = {t: math.log(float(np.mean(models[t].observations[models[t].start:])) / b.mu)
-                for t, b in olds.items()}
-        ratio = math.exp(float(np.mean(list(logr.values()))))
-        entry: dict[str, Any] = {"person": True, "since_cycle": since, "ratio": ratio,
-                                 "from_tasks": sorted(olds)}
-        if self.config.ask:
-            entry["question"] = (f"you seem {'slower' if ratio > 1 else 'faster'} overall since "
-                                 f"cycle {since} (durations x{ratio:.2f} on "
-                                 f"{', '.join(sorted(olds))}): on your other tasks too?")
-            entry["answer"] = answer = self._answer_person(since - 1, cycle, ratio)
-            if answer is False:
-                entry["action"] = "kept"
-                return entry
-
-        def moved(old: NIGPrior, dm: DurationModel, r: float) -> NIGPrior:
-            var = old.expected_variance
-            std = math.sqrt(var if math.isfinite(var) else dm.prior.expected_variance)
-            return NIGPrior.from_moments(r * old.mu, r * std, DEFAULT_NU, DEFAULT_ALPHA)
-
-        out = []
-        for task, dm in models.items():
-            if task in olds:
-                others = [v for t, v in logr.items() if t != task]
-                if others:
-                    dm.restart(dm.start, moved(olds[task], dm, math.exp(float(np.mean(others)))))
-                    out.append(task)
-                continue
-            seen = log.cycles.get(task, [])
-            index = next((i for i, c in enumerate(seen) if c >= since), len(seen))
-            if index <= dm.start:  # its segment holds nothing of the old person
-                continue
-            dm.restart(index, moved(dm.fold(dm.observations[dm.start:index], dm.base), dm, ratio))
-            out.append(task)
-        entry["tasks"] = out
-        entry["action"] = "moved"
-        return entry
-
-    def _answer_person(self, then: int, now: int, ratio: float) -> bool | None:
-        """The person's answer to "are you slower (ratio > 1) or faster on all your tasks now
-        than in cycle ``then``?": a simulated person answers truthfully (every task's true mean
-        moved by more than 10 % that way); a live one through ``confirm_person_change(then)``
-        if they offer it, else None (the detector is trusted)."""
-        if isinstance(self.teammate, SimulatedTeammate):
-            before = self.teammate.at(then).true_mean_durations()
-            after = self.teammate.at(now).true_mean_durations()
-            moved = [after[t] / before[t] for t in self.model.temporal.models]
-            return all(m > 1.1 for m in moved) if ratio > 1 else all(m < 1 / 1.1 for m in moved)
-        confirm = getattr(self.teammate, "confirm_person_change", None)
-        return None if confirm is None else bool(confirm(then))
-
-    def _answer(self, task: str, then: int, now: int) -> bool | None:
-        """The person's answer to "are you different on ``task`` now than in cycle ``then``
-        (the last observation before the suspected change)?": a simulated person answers
-        truthfully (their true mean moved by more than 10 %); a live one through
-        ``confirm_change(task, then)`` if they offer it, else None (no answer: the detector
-        is trusted)."""
-        if isinstance(self.teammate, SimulatedTeammate):
-            before = self.teammate.at(then).true_mean_durations()[task]
-            after = self.teammate.at(now).true_mean_durations()[task]
-            return bool(abs(after / before - 1) > 0.1)
-        confirm = getattr(self.teammate, "confirm_change", None)
-        return None if confirm is None else bool(confirm(task, then))
 
     # -- record -------------------------------------------------------------------------------
     def record(self, plan: CyclePlan, deployment: Deployment) -> dict[str, Any]:
@@ -553,6 +457,7 @@ class AdaptiveRun:
             **({"comfort": self._evidence.pop(plan.cycle, None)}
                if cfg.simulates_comfort or plan.cycle in self._evidence else {}),
             **({"gamma_belief": self.model.gamma.summary()} if self.model.gamma else {}),
+            **cycle_record(cfg, dep, self._deviations.pop(plan.cycle, None)),
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
         }

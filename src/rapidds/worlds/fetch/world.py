@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from functools import cache, cached_property
 from importlib.resources import files
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -39,11 +39,14 @@ from rapidds.worlds.fetch.map import (
     Route,
     mirror,
 )
+from rapidds.worlds.fetch.reactions import REACTIONS, SAFETY
 from rapidds.worlds.fetch.teammates import ARCHETYPES, FetchTeammate, archetype, population
 from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_rects
+from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+
 
 __all__ = ["POLICY_DEFAULTS", "PRIOR_SEED", "FetchWorld", "default_world", "fetch_problem"]
 
@@ -72,6 +75,9 @@ class FetchWorld:
     prior_people: int = 24
     prior_samples: int = 2
     prior_seed: int = PRIOR_SEED
+    # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
+    reaction_population: ClassVar[ReactionPopulation] = REACTIONS
+    safety_limits: ClassVar[SafetyLimits] = SAFETY
     _routes: dict[tuple[str, str, str], Route] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

@@ -31,13 +31,15 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from importlib.resources import files
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from rapidds.problem import Objective, Problem, Task
 from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.worlds.painting.reactions import REACTIONS, SAFETY
 from rapidds.worlds.painting.scene import ARM_JOINTS, LAYOUT, Box, CellLayout
+from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 if TYPE_CHECKING:
     import mujoco
@@ -101,6 +103,10 @@ class PaintingWorld:
     beta: spatial decay, 1/m. grid: spatial grid points per axis. prior_people,
     prior_samples, prior_seed: the population the priors come from. layout: the cell.
     """
+
+    # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
+    reaction_population: ClassVar[ReactionPopulation] = REACTIONS
+    safety_limits: ClassVar[SafetyLimits] = SAFETY
 
     variant: str = "unconstrained"
     dt: float = 0.15

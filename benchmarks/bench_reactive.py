@@ -1,0 +1,213 @@
+"""Reacting inside the cycle: planned (the paper), reactive without learning between
+cycles (what a CoBOS-like cell does) and both, with people who react to the robot and deviate
+from the plan at rates 0, 0.3 and 0.6, in the fetch and painting cells.
+
+Every run is one line of --runs (JSON), so the benchmark resumes where it stopped and can be
+run in parts (one world per process); --report reads them all, writes the table and figure
+into docs/reproduction.md "Reacting inside the cycle".
+
+    python benchmarks/bench_reactive.py --world fetch --seeds 8 --cycles 4 --runs R.jsonl
+    python benchmarks/bench_reactive.py --report --runs R.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _common import cpu_model, load_average, update_docs_section  # noqa: E402
+
+SYSTEMS = {  # name -> (adapt, execution)
+    "planned": ("full", "planned"),
+    "reactive": ("none", "reactive"),
+    "both": ("full", "reactive"),
+}
+SEARCH = {  # small searches: what this shared 2-core machine affords (stated in the docs)
+    "fetch": dict(population=12, generations=10, samples=16, patience=4, particles=2,
+                  candidates=4),
+    "painting": dict(population=8, generations=4, samples=16, patience=2, particles=1,
+                     candidates=2),
+}
+DOC = ROOT / "docs" / "reproduction.md"
+FIGURE = ROOT / "docs" / "reproduction" / "reactive.png"
+
+
+def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
+            policy: object) -> dict:
+    from rapidds.loop import AdaptiveRun, RunConfig
+    from rapidds.worlds.registry import make_world
+
+    names = make_world(world).teammate_names
+    adapt, execution = SYSTEMS[system]
+    cfg = RunConfig(world=world, human=names[seed % len(names)], adapt=adapt, cycles=cycles,
+                    seed=seed, execution=execution, reacts=True, deviate=deviate,
+                    **SEARCH[world])
+    t0 = time.perf_counter()
+    recs = AdaptiveRun(cfg, policy).run()  # type: ignore[arg-type]
+    r = [x["realised"] for x in recs]
+    prot = [x["protective"] or {} for x in recs]
+    return {
+        "world": world, "deviate": deviate, "system": system, "seed": seed,
+        "human": cfg.human, "cycles": cycles,
+        "cost": float(np.mean([x["cost"] for x in r])),
+        "makespan": float(np.mean([x["makespan"] for x in r])),
+        "min_separation": float(min(x["min_separation"] for x in r)),
+        "robot_stops": sum(p["agent"] == "robot" and "stop" in p["reason"]
+                           for x in recs for p in x["pauses"]),
+        "person_pauses": sum(p["agent"] == "person" for x in recs for p in x["pauses"]),
+        "replans": sum(len(x["replans"]) for x in recs),
+        "replans_changed": sum(q["changed"] for x in recs for q in x["replans"]),
+        "latencies": [q["latency_s"] for x in recs for q in x["replans"]],
+        "moving_inside": sum(p.get("moving_inside", 0) for p in prot),
+        "cycles_moving_inside": sum(bool(p.get("moving_inside")) for p in prot),
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def bench(args: argparse.Namespace) -> None:
+    import torch
+
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
+
+    torch.set_num_threads(1)
+    runs = Path(args.runs)
+    done = set()
+    if runs.exists():
+        for line in runs.read_text().splitlines():
+            d = json.loads(line)
+            done.add((d["world"], d["deviate"], d["system"], d["seed"], d["cycles"]))
+    policy = load_policy(make_world(args.world))
+    for seed in range(args.first_seed, args.seeds):
+        for deviate in args.deviations:
+            for system in SYSTEMS:
+                key = (args.world, deviate, system, seed, args.cycles)
+                if key in done:
+                    continue
+                row = run_one(args.world, deviate, system, seed, args.cycles, policy)
+                with runs.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+                print(f"{args.world} dev {deviate} {system:8s} seed {seed}: cost "
+                      f"{row['cost']:.2f} replans {row['replans']} stops {row['robot_stops']} "
+                      f"({row['seconds']:.0f} s)", flush=True)
+
+
+def _ci(xs: list[float]) -> tuple[float, float]:
+    m = float(np.mean(xs))
+    half = 1.96 * float(np.std(xs, ddof=1)) / math.sqrt(len(xs)) if len(xs) > 1 else math.nan
+    return m, half
+
+
+def report(args: argparse.Namespace) -> None:
+    rows = [json.loads(x) for x in Path(args.runs).read_text().splitlines()]
+    worlds = sorted({r["world"] for r in rows})
+    lines = [
+        "| world | deviation | system | runs | realised cost | makespan (s) | min separation "
+        "(m) | robot stops / cycle | person pauses / cycle | re-plans / cycle | "
+        "cycles with a moving robot inside S_p |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    summary: dict[tuple[str, float, str], tuple[float, float]] = {}
+    for w in worlds:
+        for dev in sorted({r["deviate"] for r in rows if r["world"] == w}):
+            for system in SYSTEMS:
+                sel = [r for r in rows if (r["world"], r["deviate"], r["system"]) == (w, dev,
+                                                                                     system)]
+                if not sel:
+                    continue
+                n_cycles = sum(r["cycles"] for r in sel)
+                cost, ms = _ci([r["cost"] for r in sel]), _ci([r["makespan"] for r in sel])
+                summary[(w, dev, system)] = cost
+                lines.append(
+                    f"| {w} | {dev:g} | {system} | {len(sel)} | {cost[0]:.2f} ± {cost[1]:.2f} | "
+                    f"{ms[0]:.2f} ± {ms[1]:.2f} | "
+                    f"{np.median([r['min_separation'] for r in sel]):.2f} (median), "
+                    f"{min(r['min_separation'] for r in sel):.2f} (min) | "
+                    f"{sum(r['robot_stops'] for r in sel) / n_cycles:.2f} | "
+                    f"{sum(r['person_pauses'] for r in sel) / n_cycles:.2f} | "
+                    f"{sum(r['replans'] for r in sel) / n_cycles:.2f} | "
+                    f"{sum(r['cycles_moving_inside'] for r in sel)} of {n_cycles} |")
+    lat = []
+    for w in worlds:
+        xs = [x for r in rows if r["world"] == w for x in r["latencies"]]
+        if xs:
+            lat.append(f"{w}: p95 {1000 * float(np.percentile(xs, 95)):.1f} ms, max "
+                       f"{1000 * max(xs):.1f} ms over {len(xs)} re-plans")
+    _figure(summary, worlds)
+    seeds = sorted({r["seed"] for r in rows})
+    cycles = sorted({r["cycles"] for r in rows})
+    body = "\n".join([
+        f"`python benchmarks/bench_reactive.py` ({len(rows)} runs: {len(seeds)} seeds, "
+        f"{'/'.join(map(str, cycles))} cycles per run, people who react (`--reacts`), small "
+        f"searches: fetch {SEARCH['fetch']}, painting {SEARCH['painting']}; {cpu_model()}, "
+        f"load {load_average()} when the report was written, shared with six other jobs). "
+        "Systems: **planned** = the paper (full adaptation, open-loop execution), "
+        "**reactive** = `--adapt none --execution reactive` (what a CoBOS-like cell does), "
+        "**both** = `--adapt full --execution reactive`. Cost = makespan + gamma x spatial, "
+        "mean over a run's cycles, then mean ± 95 % interval over runs.",
+        "",
+        *lines,
+        "",
+        "Re-planning latency inside a cycle (exhaustive remainder search, no steering): "
+        + "; ".join(lat) + ".",
+        "",
+        f"![cost against deviation rate](reproduction/{FIGURE.name})",
+        "",
+        args.notes or "",
+    ])
+    update_docs_section("## Reacting inside the cycle", body, path=DOC)
+    print(body)
+
+
+def _figure(summary: dict, worlds: list[str]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(worlds), figsize=(4.5 * len(worlds), 3.2), squeeze=False)
+    for ax, w in zip(axes[0], worlds, strict=True):
+        for k, system in enumerate(SYSTEMS):
+            pts = sorted((d, v) for (ww, d, s), v in summary.items() if ww == w and s == system)
+            if not pts:
+                continue
+            x = np.array([d for d, _ in pts]) + (k - 1) * 0.01
+            ax.errorbar(x, [v[0] for _, v in pts], yerr=[v[1] for _, v in pts], marker="o",
+                        capsize=3, label=system)
+        ax.set_title(w)
+        ax.set_xlabel("deviation rate P")
+        ax.set_ylabel("realised cost")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    FIGURE.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURE, dpi=110)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--world", default="fetch")
+    p.add_argument("--seeds", type=int, default=8)
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="Start at this seed (a second process can take the upper seeds).")
+    p.add_argument("--cycles", type=int, default=4)
+    p.add_argument("--deviations", type=lambda s: [float(x) for x in s.split(",")],
+                   default=[0.0, 0.3, 0.6])
+    p.add_argument("--runs", default=os.environ.get("RAPIDDS_BENCH_RUNS", "reactive-runs.jsonl"))
+    p.add_argument("--report", action="store_true")
+    p.add_argument("--notes", default="", help="Text appended to the docs section.")
+    args = p.parse_args()
+    (report if args.report else bench)(args)
+
+
+if __name__ == "__main__":
+    main()

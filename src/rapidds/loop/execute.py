@@ -1,0 +1,133 @@
+"""The loop's execute step on the clock-driven executor (:mod:`rapidds.execution`).
+
+Which sources and policies a run's settings ask for: the teammate's executions (drawn from the
+cycle's stream as the paper's replay draws them), a person who reacts (``reacts``: their own
+reaction drawn once per run around the cell's population) and deviates (``deviate``: drawn per
+cycle from its own stream, so the plan's numbers never move), and a robot that follows its plan
+(``planned``) or monitors speed and separation and re-plans (``reactive``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from rapidds.errors import RapiddsError
+from rapidds.execution import (
+    CycleExecutor,
+    Deployment,
+    PlannedRobot,
+    Replanning,
+    SimulatedHuman,
+    SpeedSeparation,
+)
+from rapidds.human.spatial import SpatialModel
+from rapidds.loop.config import RunConfig
+from rapidds.loop.model import workspace_cost
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.interface import MotionPlan
+from rapidds.motion.policy import DiffusionPolicy
+from rapidds.problem import Problem
+from rapidds.schedule import Schedule
+from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.reactions import Deviation, Reaction, cell_reactions, draw_deviation
+
+__all__ = ["check_cell", "contingency_motions", "cycle_record", "execute_cycle",
+           "person_reaction"]
+
+_REACTION_STREAM = 24_023  # the person's reaction: drawn once per run
+_DEVIATION_STREAM = 24_024  # this cycle's deviation and any task the person takes on
+_CONTINGENCY_STREAM = 24_025  # the robot's motions for tasks it was not planned to do
+
+
+def person_reaction(world: World, config: RunConfig) -> Reaction | None:
+    """The simulated person's reaction to the robot (None unless ``reacts``)."""
+    if not config.reacts:
+        return None
+    population, _ = cell_reactions(world)
+    return population.draw(np.random.default_rng([config.seed, _REACTION_STREAM]))
+
+
+def check_cell(config: RunConfig, teammate: Teammate) -> None:
+    """Reactions and deviations are the simulated person's; a live one brings their own."""
+    if (config.reacts or config.deviate) and not isinstance(teammate, SimulatedTeammate):
+        raise RapiddsError("--reacts and --deviate simulate a person; a live teammate does "
+                           "what they do")
+
+
+def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
+                        policy: DiffusionPolicy, spatial: SpatialModel,
+                        planned: Mapping[str, MotionPlan]) -> dict[str, MotionPlan]:
+    """For reactive execution: a steered motion (beside nothing) for every task the robot may
+    do but was not planned to, steered before the cycle starts, so that re-planning inside it
+    may hand the robot one of the person's tasks without steering (which costs far more than
+    its latency budget). Seeded by (seed, cycle), so a resumed run steers the same."""
+    if config.execution != "reactive":
+        return {}
+    todo = [t for t in problem.ids if problem.task(t).can("robot") and t not in planned]
+    if not todo:
+        return {}
+    seed = int(np.random.default_rng([config.seed, cycle, _CONTINGENCY_STREAM]).integers(2**31))
+    motion = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                             problem.objective.gamma,
+                             SteeringConfig(particles=config.particles,
+                                            candidates=config.candidates, seed=seed,
+                                            steps=config.steps))
+    return {m.task: m for m in motion.plan([(t, frozenset()) for t in todo])}
+
+
+def execute_cycle(
+    world: World, problem: Problem, config: RunConfig, cycle: int, schedule: Schedule,
+    motions: Mapping[str, MotionPlan], human: Mapping[str, HumanExecution],
+    teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
+    spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
+) -> tuple[Deployment, Deviation | None]:
+    """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
+    do (``human``), under the run's execution settings; the deviation it had, if any.
+    beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
+    robot's motions for tasks it was not planned to do (:func:`contingency_motions`)."""
+    motions = {**(spare or {}), **motions}
+    rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
+    population, limits = cell_reactions(world)
+    deviation = draw_deviation(config.deviate, rng, population) if config.deviate else None
+
+    def perform(task: str) -> tuple[float, np.ndarray]:
+        assert isinstance(teammate, SimulatedTeammate)
+        return teammate.at(cycle).perform(task, rng)
+
+    person = SimulatedHuman(world, human, perform, reaction, deviation)
+    replanning = None
+    if config.execution == "reactive":
+        cost = workspace_cost(world, spatial)
+        mean, std = beliefs
+        ids = problem.ids
+
+        def spatial_cost(j: str, near: frozenset[str]) -> float:
+            traj = motions[j].trajectory
+            return 0.0 if traj is None else float(cost(near, np.asarray(traj)[None])[0])
+
+        replanning = Replanning(
+            mean={t: float(m) for t, m in zip(ids, mean, strict=True) if np.isfinite(m)},
+            std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
+            robot={j: m.duration for j, m in motions.items() if m.trajectory is not None},
+            spatial=spatial_cost, gamma=problem.objective.gamma)
+    executor = CycleExecutor(
+        world, problem, schedule, person, PlannedRobot(world, motions),
+        SpeedSeparation(limits) if config.execution == "reactive" else None,
+        beta=beta, replanning=replanning, limits=limits)
+    return executor.run(), deviation
+
+
+def cycle_record(config: RunConfig, dep: Deployment,
+                 deviation: Deviation | None) -> dict[str, Any]:
+    """What a cycle's record says of execution inside it: nothing for the paper's execution
+    (its records stay as they were), else who did what, the pauses and the re-plans."""
+    if not config.in_cycle:
+        return {}
+    sched = dep.timeline.schedule
+    return {"executed": {"human": list(sched.tasks("human")), "robot": list(sched.tasks("robot"))},
+            "deviation": None if deviation is None else deviation.to_json(),
+            "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans],
+            "protective": dep.protective}

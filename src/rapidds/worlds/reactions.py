@@ -1,0 +1,146 @@
+"""People who react to the robot and deviate from the plan, for every world.
+
+The logic is world-independent: distances are in workspace units, times in seconds. What differs
+between cells (a 10 m fetch room against a 1 m painting table) is the population's parameters,
+which a world states as ``reaction_population`` and ``safety_limits`` (see
+:func:`cell_reactions`); docs/design-notes.md "Reacting inside the cycle" gives the values.
+
+Reaction model: while a MOVING robot body point is within the person's comfort distance of any
+of their body points, they go on at a fraction ``slow`` of their pace; within their stop
+distance they pause until the robot has passed (moved out of it, or stopped: a robot that has
+stopped for them is no threat, so they go on, as people do when a cobot yields).
+
+Deviation model: with probability P per cycle the person deviates once, in one of three ways
+drawn uniformly: another order that precedence allows (at their first choice between two ready
+tasks they take one that is not the plan's next), a mid-cycle pause (during one of their tasks,
+at a random point of it, for a random time), or taking a robot task that has not started and
+that the world lets a person do (at their first choice point where there is one).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = [
+    "DEVIATIONS",
+    "Deviation",
+    "Reaction",
+    "ReactionPopulation",
+    "ReactiveCell",
+    "SafetyLimits",
+    "cell_reactions",
+    "draw_deviation",
+]
+
+DeviationKind = Literal["order", "pause", "take"]
+DEVIATIONS: tuple[DeviationKind, ...] = ("order", "pause", "take")
+
+
+@dataclass(frozen=True)
+class Reaction:
+    """One person's reaction to the robot. comfort, stop: distances (workspace units) from a
+    moving robot point within which they slow down / pause; slow: their pace while slowed
+    (fraction of their own)."""
+
+    comfort: float
+    stop: float
+    slow: float
+
+    def pace(self, separation: float, robot_moving: bool) -> float:
+        """The person's pace (fraction of their own) at ``separation`` from the robot."""
+        if not robot_moving or separation >= self.comfort:
+            return 1.0
+        return 0.0 if separation < self.stop else self.slow
+
+
+@dataclass(frozen=True)
+class ReactionPopulation:
+    """How people of a cell react and pause: comfort and stop distances Normal(mean, sd)
+    (truncated to stay positive and ordered), slow pace U(lo, hi), a deviation's mid-cycle
+    pause U(lo, hi) seconds."""
+
+    comfort: tuple[float, float]
+    stop: tuple[float, float]
+    slow: tuple[float, float] = (0.3, 0.6)
+    pause: tuple[float, float] = (2.0, 5.0)
+
+    def draw(self, rng: np.random.Generator) -> Reaction:
+        """One person's reaction, drawn around the population's."""
+        comfort = max(float(rng.normal(*self.comfort)), 0.25 * self.comfort[0])
+        stop = min(max(float(rng.normal(*self.stop)), 0.25 * self.stop[0]), 0.9 * comfort)
+        return Reaction(comfort, stop, float(rng.uniform(*self.slow)))
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """The robot's numbers for speed and separation monitoring (ISO/TS 15066 5.5.4):
+    reaction time T_r and stopping time T_s (s), intrusion distance C, sensing and robot
+    position uncertainties Z_d, Z_r (workspace units)."""
+
+    reaction_time: float
+    stopping_time: float
+    intrusion: float
+    sensing: float
+    position: float
+
+    @property
+    def margin(self) -> float:
+        """C + Z_d + Z_r: the protective distance from a still person to a still robot."""
+        return self.intrusion + self.sensing + self.position
+
+
+@dataclass(frozen=True)
+class Deviation:
+    """This cycle's deviation: its kind; for a pause, which of the person's tasks (index into
+    the tasks they do, modulo their number), at which fraction of it, for how many seconds;
+    ``pick`` in [0, 1) chooses among the options the person has when it happens."""
+
+    kind: DeviationKind
+    pick: float
+    task: int = 0
+    at: float = 0.5
+    seconds: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, **({"seconds": self.seconds} if self.kind == "pause" else {})}
+
+
+def draw_deviation(p: float, rng: np.random.Generator,
+                   population: ReactionPopulation) -> Deviation | None:
+    """With probability ``p``, one deviation for this cycle (always the same draws, so a
+    cycle's numbers do not depend on whether it deviates)."""
+    u, kind, pick, task, at, pause = rng.random(6)
+    if u >= p:
+        return None
+    lo, hi = population.pause
+    return Deviation(DEVIATIONS[min(int(kind * 3), 2)], float(pick), int(task * 1000),
+                     0.2 + 0.6 * float(at), lo + (hi - lo) * float(pause))
+
+
+@runtime_checkable
+class ReactiveCell(Protocol):
+    """A world that states how its people react and how its robot stops."""
+
+    @property
+    def reaction_population(self) -> ReactionPopulation: ...
+
+    @property
+    def safety_limits(self) -> SafetyLimits: ...
+
+
+def cell_reactions(world: Any) -> tuple[ReactionPopulation, SafetyLimits]:
+    """The world's reaction population and safety limits; a world that states none gets both
+    scaled from its workspace's size (a tenth and a twentieth of its diagonal for comfort and
+    stop, a hundredth for the margins)."""
+    if isinstance(world, ReactiveCell):
+        return world.reaction_population, world.safety_limits
+    lo, hi = world.workspace_bounds
+    size = float(np.linalg.norm(np.asarray(hi, float) - np.asarray(lo, float)))
+    if not math.isfinite(size) or size <= 0:
+        size = 1.0
+    return (ReactionPopulation((size / 10, size / 40), (size / 20, size / 80)),
+            SafetyLimits(0.1, 0.3, size / 100, size / 200, size / 400))
