@@ -165,9 +165,6 @@ FUNCTION_EXCEPTIONS: dict[str, str] = {
     "scheduler/ga.py:GeneticScheduler._search": "split pending with ga.py (an evaluator object "
                                                 "instead of nonlocal): the speed work",
     "scheduler/evaluate.py:evaluate_population": "changed elsewhere this cycle: the speed work",
-    "cli/plan.py:plan": "changed elsewhere this cycle: the speed work (its OR-Tools import)",
-    "web/study/app.py:create_study_app": "changed elsewhere this cycle: the study-server "
-                                         "hardening (its routes are nested functions)",
 }
 
 

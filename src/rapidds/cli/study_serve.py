@@ -19,7 +19,6 @@ from rapidds.cli import fail
 from rapidds.cli.study import study_app
 
 
-@study_app.command("serve")
 def _announce(as_json: bool, url: str, overview: str, store: Path, participants: int,
               waiting: int, host: str, hosts: Sequence[str]) -> None:
     """Say where the study is served: the experimenter's overview (with its token) and the
@@ -40,6 +39,7 @@ def _announce(as_json: bool, url: str, overview: str, store: Path, participants:
     sys.stdout.flush()
 
 
+@study_app.command("serve")
 def serve_cmd(
     folder: Path = typer.Argument(..., help="The study's folder (from 'rapidds study design')."),
     host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
