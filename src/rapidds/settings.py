@@ -12,6 +12,7 @@ and for the other validated inputs (problem files, browser messages, study forms
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import numbers
 import operator
@@ -156,11 +157,19 @@ def settings_dataclass(label: str, *, eq: bool = True) -> Callable[[C], C]:
     def wrap(cls: C) -> C:
         made: Any = pydantic.dataclasses.dataclass(cls, frozen=True, eq=eq, config=config)
         init = made.__init__
+        names = [f.name for f in dataclasses.fields(made) if f.init]
 
         @functools.wraps(init)
         def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+            if len(args) > len(names):
+                raise TypeError(f"{label} takes at most {len(names)} positional arguments")
+            # by name, so that an error names the field, not the argument's position
+            given = dict(zip(names, args, strict=False))
+            if twice := sorted(given.keys() & kwargs.keys()):
+                raise TypeError(f"{label} got multiple values for {', '.join(twice)}")
+            kwargs.update(given)
             try:
-                init(self, *args, **kwargs)
+                init(self, **kwargs)
             except ValidationError as exc:
                 raise ConfigError(error_line(exc, prefix=f"{label}.", with_input=True,
                                              unknown="unknown field")) from None
