@@ -16,6 +16,7 @@ from rapidds.human.temporal import NIGPrior
 from rapidds.settings import Int, Positive, settings_dataclass
 from rapidds.worlds.changes import ChangingTeammate
 from rapidds.worlds.fetch import FetchWorld
+from rapidds.worlds.geometry import Rect
 
 
 @settings_dataclass("Box")
@@ -72,3 +73,11 @@ def test_nig_prior_and_changing_teammate_declare_their_bounds() -> None:
     with pytest.raises(ConfigError, match=r"^ChangingTeammate\.phases\[0\]\[1\]: .*instance of "
                                           r"SimulatedTeammate"):
         ChangingTeammate(((0, "somebody"),))  # type: ignore[arg-type]
+
+
+def test_rect_declares_finite_corners_in_order() -> None:
+    assert Rect(0, 0, 1, 2).as_array().tolist() == [0.0, 0.0, 1.0, 2.0]
+    with pytest.raises(ConfigError, match=r"^Rect: needs xmin < xmax and ymin < ymax"):
+        Rect(1.0, 0.0, 0.0, 1.0)
+    with pytest.raises(ConfigError, match=r"^Rect\.ymax: Input should be a finite number"):
+        Rect(0.0, 0.0, 1.0, math.nan)
