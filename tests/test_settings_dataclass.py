@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 from typing import Annotated
 
 import pytest
@@ -81,3 +82,12 @@ def test_rect_declares_finite_corners_in_order() -> None:
         Rect(1.0, 0.0, 0.0, 1.0)
     with pytest.raises(ConfigError, match=r"^Rect\.ymax: Input should be a finite number"):
         Rect(0.0, 0.0, 1.0, math.nan)
+
+
+def test_declared_classes_travel_to_workers() -> None:
+    """Worlds and priors are pickled to Dask and process-pool workers (ablation, study simulate)."""
+    world = FetchWorld(prior_people=3)
+    again = pickle.loads(pickle.dumps(world))
+    assert again.prior_people == 3 and again.problem() == world.problem()
+    prior = NIGPrior(1.0, 2.0, 3.0, 4.0)
+    assert pickle.loads(pickle.dumps(prior)) == prior
