@@ -52,3 +52,17 @@ def test_docs_and_scripts_name_only_output_paths_that_exist() -> None:
             if not (ROOT / name).exists():
                 dead.append(f"{md.relative_to(ROOT)}: {name}")
     assert not dead, "paths to files that are not there:\n" + "\n".join(dead)
+
+
+def test_tools_write_into_docs_only_under_the_generated_folders() -> None:
+    """A benchmark or a test that builds a path into docs/ (``ROOT / "docs" / ...``) writes an
+    output, so the path goes under docs/figures or docs/results, never beside the prose (the
+    benchmarks that append their section to a page of prose, docs/benchmarks.md, excepted)."""
+    wrong = []
+    sources = [*sorted((ROOT / "benchmarks").glob("*.py")), *sorted((ROOT / "tests").glob("*.py")),
+               *sorted((ROOT / "scripts").rglob("*.py")), *sorted((ROOT / "src").rglob("*.py"))]
+    for py in sources:
+        for first in re.findall(r'"docs"\s*/\s*"([^"]+)"', py.read_text()):
+            if first not in GENERATED and first not in HAND_WRITTEN and not first.endswith(".md"):
+                wrong.append(f"{py.relative_to(ROOT)}: docs/{first}")
+    assert not wrong, "outputs belong under docs/figures or docs/results:\n" + "\n".join(wrong)
