@@ -44,8 +44,8 @@ from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
 SECTION = "## Teammates who change (fetch)"
 ROOT = Path(__file__).resolve().parents[1]
-RAW = ROOT / "docs" / "reproduction" / "changes.json"
-FIGURE = ROOT / "docs" / "reproduction" / "changes.png"
+RAW = ROOT / "docs" / "results" / "changes.json"
+FIGURE = ROOT / "docs" / "results" / "changes.png"
 
 KINDS: dict[str, dict[str, Any]] = {
     "fatigue": dict(human="fast-outside", change="slow-outside@{at}"),
@@ -227,8 +227,8 @@ def main() -> None:
             f"({len(results)} runs of {args.cycles} cycles, change at cycle {args.at}; "
             f"{wall:.0f} s wall in the last invocation on {cpu_model()}, load average "
             f"{load_average()} at its end; "
-            "raw per-cycle numbers in docs/reproduction/changes.json, figure "
-            "docs/reproduction/changes.png). Definitions in the script's docstring.\n\n"
+            "raw per-cycle numbers in docs/results/changes.json, figure "
+            "docs/results/changes.png). Definitions in the script's docstring.\n\n"
             + table)
     if args.update_docs:
         update_docs_section(SECTION, body)

@@ -38,7 +38,7 @@ import numpy as np
 from _common import cpu_model, load_average, parse_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
-FIGURE = ROOT / "docs" / "reproduction" / "gamma.png"
+FIGURE = ROOT / "docs" / "results" / "gamma.png"
 ARMS = ("learn", "fixed", "oracle")
 FACTORS = (2 ** -2.5, 2 ** -0.83, 2 ** 0.83, 2 ** 2.5)  # lowest to highest: a factor 32
 SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)

@@ -39,7 +39,7 @@ SEARCH = {  # small searches: what this shared 2-core machine affords (stated in
                      candidates=2),
 }
 DOC = ROOT / "docs" / "reproduction.md"
-FIGURE = ROOT / "docs" / "reproduction" / "reactive.png"
+FIGURE = ROOT / "docs" / "results" / "reactive.png"
 
 
 def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
@@ -161,7 +161,7 @@ def report(args: argparse.Namespace) -> None:
         "Re-planning latency inside a cycle (exhaustive remainder search, no steering): "
         + "; ".join(lat) + ".",
         "",
-        f"![cost against deviation rate](reproduction/{FIGURE.name})",
+        f"![cost against deviation rate](results/{FIGURE.name})",
         "",
         args.notes or "",
     ])

@@ -12,7 +12,7 @@ two codes, instance by instance, so both see the same load. A worker reports eve
 of the best objective as it happens (it wraps the GA's ``evaluate_population``), so "time to
 within 1 %" is exact for both codes, and a baseline run stopped at its cap still reports its
 best so far. Writes the "## Scheduler scaling" section of docs/benchmarks.md and
-docs/benchmarks/scheduler_scaling.png unless ``--no-write``.
+docs/figures/scheduler_scaling.png unless ``--no-write``.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 from _common import cpu_model, load_average, update_docs_section
 
 ROOT = Path(__file__).resolve().parents[1]
-PLOT = ROOT / "docs" / "benchmarks" / "scheduler_scaling.png"
+PLOT = ROOT / "docs" / "figures" / "scheduler_scaling.png"
 BASELINE = "6967d1e"  # the last commit before the scaling work (GA of docs/design-notes.md 8)
 
 

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from rapidds.errors import ConfigError
 from rapidds.worlds.base import SimulatedTeammate, World
 from rapidds.worlds.fetch import (
     ARCHETYPES,
@@ -62,7 +63,7 @@ def test_problem_is_the_papers_fetch_job(world: FetchWorld) -> None:
 def test_world_protocol_and_config(world: FetchWorld) -> None:
     assert isinstance(world, World)
     assert isinstance(world.teammate("slow-middle"), SimulatedTeammate)
-    with pytest.raises(ValueError, match="variant"):
+    with pytest.raises(ConfigError, match=r"FetchWorld.variant: .*\(got 'constrained'\)"):
         FetchWorld(variant="constrained")
     assert world.horizon % 8 == 0 and world.state_dim == 2
     lo, hi = world.bounds
@@ -71,10 +72,13 @@ def test_world_protocol_and_config(world: FetchWorld) -> None:
     assert len(world.obstacles()) == 4 and all(isinstance(r, Rect) for r in world.obstacles())
     poi = world.points_of_interest()
     assert {"human home", "robot home", "t0", "t1", "t2", "t3"} <= set(poi)
-    with pytest.raises(ValueError, match="multiple of 8"):
+    with pytest.raises(ConfigError, match=r"FetchWorld.horizon: .*multiple of 8 \(got 60\)"):
         FetchWorld(horizon=60)
-    with pytest.raises(ValueError, match="too short"):
+    with pytest.raises(ConfigError, match="FetchWorld: horizon \\* dt = 8 s is too short"):
         FetchWorld(horizon=40)
+    for bad in ({"dt": True}, {"robot_speed": math.inf}, {"prior_people": 1}, {"lam": -1.0}):
+        with pytest.raises(ConfigError, match=f"FetchWorld.{next(iter(bad))}: "):
+            FetchWorld(**bad)
     with pytest.raises(ValueError, match="unknown fetch task"):
         world.completion_time("t9", np.zeros((1, 64, 2)))
     with pytest.raises(ValueError, match="no route"):

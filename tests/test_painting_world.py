@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from rapidds.errors import RapiddsError
+from rapidds.errors import ConfigError, RapiddsError
 from rapidds.motion.config import DiffusionConfig
 from rapidds.plots._mpl import plt
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
@@ -114,7 +114,8 @@ def test_problem_tasks_agents_and_precedence(variant: str) -> None:
 
 
 def test_bad_variant_teammate_and_task_are_rejected(world: PaintingWorld) -> None:
-    with pytest.raises(ValueError, match="unknown painting variant 'loose'"):
+    with pytest.raises(ConfigError, match=r"PaintingWorld.variant: Input should be 'unconstrained' "
+                                          r"or 'constrained' \(got 'loose'\)"):
         PaintingWorld(variant="loose")
     with pytest.raises(ValueError, match="unknown painting teammate 'left-medium'"):
         world.teammate("left-medium")

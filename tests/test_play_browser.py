@@ -5,7 +5,8 @@ durations and paths, the second planned with what the first taught; a second bro
 away; the server is killed mid-cycle and ``--resume`` continues with the learned models; Ctrl-C
 stops it cleanly.
 
-``RAPIDDS_SCREENSHOTS=1`` also writes docs/play-midcycle.png and docs/play-summary.png.
+``RAPIDDS_SCREENSHOTS=1`` also writes docs/figures/play-midcycle.png and
+docs/figures/play-summary.png.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
         assert "played elsewhere" in other.inner_text("#instruction")
         other.close()
         plan1, end1 = play_cycle(page, bot, 1, midcycle_shot=(
-            ROOT / "docs" / "play-midcycle.png" if SHOTS else None))
+            ROOT / "docs" / "figures" / "play-midcycle.png" if SHOTS else None))
         page.wait_for_function("window.rapidds.summary && window.rapidds.summary.cycle === 1",
                                timeout=30_000)
         summary = page.evaluate("window.rapidds.summary")
@@ -61,7 +62,7 @@ def test_two_cycles_in_the_browser_are_learned_and_a_killed_server_resumes(
             page.check("#heat")
             page.wait_for_function("window.rapidds.phase === 'ready'", timeout=60_000)
             time.sleep(0.3)
-            page.screenshot(path=str(ROOT / "docs" / "play-summary.png"))
+            page.screenshot(path=str(ROOT / "docs" / "figures" / "play-summary.png"))
             page.uncheck("#heat")
         # the third cycle is under way when the server is killed: it is lost, nothing else
         play_cycle(page, bot, 2, stop_at=1.5)

@@ -7,8 +7,8 @@ where it stopped with the same plan. The store is checked at the end. A second p
 two rounds are played in the browser game (the "game" source) by a bot pressing arrow keys, and
 stored with what the game observed.
 
-``RAPIDDS_SCREENSHOTS=1`` also writes docs/study-plan.png, docs/study-input.png,
-docs/study-survey.png, docs/study-ranking.png and docs/study-game.png.
+``RAPIDDS_SCREENSHOTS=1`` also writes docs/figures/study-plan.png, study-input.png,
+study-survey.png, study-ranking.png and study-game.png.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def _plan(page: Any) -> dict[str, Any]:
 
 def _shot(page: Any, selector: str, name: str) -> None:
     if SHOTS:
-        page.locator(selector).screenshot(path=str(ROOT / "docs" / name))
+        page.locator(selector).screenshot(path=str(ROOT / "docs" / "figures" / name))
 
 
 def test_one_participant_through_two_systems_in_the_browser_with_a_restart(
@@ -209,7 +209,7 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
             assert f"round {rnd + 1} of 2" in _plan(page)["where"]
             with page.expect_navigation(timeout=WAIT):
                 page.click("a.play")
-            shot = ROOT / "docs" / "study-game.png" if SHOTS and rnd == 0 else None
+            shot = ROOT / "docs" / "figures" / "study-game.png" if SHOTS and rnd == 0 else None
             if rnd == 1:  # the server is killed mid-round: the round is lost, nothing else
                 before, _ = play_cycle(page, RouteBot(fetch_world, modes), rnd, stop_at=1.0)
                 server.proc.kill()

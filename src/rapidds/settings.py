@@ -3,26 +3,33 @@
 Every configuration, user-facing (a run, a study, a world's options) or internal (the genetic
 search, the spatial model, the diffusion policy, steering), derives from :class:`Settings`:
 fields declare their bounds, and a bad value raises :class:`~rapidds.errors.ConfigError` (also a
-``ValueError``), one line naming the option. :func:`error_line` is the one place a pydantic
-``ValidationError`` becomes a line of text, here and for the other validated inputs (problem
-files, browser messages, study forms).
+``ValueError``), one line naming the option. A class that is more than its settings (a world
+with its routes and methods, a prior with its arithmetic) stays a dataclass and is declared
+with :func:`settings_dataclass`: the same bounds on its fields, the same one ConfigError line.
+:func:`error_line` is the one place a pydantic ``ValidationError`` becomes a line of text, here
+and for the other validated inputs (problem files, browser messages, study forms).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import numbers
 import operator
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, TypeVar
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
+import pydantic.dataclasses
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
 from rapidds.errors import ConfigError
 
-__all__ = ["Flag", "Int", "Real", "Settings", "error_line", "memory_bytes", "read_yaml",
-           "require_memory"]
+__all__ = ["Flag", "Int", "NonNegative", "Positive", "Real", "Settings", "error_line",
+           "memory_bytes", "read_yaml", "require_memory", "settings_dataclass"]
+
+C = TypeVar("C", bound=type)
 
 
 def _bool_like(v: Any) -> bool:
@@ -58,6 +65,8 @@ def _flag(v: Any) -> bool:
 Int = Annotated[int, BeforeValidator(_int)]
 Real = Annotated[float, BeforeValidator(_real)]
 Flag = Annotated[bool, BeforeValidator(_flag)]
+Positive = Annotated[Real, Field(gt=0)]
+NonNegative = Annotated[Real, Field(ge=0)]
 
 
 def _loc_text(loc: tuple[Any, ...]) -> str:
@@ -131,6 +140,44 @@ class Settings(BaseModel):
     def replace(self, **changes: Any) -> Any:
         """A validated copy with ``changes`` applied."""
         return type(self)(**{**self.model_dump(), **changes})
+
+
+def settings_dataclass(label: str, *, eq: bool = True) -> Callable[[C], C]:
+    """A frozen pydantic dataclass checked like :class:`Settings`: bounds declared on the fields
+    (``Annotated[Real, Field(gt=0)]``), no unknown fields, NaN and infinity refused, and any
+    error, a field's or one its ``__post_init__`` raises as ValueError (a check across
+    fields), one :class:`ConfigError` line ``label.field: what (got value)``.
+
+    For classes that are more than their settings (worlds, priors, teammates: methods, cached
+    properties, fields computed in ``__post_init__``), which a ``BaseModel`` would not fit.
+    ``eq=False``: compared by identity (a world holding arrays).
+    """
+    config = ConfigDict(extra="forbid", allow_inf_nan=False, arbitrary_types_allowed=True)
+
+    def wrap(cls: C) -> C:
+        made: Any = pydantic.dataclasses.dataclass(cls, frozen=True, eq=eq, config=config)
+        init = made.__init__
+        names = [f.name for f in dataclasses.fields(made) if f.init]
+
+        @functools.wraps(init)
+        def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+            if len(args) > len(names):
+                raise TypeError(f"{label} takes at most {len(names)} positional arguments")
+            # by name, so that an error names the field, not the argument's position
+            given = dict(zip(names, args, strict=False))
+            if twice := sorted(given.keys() & kwargs.keys()):
+                raise TypeError(f"{label} got multiple values for {', '.join(twice)}")
+            kwargs.update(given)
+            try:
+                init(self, **kwargs)
+            except ValidationError as exc:
+                raise ConfigError(error_line(exc, prefix=f"{label}.", with_input=True,
+                                             unknown="unknown field")) from None
+
+        made.__init__ = __init__
+        return made  # type: ignore[no-any-return]
+
+    return wrap
 
 
 def read_yaml(path: Path, what: str) -> dict[str, Any]:

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from rapidds.human.temporal import Sampling
+    from rapidds.motion.interface import FixedDurationMotion
     from rapidds.problem import Problem
     from rapidds.schedule import Timeline
     from rapidds.scheduler import Evaluation
@@ -190,74 +191,96 @@ def plan(
 ) -> None:
     """Plan one cycle for a new teammate: who does what, in which order, where to wait."""
     _check_options(population, generations, samples, seed, gamma, lam, sampling, time_limit)
-    from rapidds.bundled import resolve_problem
-    from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
-    from rapidds.problem import load_problem
-    from rapidds.scheduler import GeneticScheduler, evaluate_population
+    from rapidds.motion.interface import FixedDurationMotion
 
-    try:
-        prob = load_problem(resolve_problem(problem)).with_objective(gamma, lam)
-    except RapiddsError as exc:
-        fail(str(exc))
-        return
-    try:
-        # a generation's Monte-Carlo timelines: C candidates x K samples x n tasks, a few arrays
-        require_memory(8 * 8 * population * samples * len(prob.tasks),
-                       "this search (--population x --samples)")
-    except RapiddsError as exc:
-        fail(str(exc))
-        return
+    prob = _load(problem, gamma, lam, population, samples)
     if seed is None:
         seed = secrets.randbelow(2**31)
     human_samples, human_mean = sample_durations(prob, seed, samples, cast("Sampling", sampling))
     motion = FixedDurationMotion(prob)
     common = {"seed": seed, "samples": samples, "sampling": sampling}
-
     if exact:
-        from rapidds.scheduler.exact import solve_exact
-
-        t0 = time.perf_counter()
-        try:
-            exact_result = solve_exact(prob, time_limit_s=time_limit)
-        except RapiddsError as exc:
-            fail(str(exc))
-            return
-        seconds = time.perf_counter() - t0
-        evaluation = evaluate_population(
-            prob, [exact_result.schedule], human_samples, human_mean, TrajectoryCache(motion),
-            motion.nominal_durations(prob), prob.objective.gamma, prob.objective.lam,
-        )[0]
-        extra = {
-            "solver": "cp-sat", "optimal": bool(exact_result.optimal),
-            "status": str(exact_result.status), "makespan_at_mean": float(exact_result.makespan),
-            "bound": float(exact_result.bound),
-            "seconds": seconds, **common,
-        }
+        evaluation, extra = _solve_exact(prob, motion, time_limit, human_samples, human_mean)
     else:
-        try:
-            config = GAConfig(
-                population=population, generations=generations, samples=samples, seed=seed
-            )
-        except ValueError as exc:
-            fail(str(exc))
-            return
-        with progress("generations", generations, quiet=as_json) as update:
-            ga_result = GeneticScheduler(prob, motion, config).solve(
-                human_samples, human_mean,
-                progress=lambda g, best: update(g, f"best {best:.2f}" if math.isfinite(best)
-                                                else ""),
-            )
-        evaluation = ga_result.best
-        extra = {
-            "solver": "ga", "generations_run": int(ga_result.generations_run),
-            "evaluations": int(ga_result.evaluations), "seconds": float(ga_result.seconds),
-            "population": population, **common,
-        }
-
-    report = _report(prob, evaluation, extra)
+        config = _ga_config(population, generations, samples, seed)
+        evaluation, extra = _solve_ga(prob, motion, config, human_samples, human_mean,
+                                      quiet=as_json)
+    report = _report(prob, evaluation, {**extra, **common})
     if as_json:
         typer.echo(json.dumps(report, allow_nan=False))
     else:
         _print_text(prob, evaluation, report, human_mean)
     if not evaluation.feasible:
         raise typer.Exit(1)
+
+
+def _load(problem: str, gamma: float | None, lam: float | None, population: int,
+          samples: int) -> Problem:
+    """The problem file (or bundled example) with the objective's weights set; refused with one
+    line when it is bad or its search would not fit in memory."""
+    from rapidds.bundled import resolve_problem
+    from rapidds.problem import load_problem
+
+    try:
+        prob = load_problem(resolve_problem(problem)).with_objective(gamma, lam)
+        # a generation's Monte-Carlo timelines: C candidates x K samples x n tasks, a few arrays
+        require_memory(8 * 8 * population * samples * len(prob.tasks),
+                       "this search (--population x --samples)")
+    except RapiddsError as exc:
+        fail(str(exc))
+        raise  # not reached: fail exits
+    return prob
+
+
+def _ga_config(population: int, generations: int, samples: int, seed: int) -> GAConfig:
+    try:
+        return GAConfig(population=population, generations=generations, samples=samples,
+                        seed=seed)
+    except ValueError as exc:
+        fail(str(exc))
+        raise  # not reached: fail exits
+
+
+def _solve_exact(prob: Problem, motion: FixedDurationMotion, time_limit: float,
+                 human_samples: np.ndarray, human_mean: np.ndarray,
+                 ) -> tuple[Evaluation, dict[str, Any]]:
+    """CP-SAT on mean durations, then scored on the same samples as the genetic search."""
+    from rapidds.motion.interface import TrajectoryCache
+    from rapidds.scheduler import evaluate_population
+    from rapidds.scheduler.exact import solve_exact
+
+    t0 = time.perf_counter()
+    try:
+        result = solve_exact(prob, time_limit_s=time_limit)
+    except RapiddsError as exc:
+        fail(str(exc))
+        raise  # not reached: fail exits
+    seconds = time.perf_counter() - t0
+    evaluation = evaluate_population(
+        prob, [result.schedule], human_samples, human_mean, TrajectoryCache(motion),
+        motion.nominal_durations(prob), prob.objective.gamma, prob.objective.lam,
+    )[0]
+    return evaluation, {
+        "solver": "cp-sat", "optimal": bool(result.optimal), "status": str(result.status),
+        "makespan_at_mean": float(result.makespan), "bound": float(result.bound),
+        "seconds": seconds,
+    }
+
+
+def _solve_ga(prob: Problem, motion: FixedDurationMotion, config: GAConfig,
+              human_samples: np.ndarray, human_mean: np.ndarray, *, quiet: bool,
+              ) -> tuple[Evaluation, dict[str, Any]]:
+    """The genetic search, with a progress bar unless ``quiet``."""
+    from rapidds.scheduler import GeneticScheduler
+
+    with progress("generations", config.generations, quiet=quiet) as update:
+        result = GeneticScheduler(prob, motion, config).solve(
+            human_samples, human_mean,
+            progress=lambda g, best: update(g, f"best {best:.2f}" if math.isfinite(best)
+                                            else ""),
+        )
+    return result.best, {
+        "solver": "ga", "generations_run": int(result.generations_run),
+        "evaluations": int(result.evaluations), "seconds": float(result.seconds),
+        "population": config.population,
+    }

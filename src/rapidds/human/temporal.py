@@ -46,6 +46,7 @@ import numpy as np
 from rapidds.errors import StateError
 from rapidds.fileio import atomic_write_text
 from rapidds.problem import Problem
+from rapidds.settings import NonNegative, Positive, Real, settings_dataclass
 
 Sampling = Literal["predictive", "plugin"]
 SAMPLING_METHODS: tuple[Sampling, Sampling] = ("predictive", "plugin")
@@ -78,25 +79,15 @@ def _check_sampling(sampling: str) -> Sampling:
     return sampling
 
 
-@dataclass(frozen=True)
+@settings_dataclass("NIGPrior")
 class NIGPrior:
     """Normal-Inverse-Gamma parameters (mu, nu, alpha, beta): sigma^2 ~ IG(alpha, beta),
     mu | sigma^2 ~ N(mu, sigma^2/nu). Immutable: updates return a new value."""
 
-    mu: float
-    nu: float
-    alpha: float
-    beta: float
-
-    def __post_init__(self) -> None:
-        for name in ("mu", "nu", "alpha", "beta"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"NIG parameter {name} must be finite, got {getattr(self, name)}")
-        if self.nu <= 0 or self.alpha <= 0 or self.beta < 0:
-            raise ValueError(
-                f"NIG needs nu > 0, alpha > 0, beta >= 0; got nu={self.nu}, alpha={self.alpha}, "
-                f"beta={self.beta}"
-            )
+    mu: Real
+    nu: Positive
+    alpha: Positive
+    beta: NonNegative
 
     @classmethod
     def from_moments(

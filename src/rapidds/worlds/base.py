@@ -26,16 +26,19 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
+from pydantic import Field
 
 from rapidds.problem import Problem
+from rapidds.settings import Int
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
 __all__ = [
+    "Horizon",
     "HumanExecution",
     "PopulationPrior",
     "RobotDemos",
@@ -46,6 +49,9 @@ __all__ = [
     "body_points",
     "joint_names",
 ]
+
+Horizon = Annotated[Int, Field(gt=0, multiple_of=8)]
+"""Rows of a robot trajectory: the diffusion policy's U-Net halves it three times."""
 
 
 def body_points(path: np.ndarray) -> np.ndarray:

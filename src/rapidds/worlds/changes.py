@@ -17,9 +17,12 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
 
+from rapidds.settings import Int, Positive, Real, settings_dataclass
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
 
 __all__ = ["ChangingTeammate", "Paced", "changing_teammate", "parse_changes"]
@@ -89,21 +92,20 @@ def _execute(person: SimulatedTeammate, tasks: Sequence[str],
     return out
 
 
-@dataclass(frozen=True)
+@settings_dataclass("ChangingTeammate")
 class ChangingTeammate:
     """A person who is ``phases[k][1]`` from cycle ``phases[k][0]`` on (the first phase starts
     at 0), and whose durations grow by a factor (1 + drift) per cycle from ``drift_from`` on."""
 
-    phases: tuple[tuple[int, SimulatedTeammate], ...]
-    drift: float = 0.0
-    drift_from: int = 0
-    dt: float = 0.1
+    phases: Annotated[tuple[tuple[Annotated[Int, Field(ge=0)], SimulatedTeammate], ...],
+                      Field(min_length=1)]
+    drift: Annotated[Real, Field(gt=-0.5, lt=0.5)] = 0.0  # a fraction per cycle
+    drift_from: Annotated[Int, Field(ge=0)] = 0
+    dt: Positive = 0.1
 
     def __post_init__(self) -> None:
-        if not self.phases or self.phases[0][0] != 0:
+        if self.phases[0][0] != 0:
             raise ValueError("the first phase of a changing teammate starts at cycle 0")
-        if not -0.5 < self.drift < 0.5:
-            raise ValueError(f"drift must be a fraction per cycle in (-0.5, 0.5), got {self.drift}")
 
     @property
     def name(self) -> str:

@@ -6,25 +6,25 @@ is row 0.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+
+from rapidds.settings import Real, settings_dataclass
 
 __all__ = ["Rect", "reach_then_return_time", "segments_hit_rects"]
 
 
-@dataclass(frozen=True)
+@settings_dataclass("Rect")
 class Rect:
     """An axis-aligned wall rectangle [xmin, xmax] x [ymin, ymax] in world units."""
 
-    xmin: float
-    ymin: float
-    xmax: float
-    ymax: float
+    xmin: Real
+    ymin: Real
+    xmax: Real
+    ymax: Real
 
     def __post_init__(self) -> None:
         if not (self.xmin < self.xmax and self.ymin < self.ymax):
-            raise ValueError(f"Rect needs xmin < xmax and ymin < ymax, got {self}")
+            raise ValueError(f"needs xmin < xmax and ymin < ymax, got {self}")
 
     def as_array(self) -> np.ndarray:
         """(4,) [xmin, ymin, xmax, ymax]."""

@@ -30,8 +30,9 @@ API (all writes one transaction each; readers never block the writer):
   with pydantic (Likert 1..7, every item answered once, ranking a permutation, free text fields)
   and allowed only as the participant's next step; the identical submit again (a browser
   re-posting) changes nothing and returns False. Bad input raises StudyDataError, a submit out
-  of turn StateError, each with one line.
-* ``validate_durations(durations, tasks, at_most)``: durations checked before the loop sees them.
+  of turn StateError, each with one line. The forms themselves (survey items, what a well
+  formed answer is, ``validate_durations``) live in :mod:`~rapidds.experiments.study.forms`
+  and are re-exported here.
 * Folders: ``create_study(out, design, run, items)`` writes ``out/design.csv`` and
   ``out/study.sqlite`` (refusing a folder that holds a different design);
   ``study_path(out)`` is the store's path.
@@ -44,21 +45,26 @@ from __future__ import annotations
 import json
 import sqlite3
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import pandas as pd
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import ConfigError, StateError, StudyDataError, StudyDesignError
-from rapidds.experiments.study.design import MAX_TASK_S_LIMIT, StudyDesign
+from rapidds.experiments.study.design import StudyDesign
+from rapidds.experiments.study.forms import (
+    LIKERT,
+    SurveyItem,
+    SurveyItems,
+    default_items,
+    demographic_fields,
+    survey_answers,
+    validate_durations,
+)
 from rapidds.experiments.study.systems import ADAPTATION
 from rapidds.loop.config import RunConfig
-from rapidds.settings import error_line
 from rapidds.store import DEFAULT_TIMEOUT, RunStore
 
 __all__ = [
@@ -78,14 +84,11 @@ __all__ = [
 
 STORE_NAME = "study.sqlite"
 DESIGN_NAME = "design.csv"
-LIKERT: tuple[int, int] = (1, 7)
-"""The survey's scale: 1 = strongly disagree ... 7 = strongly agree."""
 SEED_STRIDE = 10_000
 """A participant's run seed is ``study seed * SEED_STRIDE + position`` (1-based), the same for
 all their systems (common random numbers within a person)."""
 STUDY_SCHEMA = 1
 _KIND = "rapidds-user-study"
-_NAME = r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$"
 
 _STUDY_SQL = f"""
 CREATE TABLE IF NOT EXISTS study_participants (
@@ -126,114 +129,6 @@ INSERT INTO meta VALUES ('study_schema', '{STUDY_SCHEMA}');
 """
 _STUDY_TABLES = frozenset({"study_participants", "study_runs", "survey", "rankings",
                            "demographics"})
-
-
-# -- survey items ----------------------------------------------------------------------------
-class SurveyItem(BaseModel):
-    """One Likert statement. id: a short name (letters, digits, ``_.+-``), the key of answers
-    and of the analysis; text: as shown; scale: the construct it belongs to; reverse: agreeing
-    is the worse answer."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    id: str = Field(pattern=_NAME, max_length=64)
-    text: str = Field(min_length=1, max_length=500)
-    scale: str = ""
-    reverse: bool = False
-
-
-class SurveyItems(BaseModel):
-    """The post-system survey: its items, in the order asked."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    items: tuple[SurveyItem, ...] = Field(min_length=1)
-
-    @field_validator("items")
-    @classmethod
-    def _ids_once(cls, v: tuple[SurveyItem, ...]) -> tuple[SurveyItem, ...]:
-        ids = [i.id for i in v]
-        dupes = sorted({i for i in ids if ids.count(i) > 1})
-        if dupes:
-            raise ValueError(f"item id named twice: {', '.join(dupes)}")
-        return v
-
-    @property
-    def ids(self) -> tuple[str, ...]:
-        return tuple(i.id for i in self.items)
-
-    @classmethod
-    def parse(cls, data: Any, where: str) -> SurveyItems:
-        try:
-            return cls.model_validate(data)
-        except ValidationError as exc:
-            raise StudyDesignError(f"{where}: {error_line(exc)}") from None
-
-    @classmethod
-    def load(cls, path: str | Path) -> SurveyItems:
-        """A YAML (or JSON, which is YAML) file ``{items: [{id, text, scale?, reverse?}, ...]}``."""
-        path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise StudyDesignError(f"{path}: cannot read: {exc.strerror or exc}") from None
-        except yaml.YAMLError as exc:
-            raise StudyDesignError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-        return cls.parse(data, str(path))
-
-
-def default_items() -> SurveyItems:
-    """The packaged survey: Hoffman's fluency measures and the paper's interference item."""
-    text = resources.files("rapidds.experiments.study").joinpath("items.yaml").read_text()
-    return SurveyItems.parse(yaml.safe_load(text), "items.yaml")
-
-
-# -- submissions -------------------------------------------------------------------------------
-Likert = Annotated[int, Field(ge=LIKERT[0], le=LIKERT[1])]
-_Duration = Annotated[float, Field(gt=0, allow_inf_nan=False)]  # at most: validate_durations
-
-
-class _Survey(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    answers: dict[str, Likert]
-
-
-class _Durations(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    durations: dict[str, _Duration]
-
-
-class _Demographics(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    fields: dict[Annotated[str, Field(min_length=1, max_length=64)],
-                 Annotated[str, Field(max_length=2000)]]
-
-
-def _validated(model: type[BaseModel], what: str, **data: Any) -> Any:
-    try:
-        return model(**data)
-    except ValidationError as exc:
-        line = error_line(exc, prefix=f"{what} ", skip=1, quote=True, with_input=True)
-        raise StudyDataError(line) from None
-
-
-def validate_durations(durations: Mapping[str, Any], tasks: Iterable[str],
-                       at_most: float = MAX_TASK_S_LIMIT) -> dict[str, float]:
-    """Seconds per task: every task of ``tasks`` once, each positive, finite, at most ``at_most``
-    (``StudyDesign.task_bound``; a string of a number is accepted). StudyDataError otherwise."""
-    want = list(tasks)
-    got = _validated(_Durations, "duration of task", durations=dict(durations)).durations
-    missing = [t for t in want if t not in got]
-    extra = sorted(set(got) - set(want))
-    if missing or extra:
-        raise StudyDataError(
-            "durations must name exactly the person's tasks " + ", ".join(want)
-            + (f"; missing {', '.join(missing)}" if missing else "")
-            + (f"; not the person's: {', '.join(extra)}" if extra else ""))
-    if long := [t for t in want if got[t] > at_most]:
-        raise StudyDataError(f"duration of task '{long[0]}': {got[long[0]]:g} s is longer than "
-                             f"any task of this study ({at_most:g} s; the design's max_task_s)")
-    return {t: float(got[t]) for t in want}
 
 
 # -- the store ---------------------------------------------------------------------------------
@@ -490,17 +385,8 @@ class StudyStore(RunStore):
         """The participant's survey about ``system``: every item answered once, 1..7."""
         p = self.participant(pid)
         block = self._system_of(p, system)
-        what = f"{p.id} survey about '{system}': item"
-        got = _validated(_Survey, what, answers=dict(answers)).answers
-        ids = self.items.ids
-        missing = [i for i in ids if i not in got]
-        extra = sorted(set(got) - set(ids))
-        if missing or extra:
-            raise StudyDataError(f"{p.id} survey about '{system}': "
-                                 + (f"unanswered: {', '.join(missing)}" if missing else "")
-                                 + ("; " if missing and extra else "")
-                                 + (f"unknown items: {', '.join(extra)}" if extra else ""))
-        rows = [(p.id, system, i, int(got[i])) for i in ids]
+        got = survey_answers(answers, self.items.ids, f"{p.id} survey about '{system}'")
+        rows = [(p.id, system, i, v) for i, v in got.items()]
         return self._submit(
             p, Step("survey", system, block), "survey", rows,
             "SELECT participant, system, item, value FROM survey WHERE participant=? AND "
@@ -521,9 +407,7 @@ class StudyStore(RunStore):
     def submit_demographics(self, pid: str, fields: Mapping[str, Any]) -> bool:
         """Free fields (age, handedness, ...), text; an empty form is a valid answer."""
         p = self.participant(pid)
-        got = _validated(_Demographics, f"{p.id} demographics: field",
-                         fields={str(k): v for k, v in fields.items()}).fields
-        text = json.dumps(dict(sorted(got.items())))
+        text = json.dumps(demographic_fields(fields, f"{p.id} demographics"))
         return self._submit(p, Step("demographics"), "demographics", [(p.id, text)],
                             "SELECT participant, fields FROM demographics WHERE participant=?",
                             (p.id,), [(p.id, text)])

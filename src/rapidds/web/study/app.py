@@ -128,23 +128,53 @@ def _html(text: str, status: int = 200) -> HTMLResponse:
     return HTMLResponse(text, status_code=status, headers=_HEADERS)
 
 
+def _check_pid(pid: str) -> str:
+    if not _PID.fullmatch(pid):
+        raise StudyDataError(f"'{pid[:80]}' is not a participant id")
+    return pid
+
+
+class _Games:
+    """The game rounds in play, one per participant (or the one they played last)."""
+
+    def __init__(self, worker: StudyWorker):
+        self.worker = worker
+        self.rounds: dict[str, GameRound] = {}
+        self.opening = asyncio.Lock()
+
+    async def open(self, world: FetchWorld, pid: str, token: str) -> GameRound:
+        """The game of ``pid``'s current round ``token``: the open one, or a new one (the first
+        page, a failed one, or a server restarted meanwhile). OutOfTurn when the study has
+        moved on."""
+        async with self.opening:
+            game = self.rounds.get(pid)
+            if game is None or game.token != token or not game.open:
+                if game is not None:
+                    await game.close(f"{pid}'s round was opened again elsewhere, or the study "
+                                     f"moved on: open /p/{pid}")
+                    del self.rounds[pid]
+                self.rounds[pid] = await open_round(self.worker, world, pid, token)
+            return self.rounds[pid]
+
+    async def close_all(self) -> None:
+        for game in list(self.rounds.values()):
+            await game.close()
+
+
 def create_study_app(worker: StudyWorker, hosts: Sequence[str],
                      token: str | None = None) -> FastAPI:
     """The ASGI app of the study ``worker`` serves; ``hosts``: host names it answers to;
     ``token``: the experimenter's key to the overview (``/?token=...``; default a new random
     one, ``app.state.token``)."""
     key = token or secrets.token_urlsafe(18)
-
-    games: dict[str, GameRound] = {}  # pid -> the round they play (or played last)
-    opening = asyncio.Lock()
+    games = _Games(worker)
 
     @contextlib.asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         try:
             yield
         finally:  # a round in play is dropped, never half stored
-            for game in list(games.values()):
-                await game.close()
+            await games.close_all()
 
     app = FastAPI(lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
     app.add_middleware(HostCheck, hosts=list(hosts))
@@ -158,10 +188,14 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
             return _error(exc.status_code, str(exc.detail))
         return _html(pages.message_page(f"{exc.status_code}", str(exc.detail)), exc.status_code)
 
-    def _pid(pid: str) -> str:
-        if not _PID.fullmatch(pid):
-            raise StudyDataError(f"'{pid[:80]}' is not a participant id")
-        return pid
+    _page_routes(app, worker, key)
+    _game_routes(app, worker, games)
+    _submit_routes(app, worker)
+    return app
+
+
+def _page_routes(app: FastAPI, worker: StudyWorker, key: str) -> None:
+    """The experimenter's overview and each participant's current step."""
 
     @app.get("/", response_class=HTMLResponse)
     async def overview(token: str = "") -> Response:
@@ -182,7 +216,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
     @app.get("/p/{pid}", response_class=HTMLResponse)
     async def participant(pid: str) -> Response:
         try:
-            _pid(pid)
+            _check_pid(pid)
             step = await worker.call(lambda s: s.next_step(pid))
         except StudyDataError as exc:
             return _html(pages.message_page("Unknown participant", str(exc)), 404)
@@ -208,19 +242,9 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
     async def participant_slash(pid: str) -> Response:
         return RedirectResponse(f"/p/{pid}", status_code=307)
 
-    async def _game(world: FetchWorld, pid: str, token: str) -> GameRound:
-        """The game of ``pid``'s current round ``token``: the open one, or a new one (the first
-        page, a failed one, or a server restarted meanwhile). OutOfTurn when the study has
-        moved on."""
-        async with opening:
-            game = games.get(pid)
-            if game is None or game.token != token or not game.open:
-                if game is not None:
-                    await game.close(f"{pid}'s round was opened again elsewhere, or the study "
-                                     f"moved on: open /p/{pid}")
-                    del games[pid]
-                games[pid] = await open_round(worker, world, pid, token)
-            return games[pid]
+
+def _game_routes(app: FastAPI, worker: StudyWorker, games: _Games) -> None:
+    """The browser game of a participant's current round: its page and its socket."""
 
     @app.get("/p/{pid}/play", response_class=HTMLResponse)
     async def play(pid: str) -> Response:
@@ -230,7 +254,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
                 "No game in this study", f"the game source is offered for fetch studies only; "
                 f"this study runs on {world.name}: record the round on /p/{pid}"), 404)
         try:
-            _pid(pid)
+            _check_pid(pid)
             step = await worker.call(lambda s: s.next_step(pid))
         except StudyDataError as exc:
             return _html(pages.message_page("Unknown participant", str(exc)), 404)
@@ -240,7 +264,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
                 f"{step.describe()}. Open /p/{pid} to go on."), 409)
         token = step_token(step)
         try:
-            await _game(world, pid, token)
+            await games.open(world, pid, token)
         except OutOfTurn as exc:
             return _html(pages.message_page("No round to play", str(exc)), 409)
         return _html(game_page(f"/p/{pid}/ws?step={quote(token)}"))
@@ -257,7 +281,7 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
             await refuse_socket(ws, "the game source is offered for fetch studies only")
             return
         try:
-            _pid(pid)
+            _check_pid(pid)
             now = await worker.call(lambda s: s.next_step(pid))
         except StudyDataError as exc:
             await refuse_socket(ws, str(exc))
@@ -267,70 +291,82 @@ def create_study_app(worker: StudyWorker, hosts: Sequence[str],
                                     f"{now.describe()}; open /p/{pid}")
             return
         try:
-            game = await _game(world, pid, step)
+            game = await games.open(world, pid, step)
         except OutOfTurn as exc:
             await refuse_socket(ws, str(exc))
             return
         await game.hub.connect(ws)
 
-    async def _submit(request: Request, pid: str, kind: str) -> Response:
-        if not same_origin(request.headers):
-            origin = request.headers.get("origin", "")
-            return _error(403, f"a submit from another site ({origin[:80]}) is refused")
-        ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-        if ctype != "application/json":
-            return _error(415, "send the submit as JSON (Content-Type: application/json)")
-        size = request.headers.get("content-length")
-        if size is not None and (not size.isdigit() or int(size) > MAX_BODY):
-            return _error(413, f"the request is larger than {MAX_BODY // 2**20} MiB")
-        body = bytearray()
-        async for chunk in request.stream():
-            body += chunk
-            if len(body) > MAX_BODY:
-                return _error(413, f"the request is larger than {MAX_BODY // 2**20} MiB")
-        try:
-            raw = json.loads(body)
-            json.dumps(raw, ensure_ascii=False).encode("utf-8")  # no lone surrogate (\ud800)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            return _error(422, f"the body is not valid JSON ({exc})")
-        except UnicodeEncodeError:
-            return _error(422, "the body holds text that is not valid Unicode (a lone surrogate)")
-        except RecursionError:  # e.g. 100 000 '[': no page sends more than two levels
-            return _error(422, "the body's JSON is nested too deeply")
-        try:
-            sub = Submit.model_validate(raw)
-        except ValidationError as exc:
-            return _error(422, error_line(exc, empty="body"))
-        try:
-            _pid(pid)
-            if kind == "round":
-                source = sub.fields.get("source", "")
-                fields = {k: v for k, v in sub.fields.items() if k != "source"}
-                await worker.call(lambda s: s.submit_round(pid, sub.step, source, fields,
-                                                           sub.tracker))
-                worker.background(lambda s: s.plan(pid))  # the next page's plan, right away
-            elif kind == "survey":
-                await worker.call(lambda s: s.submit_survey(pid, sub.step, sub.fields))
-            elif kind == "ranking":
-                await worker.call(lambda s: s.submit_ranking(pid, sub.step, sub.fields))
-            else:
-                await worker.call(lambda s: s.submit_demographics(pid, sub.step, sub.fields))
-        except OutOfTurn as exc:
-            return _error(409, str(exc), next=f"/p/{pid}")
-        except InputError as exc:
-            return _error(400, str(exc))
-        except StudyDataError as exc:  # an unknown participant
-            return _error(404, str(exc))
-        except StateError as exc:  # the store refused (out of turn in another way, locked)
-            return _error(409, str(exc), next=f"/p/{pid}")
-        except RapiddsError as exc:
-            return _error(400, str(exc))
-        return JSONResponse({"next": f"/p/{pid}"}, headers=_HEADERS)
+
+def _submit_routes(app: FastAPI, worker: StudyWorker) -> None:
+    """``POST /api/p/{pid}/{kind}``: read the body, then hand it to the session."""
 
     @app.post("/api/p/{pid}/{kind}")
     async def submit(request: Request, pid: str, kind: str) -> Response:
         if kind not in ("round", "survey", "ranking", "demographics"):
             return _error(404, f"no such submit: {kind[:40]!r}")
-        return await _submit(request, pid, kind)
+        sub = await _read_submit(request)
+        if isinstance(sub, Response):
+            return sub
+        return await _store_submit(worker, pid, kind, sub)
 
-    return app
+
+async def _read_submit(request: Request) -> Submit | Response:
+    """The request's :class:`Submit`, or the error response for a request no page of ours
+    sends (another site, not JSON, too large, nested too deeply)."""
+    if not same_origin(request.headers):
+        origin = request.headers.get("origin", "")
+        return _error(403, f"a submit from another site ({origin[:80]}) is refused")
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "application/json":
+        return _error(415, "send the submit as JSON (Content-Type: application/json)")
+    size = request.headers.get("content-length")
+    if size is not None and (not size.isdigit() or int(size) > MAX_BODY):
+        return _error(413, f"the request is larger than {MAX_BODY // 2**20} MiB")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            return _error(413, f"the request is larger than {MAX_BODY // 2**20} MiB")
+    try:
+        raw = json.loads(body)
+        json.dumps(raw, ensure_ascii=False).encode("utf-8")  # no lone surrogate (\ud800)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return _error(422, f"the body is not valid JSON ({exc})")
+    except UnicodeEncodeError:
+        return _error(422, "the body holds text that is not valid Unicode (a lone surrogate)")
+    except RecursionError:  # e.g. 100 000 '[': no page sends more than two levels
+        return _error(422, "the body's JSON is nested too deeply")
+    try:
+        return Submit.model_validate(raw)
+    except ValidationError as exc:
+        return _error(422, error_line(exc, empty="body"))
+
+
+async def _store_submit(worker: StudyWorker, pid: str, kind: str, sub: Submit) -> Response:
+    """Hand a well-formed submit to the session; its refusals become 400/404/409."""
+    try:
+        _check_pid(pid)
+        if kind == "round":
+            source = sub.fields.get("source", "")
+            fields = {k: v for k, v in sub.fields.items() if k != "source"}
+            await worker.call(lambda s: s.submit_round(pid, sub.step, source, fields,
+                                                       sub.tracker))
+            worker.background(lambda s: s.plan(pid))  # the next page's plan, right away
+        elif kind == "survey":
+            await worker.call(lambda s: s.submit_survey(pid, sub.step, sub.fields))
+        elif kind == "ranking":
+            await worker.call(lambda s: s.submit_ranking(pid, sub.step, sub.fields))
+        else:
+            await worker.call(lambda s: s.submit_demographics(pid, sub.step, sub.fields))
+    except OutOfTurn as exc:
+        return _error(409, str(exc), next=f"/p/{pid}")
+    except InputError as exc:
+        return _error(400, str(exc))
+    except StudyDataError as exc:  # an unknown participant
+        return _error(404, str(exc))
+    except StateError as exc:  # the store refused (out of turn in another way, locked)
+        return _error(409, str(exc), next=f"/p/{pid}")
+    except RapiddsError as exc:
+        return _error(400, str(exc))
+    return JSONResponse({"next": f"/p/{pid}"}, headers=_HEADERS)

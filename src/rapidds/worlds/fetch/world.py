@@ -14,17 +14,18 @@ longer than any real completion.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import field
 from functools import cache, cached_property
 from importlib.resources import files
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
+from pydantic import Field
 
 from rapidds.problem import AGENTS, Agent, Objective, Problem, Task
-from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.settings import Int, NonNegative, Positive, settings_dataclass
+from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos
 from rapidds.worlds.fetch.map import (
     DESCRIPTIONS,
     HOMES,
@@ -53,7 +54,7 @@ __all__ = ["POLICY_DEFAULTS", "PRIOR_SEED", "FetchWorld", "default_world", "fetc
 PRIOR_SEED = 20_240_917  # the population of "other people" is the same for every run
 
 
-@dataclass(frozen=True, eq=False)
+@settings_dataclass("FetchWorld", eq=False)
 class FetchWorld:
     """The fetch game (see the module docstring for the map and the conventions).
 
@@ -65,33 +66,22 @@ class FetchWorld:
     duration priors of :meth:`problem` and the spatial prior come from (:meth:`prior`).
     """
 
-    variant: str = "default"
-    robot_speed: float = 4.0
-    dt: float = 0.2
-    horizon: int = 64
-    reach_radius: float = 0.5
-    gamma: float = 1.75
-    lam: float = 15.0
-    prior_people: int = 24
-    prior_samples: int = 2
-    prior_seed: int = PRIOR_SEED
+    variant: Literal["default"] = "default"
+    robot_speed: Positive = 4.0
+    dt: Positive = 0.2
+    horizon: Horizon = 64
+    reach_radius: Positive = 0.5
+    gamma: NonNegative = 1.75
+    lam: NonNegative = 15.0
+    prior_people: Annotated[Int, Field(ge=2)] = 24
+    prior_samples: Annotated[Int, Field(ge=1)] = 2
+    prior_seed: Int = PRIOR_SEED
     # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
     reaction_population: ClassVar[ReactionPopulation] = REACTIONS
     safety_limits: ClassVar[SafetyLimits] = SAFETY
     _routes: dict[tuple[str, str, str], Route] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.variant not in self.variants:
-            raise ValueError(f"fetch has no variant {self.variant!r}; variants: default")
-        for name in ("robot_speed", "dt", "reach_radius"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"FetchWorld.{name} must be a finite number > 0, got {v!r}")
-        if self.horizon <= 0 or self.horizon % 8:
-            raise ValueError(f"FetchWorld.horizon must be a positive multiple of 8, "
-                             f"got {self.horizon}")
-        if self.prior_people < 2 or self.prior_samples < 1:
-            raise ValueError("FetchWorld needs prior_people >= 2 and prior_samples >= 1")
         routes = {}
         for agent in AGENTS:
             for task in TASK_IDS:
@@ -102,7 +92,7 @@ class FetchWorld:
         need = longest / self.robot_speed * 1.1 + self.dt
         if need > (self.horizon - 1) * self.dt:
             raise ValueError(
-                f"FetchWorld.horizon * dt = {self.horizon * self.dt:g} s is too short: the "
+                f"horizon * dt = {self.horizon * self.dt:g} s is too short: the "
                 f"longest robot route takes {longest / self.robot_speed:.1f} s at "
                 f"{self.robot_speed} m/s and demonstrations need 10 % slack"
             )

@@ -27,16 +27,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import field
 from functools import cached_property
 from importlib.resources import files
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, get_args
 
 import numpy as np
+from pydantic import Field
 
 from rapidds.problem import Objective, Problem, Task
-from rapidds.worlds.base import PopulationPrior, RobotDemos
+from rapidds.settings import Int, NonNegative, Positive, settings_dataclass
+from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos
 from rapidds.worlds.painting.reactions import REACTIONS, SAFETY
 from rapidds.worlds.painting.scene import ARM_JOINTS, LAYOUT, Box, CellLayout
 from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
@@ -57,7 +59,8 @@ __all__ = [
 ]
 
 TASK_IDS: tuple[str, ...] = ("prep_vise", "secure_piece", "mix_l", "mix_r", "brush")
-VARIANTS: tuple[str, ...] = ("unconstrained", "constrained")
+Variant = Literal["unconstrained", "constrained"]
+VARIANTS: tuple[str, ...] = get_args(Variant)
 PRECEDENCE: tuple[tuple[str, str], ...] = (
     ("prep_vise", "secure_piece"),
     ("secure_piece", "brush"),
@@ -91,7 +94,7 @@ POLICY_DEFAULTS: dict[str, object] = {
 }
 
 
-@dataclass(frozen=True, eq=False)
+@settings_dataclass("PaintingWorld", eq=False)
 class PaintingWorld:
     """The painting cell (module docstring).
 
@@ -108,38 +111,18 @@ class PaintingWorld:
     reaction_population: ClassVar[ReactionPopulation] = REACTIONS
     safety_limits: ClassVar[SafetyLimits] = SAFETY
 
-    variant: str = "unconstrained"
-    dt: float = 0.15
-    horizon: int = 64
-    rest_radius: float = 0.03
-    gamma: float = 12.0
-    lam: float = 10.0
-    beta: float = 14.0
-    grid: int = 22
-    prior_people: int = 40
-    prior_samples: int = 1
-    prior_seed: int = 0
+    variant: Variant = "unconstrained"
+    dt: Positive = 0.15
+    horizon: Horizon = 64
+    rest_radius: Positive = 0.03
+    gamma: NonNegative = 12.0
+    lam: NonNegative = 10.0
+    beta: Positive = 14.0
+    grid: Annotated[Int, Field(ge=2)] = 22
+    prior_people: Annotated[Int, Field(ge=2)] = 40
+    prior_samples: Annotated[Int, Field(ge=1)] = 1
+    prior_seed: Int = 0
     layout: CellLayout = field(default=LAYOUT, repr=False)
-
-    def __post_init__(self) -> None:
-        if self.variant not in VARIANTS:
-            raise ValueError(f"unknown painting variant {self.variant!r}; variants are "
-                             f"{', '.join(VARIANTS)}")
-        for name in ("dt", "rest_radius", "beta"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"PaintingWorld.{name} must be a finite number > 0, got {v!r}")
-        for name in ("gamma", "lam"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"PaintingWorld.{name} must be a finite number >= 0, got {v!r}")
-        if not isinstance(self.horizon, int) or self.horizon <= 0 or self.horizon % 8:
-            raise ValueError(f"PaintingWorld.horizon must be a positive multiple of 8, "
-                             f"got {self.horizon!r}")
-        if not isinstance(self.grid, int) or self.grid < 2:
-            raise ValueError(f"PaintingWorld.grid must be an integer >= 2, got {self.grid!r}")
-        if self.prior_people < 2 or self.prior_samples < 1:
-            raise ValueError("PaintingWorld needs prior_people >= 2 and prior_samples >= 1")
 
     # -- the World protocol ---------------------------------------------------------------------
     @property
