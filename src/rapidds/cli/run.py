@@ -153,6 +153,12 @@ def parse_gamma(text: str | None) -> float | None:
         raise AssertionError from None  # fail() exits
 
 
+def gamma_settings(text: str | None) -> dict[str, Any]:
+    """``--gamma``'s RunConfig fields: 'learn' learns it, a number fixes it."""
+    learn = text is not None and text.strip().lower() == "learn"
+    return {"gamma": None if learn else parse_gamma(text), "gamma_learn": learn}
+
+
 @app.command("run")
 def run_cmd(
     world: str = typer.Argument(_D["world"].default, help="World to run in (see "
@@ -216,11 +222,9 @@ def run_cmd(
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:
         fail("--resume needs --out (the folder of the run to continue)")
-    learn = gamma is not None and gamma.strip().lower() == "learn"
     cfg = RunConfig(world=world, variant=variant, human=human, adapt=adapt, cycles=cycles,
-                    gamma=None if learn else parse_gamma(gamma), gamma_learn=learn,
-                    gamma_prior=gamma_prior, gamma_plan=gamma_plan, comfort=comfort, lam=lam,
-                    seed=seed, population=population,
+                    **gamma_settings(gamma), gamma_prior=gamma_prior, gamma_plan=gamma_plan,
+                    comfort=comfort, lam=lam, seed=seed, population=population,
                     generations=generations, samples=samples, particles=particles,
                     candidates=candidates, surrogate=surrogate, change=change, drift=drift,
                     drift_from=drift_from, forgetting=forgetting, detect=detect, hazard=hazard,
