@@ -5,6 +5,8 @@ default (seed s takes factor s mod len(factors); the default factors span a fact
 planners run the same person (same seed, so the same durations and paths where plans agree):
 
     learn    ``--gamma learn`` (posterior mean), prior: the world's gamma, spread 4
+    cautious ``--gamma learn --gamma-plan cautious`` (the posterior's 0.8 quantile); only with
+             ``--arms`` naming it
     fixed    the world's fixed default gamma (the paper)
     oracle   a fixed gamma equal to the person's true one
 
@@ -39,7 +41,7 @@ from _common import cpu_model, load_average, parse_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURE = ROOT / "docs" / "results" / "gamma.png"
-ARMS = ("learn", "fixed", "oracle")
+ARMS = ("learn", "fixed", "oracle")  # the default arms; "cautious" on request
 FACTORS = (2 ** -2.5, 2 ** -0.83, 2 ** 0.83, 2 ** 2.5)  # lowest to highest: a factor 32
 SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)
 
@@ -57,7 +59,8 @@ def one(job: tuple[str, str, int, float, int]) -> dict[str, Any]:
     g_ref = w.problem().objective.gamma
     truth = g_ref * factor
     kw: dict[str, Any] = {"learn": dict(gamma_learn=True), "fixed": {},
-                          "oracle": dict(gamma=truth)}[arm]
+                          "oracle": dict(gamma=truth),
+                          "cautious": dict(gamma_learn=True, gamma_plan="cautious")}[arm]
     cfg = RunConfig(world=world, cycles=cycles, seed=seed, comfort=truth, **kw, **SEARCH)
     t0 = time.perf_counter()
     recs = AdaptiveRun(cfg, load_policy(w)).run()
@@ -122,6 +125,39 @@ def summarise(runs: list[dict[str, Any]], start: int) -> str:
     return "\n".join(lines)
 
 
+def summarise_cautious(runs: list[dict[str, Any]], start: int) -> str:
+    """Planning with the cautious quantile beside the mean, per world and true gamma: cost
+    over the oracle from cycle ``start`` and "too close" per run (fixed beside them)."""
+    by = {(r["world"], r["arm"], r["seed"]): r for r in runs}
+    lines = [f"| world | true gamma (x default) | seeds | gamma planned at end: mean | "
+             f"cautious | plan cost over oracle, cycles {start}+: mean | cautious | fixed | "
+             "too close per run: mean | cautious | fixed |", "|" + "---|" * 11]
+    for world in sorted({r["world"] for r in runs}):
+        for factor in sorted({r["factor"] for r in runs if r["world"] == world}):
+            seeds = sorted(s for (w, a, s), r in by.items() if w == world and a == "cautious"
+                           and r["factor"] == factor and all((w, b, s) in by for b in ARMS))
+            if not seeds:
+                continue
+            arms = ("learn", "cautious", "fixed")
+            sets = {a: [by[(world, a, s)] for s in seeds] for a in arms}
+            oracle = [by[(world, "oracle", s)] for s in seeds]
+
+            def over(a: str, sets: dict[str, list[Any]] = sets,
+                     oracle: list[Any] = oracle) -> str:
+                v = np.mean([np.mean(r["plan_cost"][start:]) / np.mean(o["plan_cost"][start:])
+                             - 1 for r, o in zip(sets[a], oracle, strict=True)])
+                return f"{100 * v:+.1f} %"
+
+            lines.append(
+                f"| {world} | {sets['learn'][0]['truth']:.3g} (x{factor:.3g}) | {len(seeds)} | "
+                + " | ".join(", ".join(f"{r['planned'][-1]:.3g}" for r in sets[a])
+                             for a in arms[:2]) + " | "
+                + " | ".join(over(a) for a in arms) + " | "
+                + " | ".join(f"{np.mean([sum(r['too_close']) for r in sets[a]]):.2f}"
+                             for a in arms) + " |")
+    return "\n".join(lines)
+
+
 def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
     import matplotlib
 
@@ -160,6 +196,8 @@ def main() -> None:
                     help="first cycle of the cost comparison")
     ap.add_argument("--runs", type=Path, default=Path("gamma-runs.jsonl"))
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--arms", default=",".join(ARMS),
+                    help="arms to run, of learn, fixed, oracle, cautious")
     ap.add_argument("--reuse", action="store_true", help="Only summarise the stored runs.")
     args = ap.parse_args()
     done: list[dict[str, Any]] = []
@@ -167,7 +205,8 @@ def main() -> None:
         done = [json.loads(x) for x in args.runs.read_text().splitlines() if x.strip()]
     have = {(r["world"], r["arm"], r["seed"]) for r in done}
     jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles)
-            for s in parse_seeds(args.seeds) for arm in ARMS if (args.world, arm, s) not in have]
+            for s in parse_seeds(args.seeds) for arm in args.arms.split(",")
+            if (args.world, arm, s) not in have]
     if not args.reuse and jobs:
         t0 = time.perf_counter()
         with ProcessPoolExecutor(args.workers) as pool, args.runs.open("a") as f:
@@ -180,6 +219,8 @@ def main() -> None:
         print(f"{len(jobs)} runs in {time.perf_counter() - t0:.0f} s on {cpu_model()}, "
               f"load {load_average()}")
     print(summarise(done, args.start))
+    if any(r["arm"] == "cautious" for r in done):
+        print(summarise_cautious(done, args.start))
     print(f"figure: {figure(done)}")
 
 

@@ -95,10 +95,11 @@ def keys_for(move: tuple[int, int]) -> set[str]:
 
 
 def play_cycle(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = None,
-               midcycle_shot: Path | None = None) -> tuple[dict, dict]:
+               midcycle_shot: Path | None = None,
+               signal_at: float | None = None) -> tuple[dict, dict]:
     """In a browser ``page`` of the game: start ``cycle`` and walk it with the arrow keys until
-    it is over (or until game time ``stop_at``); the plan the page showed and its last state of
-    the cycle."""
+    it is over (or until game time ``stop_at``), pressing T ("too close") once from game time
+    ``signal_at``; the plan the page showed and its last state of the cycle."""
     page.wait_for_function(
         f"window.rapidds.phase === 'ready' && window.rapidds.plan.cycle === {cycle}",
         timeout=90_000)
@@ -118,6 +119,9 @@ def play_cycle(page: Any, bot: RouteBot, cycle: int, *, stop_at: float | None = 
             last = st
             if stop_at is not None and st["t"] >= stop_at:
                 break
+            if signal_at is not None and st["t"] >= signal_at and st["started"]:
+                page.keyboard.press("t")
+                signal_at = None
             if midcycle_shot is not None and st["t"] >= 3.0:
                 page.screenshot(path=str(midcycle_shot))
                 midcycle_shot = None

@@ -184,3 +184,50 @@ def test_observe_a_recorded_cycle_learns_what_the_simulated_one_did(
     with RunStore.open_readonly(tmp_path / "real" / "run.sqlite") as mine:
         _model_close(HumanModel.from_bytes(mine.state(rid, 1)),
                      HumanModel.from_bytes(store.state(rid, 1)), 1e-7)
+
+
+def test_observe_takes_the_comfort_answer_and_the_bags_too_close_signals(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A simulated person who learns gamma says how close the robot came; the same cycle as a
+    bag, with their "too close" signals on /rapidds/human/too_close and their answer given as
+    --comfort, teaches an observing run the same gamma evidence and posterior."""
+    from rapidds.bridge.bag import BagMessage, read_bag, write_bag
+    from rapidds.loop.run import AdaptiveRun
+
+    g_ref = make_world("painting").problem().objective.gamma
+    small = {**SMALL, "cycles": 1, "gamma_learn": True, "comfort": 1000 * g_ref}
+    sim = tmp_path / "sim"
+    with RunStore(sim / "run.sqlite") as store:
+        AdaptiveRun(RunConfig(**small), store=store).run()
+    _, cfg, records, _ = _stored(sim)
+    ref = records[0]["comfort"]
+    assert ref["too_close"], "a person this sensitive signals"
+    exported = tmp_path / "cycle0.mcap"
+    assert run_main(capsys, "export", str(sim), "--cycle", "0", "--out", str(exported))[0] == 0
+    msgs = list(read_bag(exported))
+    events = [(m.time_ns, json.loads(m.msg.data)["event"]) for m in msgs
+              if m.topic == ros2.EVENTS_TOPIC]
+    t0 = min(t for t, e in events if e == "start")
+    t1 = max(t for t, e in events if e == "end")
+    empty = ros2.typestore().types["std_msgs/msg/Empty"]()
+    msgs += [BagMessage(ros2.TOO_CLOSE_TOPIC, "std_msgs/msg/Empty", t0 + round(t * 1e9), empty)
+             for t in ref["too_close"]]
+    msgs.append(BagMessage(ros2.TOO_CLOSE_TOPIC, "std_msgs/msg/Empty", t1 + 10**9, empty))
+    bag = write_bag(tmp_path / "said.mcap", sorted(msgs, key=lambda m: m.time_ns))
+    run_yaml = tmp_path / "run.yaml"
+    run_yaml.write_text(yaml.safe_dump(cfg))
+    code, _, err = run_main(capsys, "observe", str(tmp_path / "r9"), "--bag", str(bag),
+                            "--config", str(run_yaml), "--comfort", "9")
+    assert code == 2 and err.count("rapidds: error:") == 1 and "--comfort" in err, err
+    code, stdout, err = run_main(capsys, "observe", str(tmp_path / "real"), "--bag", str(bag),
+                                 "--config", str(run_yaml), "--comfort",
+                                 str(ref["answer"]), "--json")
+    assert code == 0, err
+    rec = json.loads(stdout)
+    said = rec["comfort"]  # the signal after the cycle was dropped
+    assert said["answer"] == ref["answer"]
+    assert said["too_close"] == pytest.approx(ref["too_close"], abs=1e-8)
+    assert said["closeness_at"] == pytest.approx(ref["closeness_at"], abs=1e-6)
+    for key in ("mean", "q10", "q90", "evidence"):
+        assert rec["gamma_belief"][key] == pytest.approx(records[0]["gamma_belief"][key],
+                                                         rel=1e-6)

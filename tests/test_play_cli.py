@@ -33,6 +33,8 @@ def test_play_help_imports_no_heavy_library() -> None:
     (["play", "--adapt", "sometimes"], "--adapt"),
     (["play", "--player", "../etc"], "--player"),
     (["play", "--cycles", "0"], "--cycles"),
+    (["play", "--gamma", "lots"], "--gamma"),
+    (["play", "--gamma", "learn", "--gamma-prior", "0:4"], "gamma"),
 ])
 def test_bad_options_are_one_line(argv: list[str], message: str) -> None:
     out = _rapidds(*argv)

@@ -6,6 +6,9 @@
   points by a :class:`TrackingMapping` (YAML), with a rigid transform into the world frame;
   timed by receive time too, so events and tracking share one clock (the recorder's).
 - The robot's ``sensor_msgs/JointState`` on ``/rapidds/robot/joint_states`` (demonstrations).
+- "Too close" signals of the person on ``/rapidds/human/too_close`` (``std_msgs/Empty`` or
+  ``String``), timed by receive time and taken relative to the cycle's first task start (the
+  realised cycle's time 0); one outside the cycle's span is dropped.
 
 Bad input never stops the reading: a malformed message, an unknown task id, an event out of
 order (an end before its start, a second start), a tracked point whose header stamp goes back
@@ -50,6 +53,7 @@ __all__ = [
 
 log = logging.getLogger("rapidds.bridge")
 _NS = 1e9
+_SIGNALS = frozenset({"std_msgs/msg/Empty", "std_msgs/msg/String"})
 _TRACKING = frozenset({"geometry_msgs/msg/PointStamped", "geometry_msgs/msg/PoseStamped",
                        "geometry_msgs/msg/PoseArray", "tf2_msgs/msg/TFMessage"})
 
@@ -132,7 +136,24 @@ class RecordedCycle:
     tasks: dict[str, tuple[str, int, int]] = field(default_factory=dict)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     joints: tuple[np.ndarray, np.ndarray] | None = None
+    too_close: list[int] = field(default_factory=list)  # receive times, ns
     dropped: int = 0
+
+    def too_close_times(self) -> list[float]:
+        """The "too close" signals in seconds from the cycle's first task start, those within
+        the cycle's span (first start to last end); others are dropped, one line each."""
+        if not self.tasks:
+            return []
+        t0 = min(s for _, s, _ in self.tasks.values())
+        t1 = max(e for _, _, e in self.tasks.values())
+        out = []
+        for t in self.too_close:
+            if t0 <= t <= t1:
+                out.append((t - t0) / _NS)
+            else:
+                log.warning("a 'too close' signal at %d ns, outside the cycle (%d..%d ns); "
+                            "dropped", t, t0, t1)
+        return out
 
 
 class _Reader:
@@ -226,6 +247,8 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
     for m in sorted(read_bag(path), key=lambda m: m.time_ns):
         if m.topic == ros2.EVENTS_TOPIC and m.msgtype == "std_msgs/msg/String":
             reader.event(m)
+        elif m.topic == ros2.TOO_CLOSE_TOPIC and m.msgtype in _SIGNALS:
+            reader.out.too_close.append(m.time_ns)
         elif m.msgtype in _TRACKING:
             reader.tracking(m)
         elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
@@ -287,10 +310,21 @@ def observed_for(cycle: RecordedCycle, world: World,
 @dataclass(frozen=True)
 class RecordedTeammate:
     """The person of a bag, as a :class:`~rapidds.worlds.base.Teammate`: a live person whose
-    truth is unknown (no plan cost against it), who did what the bag holds."""
+    truth is unknown (no plan cost against it), who did what the bag holds, and said what
+    ``answer`` (their comfort answer 1-7, None: not asked) and ``too_close`` (signal times, s
+    into the cycle) hold."""
 
     observed: Mapping[str, HumanExecution]
     name: str = "recorded"
+    answer: int | None = None
+    too_close: tuple[float, ...] = ()
+
+    def comfort_report(self, cycle: int) -> tuple[int | None, list[float]] | None:
+        """What the person said about the cycle; None when the bag and the operator say
+        nothing (a cycle recorded without the comfort item)."""
+        if self.answer is None and not self.too_close:
+            return None
+        return self.answer, list(self.too_close)
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:

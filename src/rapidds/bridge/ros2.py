@@ -23,6 +23,7 @@ __all__ = [
     "EVENTS_TOPIC",
     "JOINT_STATE_TOPIC",
     "PLAN_TOPIC",
+    "TOO_CLOSE_TOPIC",
     "TRAJECTORY_TOPIC",
     "Event",
     "MessageError",
@@ -49,6 +50,9 @@ EVENTS_TOPIC = "/rapidds/events"
 """``std_msgs/msg/String``: task events as JSON ``{"task", "agent", "event"}``."""
 JOINT_STATE_TOPIC = "/rapidds/robot/joint_states"
 """``sensor_msgs/msg/JointState`` of the robot, at the controller's rate."""
+TOO_CLOSE_TOPIC = "/rapidds/human/too_close"
+"""``std_msgs/msg/Empty`` or ``std_msgs/msg/String`` (content ignored): the person says the
+robot is too close now (a button, a spoken word); timed by the bag's receive time."""
 
 Agent = Literal["human", "robot"]
 

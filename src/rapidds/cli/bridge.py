@@ -87,9 +87,10 @@ def _new_config(config: Path) -> Any:
 
 
 def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
-                  run_id: str | None, policy: Path | None) -> dict[str, Any]:
-    """Plan the run's next cycle, realise it with what the bag recorded, learn and record it;
-    the cycle's record."""
+                  run_id: str | None, policy: Path | None,
+                  comfort: int | None = None) -> dict[str, Any]:
+    """Plan the run's next cycle, realise it with what the bag recorded (and the person's
+    ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
         RecordedTeammate,
         default_mapping,
@@ -126,7 +127,8 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     # the store is written only now, with a usable bag in hand
     with RunStore(path, lock_as="rapidds observe") as store:
         run = AdaptiveRun(cfg, load_policy(world, policy), store, world,
-                          teammate=RecordedTeammate({}))
+                          teammate=RecordedTeammate({}, answer=comfort,
+                                                    too_close=tuple(recorded.too_close_times())))
         plan = run.plan()
         observed = observed_for(recorded, world, plan.best.schedule.tasks("human"))
         dep = run.execute(plan, observed=observed)
@@ -150,6 +152,10 @@ def observe_cmd(
                                             "several.")] = None,
     policy: Annotated[Path | None, typer.Option(help="Policy checkpoint.",
                                                 show_default="the world's bundled one")] = None,
+    comfort: Annotated[int | None, typer.Option(
+        min=1, max=7, help="The person's agreement with 'the robot came too close to me' "
+        "after the cycle (1-7); their 'too close' signals come from the bag "
+        "(/rapidds/human/too_close).")] = None,
     threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print the cycle's record as JSON.")
                        ] = False,
@@ -162,7 +168,7 @@ def observe_cmd(
     torch.set_num_threads(threads)
     log_to_stderr()
     try:
-        rec = observe_cycle(run_dir, bag, mapping, config, run, policy)
+        rec = observe_cycle(run_dir, bag, mapping, config, run, policy, comfort)
     except RapiddsError as exc:
         fail(str(exc))
         return

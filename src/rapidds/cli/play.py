@@ -42,8 +42,16 @@ def play_cmd(
     player: str = typer.Option("player", help="Name of the person playing (the run's human; "
                                "the run id is fetch-NAME-ADAPT-sSEED)."),
     seed: int = typer.Option(_D["seed"].default, help="Seed."),
-    gamma: float | None = typer.Option(None, help="Proximity weight.",
-                                       show_default="the world's"),
+    gamma: str | None = typer.Option(None, help="Proximity weight, or 'learn': learn yours "
+                                     "from your comfort answers and 'too close' signals.",
+                                     show_default="the world's"),
+    gamma_prior: str | None = typer.Option(None, help="With --gamma learn: the prior G or "
+                                           "G:SPREAD (one log-sd is a factor SPREAD).",
+                                           show_default="the world's gamma, spread 4"),
+    gamma_plan: str = typer.Option(_D["gamma_plan"].default, help="With --gamma learn: plan "
+                                   "with the posterior's mean or its upper quantile (cautious)."),
+    ask_comfort: bool = typer.Option(False, help="Ask after every cycle how close the robot came "
+                                     "(1-7); always with --gamma learn."),
     lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
                                      "cycles.", show_default="the world's"),
     policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
@@ -61,15 +69,12 @@ def play_cmd(
 ) -> None:
     """Play the fetch game in a browser: rapidds plans the robot, learns your timing and your
     routes, and re-plans every cycle. Prints the address to open."""
-    if world != "fetch":
-        fail(f"the browser game plays the fetch world, not {world!r}")
-    if adapt == "oracle":
-        fail("--adapt oracle plans with a simulated teammate's true model; a person has none")
-    if not _NAME.fullmatch(player):
-        fail(f"--player {player!r}: use 1-40 letters, digits, '.', '_' or '-'")
-    cfg = RunConfig(world=world, human=player, adapt=adapt, cycles=cycles, gamma=gamma, lam=lam,
-                    seed=seed, population=population, generations=generations, samples=samples,
-                    particles=particles, candidates=candidates)
+    _check_args(world, adapt, player)
+    from rapidds.cli.run import gamma_settings
+    cfg = RunConfig(world=world, human=player, adapt=adapt, cycles=cycles,
+                    **gamma_settings(gamma), gamma_prior=gamma_prior, gamma_plan=gamma_plan,
+                    lam=lam, seed=seed, population=population, generations=generations,
+                    samples=samples, particles=particles, candidates=candidates)
 
     from rapidds.web.server import LOOPBACK, allowed_hosts, listen, serve
     from rapidds.web.session import STORE_NAME
@@ -78,7 +83,8 @@ def play_cmd(
                         format="rapidds play: %(levelname)s: %(message)s")
     sock = listen(host, port)  # first: a taken port is said before seconds of loading
     with contextlib.closing(sock):
-        session = _session(cfg, out, policy, player, hz, speed, resume, threads)
+        session = _session(cfg, out, policy, player, hz, speed, resume, threads,
+                           ask_comfort or cfg.gamma_learn)
         try:
             session.open()
             bound = sock.getsockname()
@@ -99,14 +105,29 @@ def play_cmd(
                 serve(session, sock, on_ready=ready)
         finally:
             session.stop()
-    typer.echo(f"stopped: {session.stored} of {cycles} cycles of {session.run_id} stored in "
-               f"{out / STORE_NAME}" + ("" if session.stored >= cycles else
-                                        "; continue with --resume"))
+    _say_stopped(session, out / STORE_NAME)
+
+
+def _say_stopped(session: PlaySession, store: Path) -> None:
+    n, cycles = session.stored, session.cycles
+    typer.echo(f"stopped: {n} of {cycles} cycles of {session.run_id} stored in {store}"
+               + ("" if n >= cycles else "; continue with --resume"))
+
+
+def _check_args(world: str, adapt: str, player: str) -> None:
+    """What a browser game refuses before loading anything: one line and exit 2."""
+    if world != "fetch":
+        fail(f"the browser game plays the fetch world, not {world!r}")
+    if adapt == "oracle":
+        fail("--adapt oracle plans with a simulated teammate's true model; a person has none")
+    if not _NAME.fullmatch(player):
+        fail(f"--player {player!r}: use 1-40 letters, digits, '.', '_' or '-'")
 
 
 def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: int, speed: float,
-             resume: bool, threads: int) -> PlaySession:
-    """The person's run: the fetch world, the policy, the player; Gantt charts and the run's
+             resume: bool, threads: int, ask: bool) -> PlaySession:
+    """The person's run: the fetch world, the policy, the player (asked about their comfort
+    after every cycle with ``ask``); Gantt charts and the run's
     pictures drawn when the game stops, as ``rapidds run`` draws them."""
     from rapidds.cli.run import set_threads, write_pictures
     from rapidds.loop.run import load_policy
@@ -139,5 +160,6 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
             write_pictures(run, out)
 
     return PlaySession(cfg, out, world=world, policy=load_policy(world, policy),
-                       player=BrowserPlayer(world, player, hz=hz, speed=speed), resume=resume,
+                       player=BrowserPlayer(world, player, hz=hz, speed=speed, ask_comfort=ask),
+                       resume=resume,
                        on_cycle=on_cycle, on_stop=on_stop)

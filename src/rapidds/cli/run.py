@@ -155,6 +155,12 @@ def parse_gamma(text: str | None) -> float | None:
         raise AssertionError from None  # fail() exits
 
 
+def gamma_settings(text: str | None) -> dict[str, Any]:
+    """``--gamma``'s RunConfig fields: 'learn' learns it, a number fixes it."""
+    learn = text is not None and text.strip().lower() == "learn"
+    return {"gamma": None if learn else parse_gamma(text), "gamma_learn": learn}
+
+
 @app.command("run")
 def run_cmd(
     world: str = typer.Argument(_D["world"].default, help="World to run in (see "
@@ -228,9 +234,7 @@ def run_cmd(
         fail("--resume needs --out (the folder of the run to continue)")
     # every option named after a RunConfig field is that setting (one name, one meaning)
     settings = {k: v for k, v in locals().items() if k in RunConfig.model_fields}
-    learn = gamma is not None and gamma.strip().lower() == "learn"
-    cfg = RunConfig(**{**settings, "gamma": None if learn else parse_gamma(gamma),
-                       "gamma_learn": learn})
+    cfg = RunConfig(**{**settings, **gamma_settings(gamma)})
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 

@@ -62,15 +62,16 @@ def said_and_signalled(world: World, dep: Deployment, beta: float,
                        cycle: int) -> GammaEvidence | None:
     """Cycle ``cycle``'s evidence: from the SIMULATED person's response model (``comfort``,
     drawing from (seed, cycle)), else from a live teammate's ``comfort_report(cycle)`` if they
-    offer one (None: they cannot say)."""
+    offer one (None: they cannot say, or were not asked)."""
     if comfort is not None:
         rng = np.random.default_rng([seed, cycle, 26])
         answer, signals = comfort.respond(world, dep, beta, rng)
     else:
         report = getattr(teammate, "comfort_report", None)
-        if report is None:
+        said = report(cycle) if report is not None else None
+        if said is None:
             return None
-        answer, signals = report(cycle)
+        answer, signals = said
     return cycle_evidence(world, dep, beta, answer, signals)
 
 

@@ -45,9 +45,10 @@ from rapidds.worlds.fetch.map import DESCRIPTIONS
 from rapidds.worlds.fetch.world import FetchWorld
 from rapidds.worlds.geometry import segments_hit_rects
 
-__all__ = ["AVATAR_RADIUS", "HUMAN_SPEED", "FetchGame", "TaskStatus"]
+__all__ = ["AVATAR_RADIUS", "HUMAN_SPEED", "MAX_SIGNALS", "FetchGame", "TaskStatus"]
 
 HUMAN_SPEED = 4.5  # m/s
+MAX_SIGNALS = 120  # "too close" signals kept per cycle: a stuck key cannot grow the record
 AVATAR_RADIUS = 0.15  # m: how close the avatar's centre may come to a wall
 _EPS = 1e-9
 
@@ -99,6 +100,7 @@ class FetchGame:
         self.start_time: dict[str, float] = {}
         self.finish_time: dict[str, float] = {}  # robot tasks: known when they start
         self._picked: dict[str, float] = {}
+        self.too_close: list[float] = []  # game times the person said "too close"
         self.pos = world.home("human").astype(float)
         self._move = np.zeros(2)
         self._target: np.ndarray | None = None
@@ -154,6 +156,15 @@ class FetchGame:
             return
         self.started = True
         self._dispatch()
+
+    def signal_too_close(self) -> bool:
+        """The person says the robot is too close now: kept with the game time (the evidence
+        ties it to where the robot was then). False (not kept) unless the cycle is under way,
+        or past :data:`MAX_SIGNALS`."""
+        if not self.started or self.over or len(self.too_close) >= MAX_SIGNALS:
+            return False
+        self.too_close.append(self.now)
+        return True
 
     def step(self) -> None:
         """Advance one tick: move the avatar, pick up or deliver, start what became ready."""
@@ -242,6 +253,7 @@ class FetchGame:
             "started": self.started,
             "human_done": self.human_done,
             "over": self.over,
+            "signals": len(self.too_close),
             "times": {t: [_r(self.start_time[t]),
                           _r(self.finish_time[t]) if t in self.finish_time
                           and self.finish_time[t] <= self.now + _EPS else None]

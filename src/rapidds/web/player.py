@@ -15,6 +15,12 @@ finishing its own: the loop can learn, store the cycle and plan the next one whi
 finishes and the summary shows. The live game goes on meanwhile; its timeline is the one the loop
 rebuilds from the returned durations, so nothing the loop stores depends on the rest.
 
+Asked about their comfort (``ask_comfort``: ``rapidds play --gamma learn`` or ``--ask-comfort``),
+the person answers once the cycle is over (agreement with "the robot came too close to me",
+1-7), and the "too close" signals they gave during it go with the answer: the loop's learn step
+(:meth:`~BrowserPlayer.comfort_report`) waits for it, so the next cycle is planned with a belief
+that has this cycle's whole evidence (the planning no longer overlaps the summary screen then).
+
 A plan shown while the previous cycle is still on screen waits until that cycle is over. When
 the person leaves mid-cycle (closes the tab), :meth:`~BrowserPlayer.restart` puts the cycle back
 to its start, so a reconnecting browser plays it again: at most the cycle in progress is lost.
@@ -60,25 +66,28 @@ class _Shown:
                   for j, p in best.motions.items() if p.trajectory is not None}
         self.view = self.game.plan_view(expected, routes, best.makespan_mean)
         self.reported = False
+        self.answer: int | None = None
 
 
 class BrowserPlayer:
     """A person playing the fetch game in a browser: the loop's teammate (``name`` is what the
     run records as its human) and the holder of the live game the server ticks.
 
-    hz: game ticks per second. speed: the avatar's speed, m/s.
+    hz: game ticks per second. speed: the avatar's speed, m/s. ask_comfort: ask the comfort
+    question after every cycle (else :meth:`comfort_report` says the person was not asked).
     """
 
     def __init__(self, world: FetchWorld, name: str = "player", *, hz: int = 60,
-                 speed: float = HUMAN_SPEED):
+                 speed: float = HUMAN_SPEED, ask_comfort: bool = False):
         self.world = world
         self.problem = world.problem()
         self._name = name
-        self.hz, self.speed = hz, speed
+        self.hz, self.speed, self.ask_comfort = hz, speed, ask_comfort
         self._lock = threading.Lock()
         self._shown: _Shown | None = None
         self._next: _Shown | None = None
         self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
+        self._answers: queue.Queue[tuple[int, int, list[float]]] = queue.Queue()
         self._closed = threading.Event()
         self.plan_version = 0  # bumped whenever another plan comes on screen
 
@@ -125,6 +134,22 @@ class BrowserPlayer:
                 return None
             if c == cycle:
                 return self._checked(cycle, tasks, obs)
+
+    def comfort_report(self, cycle: int) -> tuple[int, list[float]] | None:
+        """What the person said about cycle ``cycle``: (their answer 1-7, the game times of
+        their "too close" signals); blocks until they have answered. None when they are not
+        asked. Raises :class:`PlayerGone` when :meth:`close` is called first."""
+        if not self.ask_comfort:
+            return None
+        while True:
+            if self._closed.is_set():
+                raise PlayerGone("the game was closed before the comfort question was answered")
+            try:
+                c, answer, signals = self._answers.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if c == cycle:
+                return answer, signals
 
     @staticmethod
     def _checked(cycle: int, tasks: Sequence[str],
@@ -182,6 +207,37 @@ class BrowserPlayer:
             if self._shown is not None:
                 self._shown.game.steer(move, target)
 
+    def too_close(self, cycle: int) -> bool:
+        """The person says the robot is too close now, in cycle ``cycle``; False (not kept)
+        unless that cycle is on screen and under way."""
+        with self._lock:
+            s = self._shown
+            return s is not None and s.game.cycle == cycle and s.game.signal_too_close()
+
+    def answer(self, cycle: int, answer: int) -> bool:
+        """The person's comfort answer (1-7) about cycle ``cycle``: handed to the loop with the
+        cycle's signals. False unless asked, that cycle is on screen and over, and unanswered."""
+        if answer not in range(1, 8):
+            raise ValueError(f"a comfort answer is 1..7, got {answer}")
+        with self._lock:
+            s = self._shown
+            if not self._asking(s) or s is None or s.game.cycle != cycle:
+                return False
+            s.answer = answer
+            self._answers.put((cycle, answer, list(s.game.too_close)))
+            return True
+
+    def _asking(self, s: _Shown | None) -> bool:
+        """Whether the page should ask the comfort question about the cycle on screen now."""
+        return (self.ask_comfort and s is not None and s.game.over and s.reported
+                and s.answer is None)
+
+    def _state(self) -> dict[str, Any] | None:
+        s = self._shown
+        if s is None:
+            return None
+        return {**s.game.state(), "ask": self._asking(s)}
+
     def tick(self) -> dict[str, Any] | None:
         """Advance the game one tick; the state to send (None before any plan)."""
         with self._lock:
@@ -190,14 +246,13 @@ class BrowserPlayer:
             if self._shown.game.over and self._next is not None:
                 # one tick late, so the page has had the finished cycle's last state
                 self._put_on_screen(self._next)
-            game = self._shown.game
-            game.step()
+            self._shown.game.step()
             self._report()
-            return game.state()
+            return self._state()
 
     def snapshot(self) -> dict[str, Any] | None:
         with self._lock:
-            return None if self._shown is None else self._shown.game.state()
+            return self._state()
 
     def restart(self) -> bool:
         """The person left: put a cycle in progress back to its start (not one whose tasks the

@@ -7,7 +7,13 @@ per connection, so a replayed or reordered message is refused) and a small, type
 * ``{"type": "target", "seq": n, "x": float, "y": float}``: walk to a point (click or tap), in
   metres inside the map;
 * ``{"type": "start", "seq": n, "cycle": c}``: start cycle ``c`` (refused unless it is the
-  cycle on screen and not started: a replayed start cannot start another cycle).
+  cycle on screen and not started: a replayed start cannot start another cycle);
+* ``{"type": "too_close", "seq": n, "cycle": c}``: the person says the robot is too close now
+  (timed by the server's game clock, not the page's, so it is tied to where the robot was);
+  refused unless cycle ``c`` is under way;
+* ``{"type": "comfort", "seq": n, "cycle": c, "answer": 1..7}``: their agreement with "the robot
+  came too close to me" after cycle ``c``; refused unless that cycle is over and the question is
+  asked and not yet answered.
 
 Anything else (not JSON, an unknown type or field, a value out of range, more than
 :data:`MAX_MESSAGE_BYTES`, a sequence number not above the last one, more than
@@ -29,11 +35,13 @@ __all__ = [
     "MAX_MESSAGE_BYTES",
     "MAX_RATE",
     "ClientMessage",
+    "Comfort",
     "Gate",
     "Move",
     "Refused",
     "Start",
     "Target",
+    "TooClose",
 ]
 
 MAX_MESSAGE_BYTES = 256
@@ -67,8 +75,20 @@ class Start(_Message):
     cycle: Annotated[int, Field(ge=0, lt=2**31)]
 
 
-ClientMessage = Annotated[Move | Target | Start, Field(discriminator="type")]
-_ADAPTER: TypeAdapter[Move | Target | Start] = TypeAdapter(ClientMessage)
+class TooClose(_Message):
+    type: Literal["too_close"]
+    cycle: Annotated[int, Field(ge=0, lt=2**31)]
+
+
+class Comfort(_Message):
+    type: Literal["comfort"]
+    cycle: Annotated[int, Field(ge=0, lt=2**31)]
+    answer: Annotated[int, Field(ge=1, le=7)]  # the 7-point agreement scale
+
+
+Message = Move | Target | Start | TooClose | Comfort
+ClientMessage = Annotated[Message, Field(discriminator="type")]
+_ADAPTER: TypeAdapter[Message] = TypeAdapter(ClientMessage)
 
 
 class Refused(Exception):
@@ -86,7 +106,7 @@ class Gate:
         self._window_start = self._clock()
         self._window_count = 0
 
-    def check(self, raw: str | bytes) -> Move | Target | Start:
+    def check(self, raw: str | bytes) -> Message:
         """The validated message, or :class:`Refused` with the reason."""
         try:
             msg = self._check(raw)
@@ -96,7 +116,7 @@ class Gate:
         self.accepted += 1
         return msg
 
-    def _check(self, raw: str | bytes) -> Move | Target | Start:
+    def _check(self, raw: str | bytes) -> Message:
         now = self._clock()
         if now - self._window_start >= 1.0:
             self._window_start, self._window_count = now, 0

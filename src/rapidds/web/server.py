@@ -44,7 +44,7 @@ from starlette.websockets import WebSocketState
 
 from rapidds.errors import RapiddsError
 from rapidds.web.player import BrowserPlayer
-from rapidds.web.protocol import Gate, Move, Refused, Start, Target
+from rapidds.web.protocol import Comfort, Gate, Move, Refused, Start, Target, TooClose
 
 __all__ = ["LOOPBACK", "WILDCARDS", "GameSession", "HostCheck", "Hub", "allowed_hosts",
            "create_app", "game_page", "listen", "machine_names", "refuse_socket", "same_origin",
@@ -246,7 +246,8 @@ class Hub:
         self._news(conn)
         if state is not None:
             text = _dumps(state)
-            turn = (state["cycle"], state["started"], state["human_done"], state["over"])
+            turn = (state["cycle"], state["started"], state["human_done"], state["over"],
+                    state["ask"])
             if turn != conn.turn:  # a state where the cycle turns is queued, never dropped
                 conn.turn = turn
                 conn.queue(text)
@@ -283,6 +284,13 @@ class Hub:
                 conn.gate.refused += 1
                 raise Refused(f"cycle {msg.cycle} is not ready to start (on screen: cycle "
                               f"{self.player.cycle}, {self.player.phase})")
+            elif isinstance(msg, TooClose) and not self.player.too_close(msg.cycle):
+                conn.gate.refused += 1
+                raise Refused(f"cycle {msg.cycle} is not under way (on screen: cycle "
+                              f"{self.player.cycle}, {self.player.phase})")
+            elif isinstance(msg, Comfort) and not self.player.answer(msg.cycle, msg.answer):
+                conn.gate.refused += 1
+                raise Refused(f"no comfort question about cycle {msg.cycle} is open")
         except Refused as exc:
             n = conn.gate.refused
             if n <= _LOGGED_REFUSALS or n % 100 == 0:

@@ -5,7 +5,9 @@ The worker thread owns the :class:`~rapidds.loop.run.AdaptiveRun` and its
 :class:`~rapidds.store.RunStore` (an SQLite connection belongs to the thread that opened it) and
 calls ``run.step()`` cycle after cycle: plan, show the plan, wait for the person, learn, record
 (one store transaction, the same store ``rapidds run`` writes), and straight on to the next
-plan, which is therefore computed while the robot finishes and the summary shows. After each
+plan, which is therefore computed while the robot finishes and the summary shows (unless the
+player is asked the comfort question: then the learn step waits for the answer, see
+:mod:`rapidds.web.player`). After each
 cycle it publishes a summary for the page: the realised makespan and closest approach, the cost
 curve so far, the observed and expected durations and the learned spatial cost of the person's
 tasks on the spatial model's grid (the heat map).

@@ -75,6 +75,8 @@ function sendMove() {
 window.addEventListener("keydown", (e) => {
   if (KEYS[e.code]) { e.preventDefault(); held.add(e.code); sendMove(); }
   else if ((e.code === "Enter" || e.code === "Space") && canStart()) { e.preventDefault(); start(); }
+  else if (e.code === "KeyT" && !e.repeat) { e.preventDefault(); tooClose(); }
+  else if (asking() && /^Digit[1-7]$/.test(e.code)) { e.preventDefault(); send({ type: "comfort", cycle: R.state.cycle, answer: Number(e.code.at(-1)) }); }
 });
 window.addEventListener("keyup", (e) => { if (KEYS[e.code]) { held.delete(e.code); sendMove(); } });
 window.addEventListener("blur", () => { held.clear(); sendMove(); });
@@ -84,6 +86,18 @@ map.addEventListener("pointerdown", (e) => {
   send({ type: "target", x: +x.toFixed(3), y: +y.toFixed(3) });
 });
 $("start").addEventListener("click", () => start());
+// what the person says: "too close" during a cycle (timed by the server), and after it their
+// agreement with "the robot came too close to me" (1-7), asked once the cycle is over
+function canSignal() { return R.phase === "playing" && R.state && R.state.started && !R.state.over; }
+function tooClose() { if (canSignal()) send({ type: "too_close", cycle: R.state.cycle }); }
+function asking() { return !!(R.state && R.state.ask); }
+$("tooclose").addEventListener("click", () => tooClose());
+for (let a = 1; a <= 7; a++) {
+  const b = document.createElement("button");
+  b.type = "button"; b.textContent = String(a); b.dataset.answer = String(a);
+  b.addEventListener("click", () => { if (asking()) send({ type: "comfort", cycle: R.state.cycle, answer: a }); });
+  $("comfort-answers").appendChild(b);
+}
 $("heat").addEventListener("change", () => { showHeatLegend(); drawMap(); });
 function canStart() { return R.phase === "ready" && R.plan && R.state && !R.state.started; }
 function start() { if (canStart()) send({ type: "start", cycle: R.plan.cycle }); }
@@ -347,7 +361,7 @@ function instructions() {
     case "error": return ["The planner stopped", R.error || ""];
     case "done": return ["All cycles played. Thank you!", `The run is stored; ${R.info ? R.info.run_id : ""}.`];
     case "waiting": return [R.summary ? "The robot is planning the next cycle…" : "The robot is planning cycle 1…", "This takes a moment."];
-    case "over": return ["Cycle done", "The robot is planning the next one…"];
+    case "over": return asking() ? ["Cycle done", "How close did the robot come? Answer with 1-7."] : ["Cycle done", "The robot is planning the next one…"];
     case "ready": return [`${Unit} ${plan.cycle + 1} of ${n}: ready`, "Look at the plan below, then press Start (or Enter)."];
   }
   if (!st || !plan) return ["", ""];
@@ -396,6 +410,10 @@ function render() {
   btn.disabled = R.phase !== "ready";
   btn.textContent = R.phase === "ready" ? `Start ${UNIT} ${plan.cycle + 1} ▶` : "The robot is planning…";
   $("summary").classList.toggle("hidden", !R.summary || playing);
+  $("comfort").classList.toggle("hidden", !asking());
+  if (asking()) $("comfort-title").textContent = `${Unit} ${st.cycle + 1}: how close did the robot come?`;
+  $("tooclose").classList.toggle("hidden", !canSignal());
+  $("tooclose").textContent = st && st.signals ? `Too close! (T) · ${st.signals}` : "Too close! (T)";
   // between cycles the summary takes the status card's place (the banner says what to do)
   $("status").classList.toggle("hidden", !!R.summary && ["ready", "waiting", "over"].includes(R.phase));
   const banner = $("banner");
