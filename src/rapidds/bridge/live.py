@@ -118,15 +118,17 @@ class CycleObservation:
     """What the hub saw in one cycle: task starts and ends (cell s), the person's tracked body
     points, the robot's contacts. Bad input is logged in one line and dropped: an event that is
     malformed, names a task not in the plan or the wrong agent, or comes out of order (an end
-    before its start, a second start or end); a tracking sample older than its source's last."""
+    before its start, a second start or end); a tracking sample older than its source's last.
+    ``gate``: the hub passes one for the whole run, so a sample from before the last one
+    accepted is dropped at a cycle's start too, not taken as its first."""
 
     plan: LivePlan
     points: tuple[str, ...]
     start: dict[str, float] = field(default_factory=dict)
     end: dict[str, float] = field(default_factory=dict)
     contacts: list[dict[str, Any]] = field(default_factory=list)
+    gate: StampGate = field(default_factory=StampGate)
     _tracks: dict[str, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
-    _gate: StampGate = field(default_factory=StampGate)
 
     @property
     def done(self) -> bool:
@@ -159,7 +161,7 @@ class CycleObservation:
             log.warning("dropped tracking of unknown body point %r", name)
             return
         ns = stamp_ns(rec.msg.header)
-        if not self._gate.accept(rec.topic, ns):
+        if not self.gate.accept(rec.topic, ns):
             return
         p = rec.msg.point
         pos = np.array([p.x, p.y, p.z], dtype=float)
@@ -174,6 +176,10 @@ class CycleObservation:
             self.event(rec)
         elif rec.topic.startswith(TRACKING_PREFIX):
             self.track(rec)
+
+    def tracked_past(self, t: float) -> bool:
+        """Every body point has a sample stamped at cell time ``t`` or later."""
+        return all(self._tracks.get(n) and self._tracks[n][-1][0] >= t for n in self.points)
 
     def durations(self, agent: str) -> dict[str, float]:
         return {t: self.end[t] - self.start[t] for t, a in self.plan.agent.items()
