@@ -205,6 +205,29 @@ def test_the_arm_tracks_a_painting_motion_under_physics_and_feels_a_hand(paintin
     assert all(t.robot.startswith("panda0") for t in touches)
 
 
+@pytest.mark.parametrize("task", ["mix_l", "brush"])
+def test_under_physics_the_arm_does_its_task_when_the_kinematic_robot_does(painting,
+                                                                            task) -> None:
+    """The physics scene's hand is the one the kinematic world plans for: its fingers no longer
+    rest on the table short of the paint (the stretched kitchen-model fingers did)."""
+    from rapidds.bridge.nodes.arm import PhysicsArm
+
+    model = painting.physics_model()
+    traj = painting.robot_trajectory(task, "direct")
+    kin = float(painting.completion_time(task, traj[None])[0])
+    q = traj[:int(np.ceil(kin / painting.dt - 1e-9)) + 1]
+    arm = PhysicsArm(model, joint_names(painting))
+    arm.reset(q[0])
+    painting.place_person(model, arm.data, painting.human_rest())
+    arm.follow(q, np.arange(len(q)) * painting.dt)
+    rows = [arm.q]
+    while not arm.settled():
+        arm.step(painting.dt)
+        rows.append(arm.q)
+    done = np.concatenate([rows, np.repeat(rows[-1:], painting.horizon, 0)])[:painting.horizon]
+    assert painting.completion_time(task, done[None])[0] == pytest.approx(kin)
+
+
 def test_tracking_topics_follow_the_contract() -> None:
     assert tracking_topic("left_hand") == TRACKING_PREFIX + "left_hand"
     assert ros2.zenoh_key(tracking_topic("left_hand")) == "rapidds/human/left_hand"
