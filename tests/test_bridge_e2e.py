@@ -145,6 +145,8 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
                 assert np.ptp(path[:, 0], axis=0).max() > 0.1  # the left hand moved
         state0 = st.state(rid, 0)
     assert first[0]["observed"] == records[0]["observed"]
+    # what the link saw beyond the deployment is stored with the cycle, as --json printed it
+    assert [r["live"] for r in records] == [first[0]["live"], second[0]["live"]]
     live = second[0]["live"]
     assert set(live["robot_durations"]) == set(records[1]["robot"]) - {
         x for x in records[1]["robot"] if x.startswith("wait:")}

@@ -208,7 +208,8 @@ class LiveCell:
 
     def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
         """Plan, run over the link, learn, record. Returns the result and what the link saw
-        beyond the record (the robot's realised durations, contacts)."""
+        beyond the deployment (the robot's realised durations, contacts; also the record's
+        ``live``)."""
         from rapidds.loop.run import CycleResult
 
         run = self.run
@@ -222,10 +223,9 @@ class LiveCell:
         plan = _as_executed(plan, obs.durations("robot"))
         dep = run.execute(plan, observed=human)
         run.learn(plan, dep)
-        record = run.record(plan, dep)
         live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
                 "contacts": obs.contacts}
-        return CycleResult(record, plan, dep), live
+        return CycleResult(run.record(plan, dep, live), plan, dep), live
 
     def run_all(self, on_cycle: Callable[[CycleResult, dict[str, Any]], None] | None = None,
                 ) -> None:

@@ -91,7 +91,7 @@ def deploy_cmd(
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record
         if as_json:
-            print(json.dumps({**rec, "live": live}, allow_nan=False), flush=True)
+            print(json.dumps(rec, allow_nan=False), flush=True)  # its "live" included
         else:
             robot = ", ".join(f"{t} {d:.2f} s" for t, d in live["robot_durations"].items())
             human = ", ".join(f"{t} {d:.2f} s" for t, d in rec["observed"].items())

@@ -488,9 +488,12 @@ class AdaptiveRun:
         return None if confirm is None else bool(confirm(task, then))
 
     # -- record -------------------------------------------------------------------------------
-    def record(self, plan: CyclePlan, deployment: Deployment) -> dict[str, Any]:
+    def record(self, plan: CyclePlan, deployment: Deployment,
+               live: dict[str, Any] | None = None) -> dict[str, Any]:
         """The cycle's record; stored (with the model after learning) in one transaction when a
-        store is attached. Advances the run to the next cycle."""
+        store is attached. Advances the run to the next cycle. ``live``: what a live cell saw
+        beyond the deployment (the robot's realised durations, touches), kept under ``live``
+        (absent from every other record)."""
         self._check_current(plan)
         cfg, best, dep = self.config, plan.best, deployment
         idx = self.problem.index
@@ -524,6 +527,7 @@ class AdaptiveRun:
             "plan_cost": self.plan_cost(plan),
             "search": plan.search,
             **({"changes": self._changes.pop(plan.cycle, [])} if cfg.detect else {}),
+            **({"live": live} if live is not None else {}),
             "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                         "total": plan.seconds + deploy_s + update_s},
         }
