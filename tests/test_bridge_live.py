@@ -143,6 +143,13 @@ def test_the_hub_drops_unknown_tasks_wrong_agents_and_events_out_of_order(painti
     obs.handle(_event(plan, "prep_vise", "human", "end", 7.0))
     assert obs.durations("human") == {"prep_vise": pytest.approx(6.0)}
     assert len([r for r in caplog.records if r.name == "rapidds.bridge"]) == len(bad) + 1
+    # a stamped event is timed by its stamp, not by its arrival (here 4 s later); an end
+    # stamped before its start is dropped
+    for kind, at in (("start", 7.0), ("end", 6.5), ("end", 9.5)):
+        obs.handle(Received(ros2.EVENTS_TOPIC, ros2.event_message(ros2.Event(
+            "secure_piece", "human", kind, plan.wall_ns(at))), plan.wall_ns(at + 4.0)))  # type: ignore[arg-type]
+    assert obs.durations("human")["secure_piece"] == pytest.approx(2.5)
+    assert "stamped before its start" in caplog.records[-1].getMessage()
     obs.handle(_point(plan, "a", (0, 0, 0), 2.0))
     obs.handle(_point(plan, "a", (9, 9, 9), 1.0))  # older than the last sample: dropped
     obs.handle(_point(plan, "zz", (9, 9, 9), 3.0))  # no such body point
@@ -284,7 +291,12 @@ def test_sim_robot_runs_a_trajectory_announces_it_and_reports_a_touch(painting) 
                        and len(got[CONTACTS_TOPIC]) >= 1)
     events = [ros2.parse_event(r.msg.data) for r in seen[ros2.EVENTS_TOPIC]]
     # the plan's first robot task is mix_l: the first (good) trajectory is it
-    assert events == [ros2.Event("mix_l", "robot", "start"), ros2.Event("mix_l", "robot", "end")]
+    assert [(e.task, e.agent, e.event) for e in events] == [("mix_l", "robot", "start"),
+                                                            ("mix_l", "robot", "end")]
+    # stamped on the simulated clock (time scale 4): the 0.15 s motion settled in the first
+    # control period (0.01 s) after its end
+    took = (events[1].stamp_ns - events[0].stamp_ns) * 4.0 / 1e9  # type: ignore[operator]
+    assert 0.15 - 1e-6 <= took <= 0.16 + 1e-6
     touches = [json.loads(r.msg.data) for r in seen[CONTACTS_TOPIC]]
     assert touches and touches[0]["person"] == "left_hand"
 
@@ -320,7 +332,8 @@ def test_sim_human_waits_for_the_plans_prerequisites_and_is_tracked(painting) ->
         # the person's own draws from (seed, cycle): the tracker sent every row of each path
         rng = np.random.default_rng([3, 0])
         person = painting.teammate("left-slow")
-        paths = [person.perform(t, rng)[1] for t in ("prep_vise", "secure_piece", "brush")]
+        drawn = [person.perform(t, rng) for t in ("prep_vise", "secure_piece", "brush")]
+        durations, paths = [d for d, _ in drawn], [p for _, p in drawn]
         rows = np.concatenate([p[:, 0] for p in paths])  # the left wrist's rows, in order
 
         def left(got: dict[str, list[Received]]) -> np.ndarray:
@@ -335,6 +348,10 @@ def test_sim_human_waits_for_the_plans_prerequisites_and_is_tracked(painting) ->
     events = [ros2.parse_event(r.msg.data) for r in got[ros2.EVENTS_TOPIC]]
     assert [(e.task, e.event) for e in events] == [
         (t, k) for t in ("prep_vise", "secure_piece", "brush") for k in ("start", "end")]
+    # the stamps give the person's own durations, whatever the machine's load
+    took = [(b.stamp_ns - a.stamp_ns) * 50.0 / 1e9  # type: ignore[operator]
+            for a, b in zip(events[::2], events[1::2], strict=True)]
+    np.testing.assert_allclose(took, durations, atol=1e-6)
     seen = left(got)
     for row in rows:  # every row of the left wrist's paths was published
         assert np.isclose(seen, row, atol=1e-12).all(axis=1).any()

@@ -7,8 +7,9 @@ the nodes share a clock: one machine, or NTP/PTP in a cell). The plan names the 
 scale of 1 is real time; a larger one runs the simulated nodes faster than the wall clock (the
 tests do); a real cell runs at 1.
 
-Task events carry no stamp (the contract of ``/rapidds/events``): they are timed by when the
-hub receives them, as a bag's events are by its receive time.
+A task event may carry its sender's stamp (``stamp_ns``): the hub times it by that, so a
+duration is the sender's, not the link's delivery jitter; an unstamped event is timed by when
+the hub receives it (a bag's events are timed by its receive time, one clock with its points).
 """
 
 from __future__ import annotations
@@ -141,15 +142,17 @@ class CycleObservation:
             log.warning("dropped an event: %s", exc)
             return
         agent = self.plan.agent.get(ev.task)
-        t = self.plan.cell_seconds(rec.received_ns)
+        t = self.plan.cell_seconds(rec.received_ns if ev.stamp_ns is None else ev.stamp_ns)
         if agent is None or agent != ev.agent:
             log.warning("dropped an event of %s task %r: not in cycle %d's plan for that agent",
                         ev.agent, ev.task, self.plan.cycle)
         elif ev.event == "start" and ev.task in self.start:
             log.warning("dropped a second start of %r", ev.task)
-        elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end):
+        elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end
+                                    or t < self.start[ev.task]):
             log.warning("dropped an end of %r: %s", ev.task,
-                        "it has ended" if ev.task in self.end else "it never started")
+                        "it has ended" if ev.task in self.end else "it never started"
+                        if ev.task not in self.start else "stamped before its start")
         else:
             (self.start if ev.event == "start" else self.end)[ev.task] = t
             log.info("cycle %d: %s %s %s at %.2f s", self.plan.cycle, ev.agent, ev.task,

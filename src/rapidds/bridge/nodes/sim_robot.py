@@ -67,6 +67,7 @@ class SimRobot:
     _tasks: deque[str] = field(default_factory=deque)
     _queue: deque[_Queued] = field(default_factory=deque)
     _current: str | None = None
+    _began: tuple[int, float] = (0, 0.0)  # the current task's start: wall ns, simulated s
     _people: dict[str, np.ndarray] = field(default_factory=dict)
     _touching: set[tuple[str, str]] = field(default_factory=set)
     _gate: StampGate = field(default_factory=StampGate)
@@ -132,8 +133,8 @@ class SimRobot:
             return
         self._queue.append(_Queued(self._tasks.popleft(), q[:, rows], t, stamp_ns(msg.header)))
 
-    def _event(self, task: str, kind: str) -> None:
-        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind)))  # type: ignore[arg-type]
+    def _event(self, task: str, kind: str, stamp: int) -> None:
+        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind, stamp)))  # type: ignore[arg-type]
 
     def _control(self) -> None:
         """One control period: start a due trajectory, step the physics, report its events and
@@ -142,11 +143,15 @@ class SimRobot:
         if self._current is None and self._queue and now >= self._queue[0].start_ns:
             job = self._queue.popleft()
             self.arm.follow(job.positions, job.times)
-            self._current = job.task
-            self._event(job.task, "start")
+            self._current, self._began = job.task, (now, self.arm.time)
+            self._event(job.task, "start", now)
         self.arm.step(1.0 / self.rate)
         if self._current is not None and self.arm.settled():
-            self._event(self._current, "end")
+            # stamped on the simulated clock: the task took what the physics took, however
+            # late this process got there
+            wall, sim = self._began
+            self._event(self._current, "end",
+                        wall + round((self.arm.time - sim) / self.scale * 1e9))
             self._current = None
         touching = set()
         for touch in self.arm.touches():
