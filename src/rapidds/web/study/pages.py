@@ -90,13 +90,18 @@ def where(pid: str, block: int | None = None, blocks: int | None = None,
     return " · ".join(parts)
 
 
+def _likert_head() -> str:
+    """The header cells of a 1-7 agreement row (the survey's and the comfort item's)."""
+    return "".join(f"<th>{i + 1}<br>{e(lab)}</th>" for i, lab in enumerate(LIKERT))
+
+
 def comfort_fieldset() -> str:
     """The round's comfort item: the round clock, the "too close" button (its presses go in
     the hidden ``too_close`` field, see static/study.js) and the 1-7 answer ``comfort``."""
     points = "".join(
         f"<td><input type=radio name=comfort value={v} aria-label='comfort {v}'></td>"
         for v in range(1, 8))
-    head = "".join(f"<th>{i + 1}<br>{e(lab)}</th>" for i, lab in enumerate(LIKERT))
+    head = _likert_head()
     return (
         "<fieldset id=comfort><legend>How close the robot came</legend>"
         "<p><button type=button class=clock>The round starts now</button> "
@@ -182,7 +187,7 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
 
 def survey_page(pid: str, step: str, block: int, blocks: int,
                 items: Sequence[Mapping[str, Any]]) -> str:
-    head = "".join(f"<th>{i + 1}<br>{e(lab)}</th>" for i, lab in enumerate(LIKERT))
+    head = _likert_head()
     rows = "".join(
         f"<tr><td class=item>{e(it['text'])}</td>" + "".join(
             f"<td><input type=radio name='{e(it['id'])}' value={v} "
