@@ -43,10 +43,11 @@ from urllib.parse import urlencode
 
 from rapidds.errors import StateError
 from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
-from rapidds.record import CycleRecord
 
 if TYPE_CHECKING:  # numpy is imported where arrays are (de)serialised: light commands skip it
     import numpy as np
+
+    from rapidds.record import CycleRecord
 
 SCHEMA_VERSION = 1
 
@@ -503,6 +504,8 @@ class RunStore:
 
     def cycle_records(self, run_id: str | None = None) -> list[CycleRecord]:
         """:meth:`records`, typed (StateError naming the cycle if one is not a cycle record)."""
+        from rapidds.record import CycleRecord  # its schedule items need numpy: see above
+
         out = []
         for d in self.records(run_id):
             try:
