@@ -11,6 +11,7 @@ from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.errors import StateError
 from rapidds.loop import AdaptiveRun, RunConfig
+from rapidds.loop.run import timeline_of
 from rapidds.record import CycleRecord
 from rapidds.schedule import Wait
 from rapidds.store import RunStore
@@ -63,12 +64,20 @@ def test_a_record_from_before_plan_costs_keeps_its_absence():
 def test_a_reactive_run_with_a_deviating_person_round_trips(fetch_policy, tmp_path):
     cfg = RunConfig(human="slow-middle", cycles=2, seed=3, execution="reactive", reacts=True,
                     deviate=0.6, **SMALL)
-    _, raw = _stored(cfg, tmp_path, fetch_policy)
+    store = RunStore(tmp_path / "run.sqlite")
+    run = AdaptiveRun(cfg, fetch_policy, store)
+    deployed = []
+    run.run(lambda res: deployed.append(res.deployment))
+    raw = store.records(cfg.run_id)
     typed = _round_trips(raw)
-    for t, r in zip(typed, raw, strict=True):
+    for t, r, dep in zip(typed, raw, deployed, strict=True):
         assert t.execution.in_cycle is not None
         assert t.tasks("human") == [x for x in r["executed"]["human"] if ":" not in x]
         assert len(t.execution.in_cycle.replans) == len(r["replans"])
+        # the chart redrawn from the record is the deployed cycle's
+        tl = timeline_of(run.problem, t)
+        assert tl.schedule == dep.timeline.schedule
+        assert (tl.start == dep.timeline.start).all() and (tl.finish == dep.timeline.finish).all()
 
 
 def test_a_gamma_learning_run_round_trips(fetch_policy, tmp_path):

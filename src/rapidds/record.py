@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rapidds.errors import StateError
-from rapidds.schedule import Item, parse_item
+from rapidds.problem import Agent
+from rapidds.schedule import Item, Schedule, parse_item
 
 __all__ = ["CycleRecord", "Execution", "InCycle", "PlanCost", "PlanPart", "Predicted",
            "Realised"]
@@ -133,12 +134,6 @@ class Execution:
     realised: Realised
     in_cycle: InCycle | None = None
 
-    def tasks(self, agent: str, plan: PlanPart) -> list[str]:
-        """The tasks ``agent`` actually did: as executed when the cycle re-planned, else as
-        planned."""
-        seq = self.in_cycle.executed[agent] if self.in_cycle else getattr(plan, agent)
-        return [x for x in seq if isinstance(x, str)]
-
 
 @dataclass(frozen=True)
 class PlanCost:
@@ -238,6 +233,15 @@ class CycleRecord:
             **({"run_id": self.run_id} if self.run_id is not None else {}),
         }
 
-    def tasks(self, agent: str) -> list[str]:
-        """The tasks ``agent`` ("human" or "robot") did this cycle."""
-        return self.execution.tasks(agent, self.plan)
+    @property
+    def done(self) -> Schedule:
+        """Who did what, in order: as executed where the cycle ran in-cycle execution (the
+        person may have deviated, the robot re-planned), else as planned."""
+        ex = self.execution.in_cycle
+        if ex is not None:
+            return Schedule(ex.executed.get("human", ()), ex.executed.get("robot", ()))
+        return Schedule(self.plan.human, self.plan.robot)
+
+    def tasks(self, agent: Agent) -> list[str]:
+        """The tasks ``agent`` did this cycle."""
+        return list(self.done.tasks(agent))

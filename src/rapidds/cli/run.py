@@ -82,12 +82,13 @@ def redraw_missing_gantts(run: AdaptiveRun, out: Path) -> None:
 
     assert run.store is not None
     rid = run.config.run_id
-    for rec in run.store.records(rid):
-        path = gantt_path(out, rid, rec["cycle"])
+    for rec in run.store.cycle_records(rid):
+        path = gantt_path(out, rid, rec.cycle)
         if not path.exists():
+            ex = rec.execution.in_cycle
             save_gantt(timeline_of(run.problem, rec), path,
-                       title=f"{rid} cycle {rec['cycle']} (realised)",
-                       pauses=rec.get("pauses", ()), replans=rec.get("replans", ()))
+                       title=f"{rid} cycle {rec.cycle} (realised)",
+                       pauses=ex.pauses if ex else (), replans=ex.replans if ex else ())
 
 
 def execute(

@@ -48,7 +48,7 @@ from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, Traject
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.record import CycleRecord, Execution, InCycle, PlanCost, PlanPart, Predicted, Realised
-from rapidds.schedule import Schedule, Timeline
+from rapidds.schedule import Timeline
 from rapidds.scheduler import (
     Evaluation,
     GAConfig,
@@ -94,11 +94,10 @@ def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
     return DiffusionPolicy.load(directory, device="cpu")
 
 
-def timeline_of(problem: Problem, record: Mapping[str, Any]) -> Timeline:
+def timeline_of(problem: Problem, record: CycleRecord) -> Timeline:
     """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
-    done = record.get("executed", record)  # who did what, where the person deviated
-    schedule = Schedule.from_json({"human": done["human"], "robot": done["robot"]})
-    times = record["realised"]["timeline"]
+    schedule = record.done  # who did what, where the person deviated
+    times = record.realised.timeline
     start = np.array([[times[t][0] for t in problem.ids]])
     finish = np.array([[times[t][1] for t in problem.ids]])
     return Timeline(problem, schedule, start, finish)
