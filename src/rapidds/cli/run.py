@@ -68,8 +68,8 @@ def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
 
     assert run.store is not None
     rid = run.config.run_id
-    records = run.store.records(rid)
-    arrays = run.store.arrays(rid, records[-1]["cycle"]) if records else {}
+    records = run.store.cycle_records(rid)
+    arrays = run.store.arrays(rid, records[-1].cycle) if records else {}
     return save_run_pictures(out, rid, records, arrays, run.model.spatial, run.world,
                              run.config.exploration_end)
 
