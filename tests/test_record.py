@@ -142,3 +142,14 @@ def test_a_committed_ablation_store_reads_back_and_reports_as_before(tmp_path):
         assert len(raw) == 8
         _round_trips(raw)
     assert _report_text(tmp_path) == (DATA / "ablation-130e392-report.txt").read_text()
+
+
+def test_a_live_cells_record_keeps_its_live_part_in_place():
+    base = json.loads((DATA / "records-3412e09-fetch.json").read_text())[0]
+    live = {"robot_durations": {"t1": 1.5}, "contacts": []}
+    stored = {**base, "live": live, "seconds": {"plan": 1.0, "deploy": 0.5, "update": 0.1,
+                                                "total": 1.6}}
+    rec = CycleRecord.from_json(stored)
+    assert rec.live == live and "live" not in rec.extra
+    assert list(rec.to_json())[-2:] == ["live", "seconds"]  # as the loop writes it
+    assert rec.to_json() == stored

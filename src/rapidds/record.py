@@ -150,7 +150,7 @@ class PlanCost:
 # the top-level keys in the order the loop writes them; optional parts marked by their field
 _KNOWN = ("cycle", "human", "robot", "routes", "gamma", "lambda", "expected", "realised",
           "observed", "belief", "plan_cost", "search", "changes", "comfort", "gamma_belief",
-          *InCycle.KEYS, "seconds", "run_id")
+          *InCycle.KEYS, "live", "seconds", "run_id")
 
 
 @dataclass(frozen=True)
@@ -162,6 +162,7 @@ class CycleRecord:
     (None: the run does not detect); comfort: the cycle's comfort evidence
     (``has_comfort`` False: the run does not ask; the evidence may be None when it asked and
     learned nothing); gamma_belief: the gamma posterior's summary when the run learns gamma;
+    live: what a live cell saw beyond the deployment (only in a live cell's records);
     seconds: time per step (None in records stored before it was kept)."""
 
     cycle: int
@@ -176,6 +177,7 @@ class CycleRecord:
     has_comfort: bool = False
     comfort: Json | None = None
     gamma_belief: Json | None = None
+    live: Json | None = None
     seconds: dict[str, float] | None = None
     run_id: str | None = None
     extra: Json = field(default_factory=dict)
@@ -205,7 +207,8 @@ class CycleRecord:
                 search=dict(d["search"]), has_plan_cost="plan_cost" in d,
                 changes=d.get("changes"),
                 has_comfort="comfort" in d, comfort=d.get("comfort"),
-                gamma_belief=d.get("gamma_belief"), seconds=d.get("seconds"),
+                gamma_belief=d.get("gamma_belief"), live=d.get("live"),
+                seconds=d.get("seconds"),
                 run_id=d.get("run_id"),
                 extra={k: v for k, v in d.items() if k not in _KNOWN})
         except (KeyError, TypeError, ValueError) as exc:
@@ -228,6 +231,7 @@ class CycleRecord:
             **({"comfort": self.comfort} if self.has_comfort else {}),
             **({"gamma_belief": self.gamma_belief} if self.gamma_belief is not None else {}),
             **(ex.in_cycle.to_json() if ex.in_cycle is not None else {}),
+            **({"live": self.live} if self.live is not None else {}),
             **({"seconds": self.seconds} if self.seconds is not None else {}),
             **self.extra,
             **({"run_id": self.run_id} if self.run_id is not None else {}),
