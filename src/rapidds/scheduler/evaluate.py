@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rapidds.motion.interface import MotionKey, MotionPlan, TrajectoryCache
-from rapidds.problem import AGENTS, Problem
+from rapidds.problem import Problem
 from rapidds.schedule import Schedule, ScheduleBatch, Wait, validate
 from rapidds.scheduler.diversity import AllocationHistory, diversity_term
 
@@ -105,17 +105,18 @@ class _Candidate:
     variants: list[_Variant] = field(default_factory=list)
 
 
-def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozenset[str]]) -> None:
-    seen: set[str] = set()
-    ok = True
-    for agent in AGENTS:
-        for x in schedule.sequence(agent):
-            if isinstance(x, Wait):
-                ok = ok and x.task in allowed
-            else:
-                ok = ok and x not in seen and agent in allowed.get(x, ())
-                seen.add(x)
-    if not (ok and len(seen) == len(allowed)):
+def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozenset[str]],
+                 may: tuple[frozenset[str], frozenset[str]]) -> None:
+    """ValueError unless ``schedule`` holds every task once on an allowed agent (``may``: the
+    tasks each agent may do) and waits only on known tasks. Set operations, not a loop over
+    items: the GA checks every one of its tens of thousands of candidates."""
+    h, r = schedule.tasks("human"), schedule.tasks("robot")
+    ok = (len(h) + len(r) == len(allowed) and may[0].issuperset(h) and may[1].issuperset(r)
+          and len(set(h).union(r)) == len(allowed))
+    if ok and len(h) + len(r) < len(schedule.human) + len(schedule.robot):  # it has waits
+        ok = all(x.task in allowed for x in (*schedule.human, *schedule.robot)
+                 if isinstance(x, Wait))
+    if not ok:
         validate(problem, schedule)  # raises with a message naming what is wrong
         raise ValueError(f"invalid schedule {schedule}")  # pragma: no cover - validate raised
 
@@ -255,13 +256,16 @@ def _first_pass(
     n = len(problem.tasks)
     allowed = {t.id: frozenset(t.allowed) for t in problem.tasks}
     ids = problem.ids
-    idx = problem.index
+    col = problem.index.__getitem__
+    may = (frozenset(t.id for t in problem.tasks if t.can("human")),
+           frozenset(t.id for t in problem.tasks if t.can("robot")))
     candidates: list[_Candidate] = []
     for schedule in schedules:
-        _check_valid(problem, schedule, allowed)
+        _check_valid(problem, schedule, allowed, may)
         robot_tasks = schedule.tasks("robot")
-        rc = np.array([idx[t] for t in robot_tasks], dtype=np.intp)
-        hc = np.array([idx[t] for t in schedule.tasks("human")], dtype=np.intp)
+        human_tasks = schedule.tasks("human")
+        rc = np.fromiter(map(col, robot_tasks), dtype=np.intp, count=len(robot_tasks))
+        hc = np.fromiter(map(col, human_tasks), dtype=np.intp, count=len(human_tasks))
         candidates.append(_Candidate(schedule, robot_tasks, rc, hc, z_d_of(schedule)))
     first = _passes(problem, schedules, rows, np.broadcast_to(d0, (len(schedules), n)), ids)
     active: list[tuple[int, _Candidate]] = []
