@@ -112,8 +112,18 @@ def validate(problem: Problem, s: Schedule) -> None:
         )
 
 
+def _without_waits(s: Schedule) -> bool:
+    for seq in (s.human, s.robot):
+        for x in seq:
+            if x.__class__ is not str:
+                return False
+    return True
+
+
 def repair(s: Schedule) -> Schedule:
     """Drop waits that cannot matter: on a task of the same agent, repeated, or at the end."""
+    if _without_waits(s):  # most of the GA's polish neighbours: nothing to drop, 7x faster
+        return s
     out = []
     for agent in AGENTS:
         own = set(s.tasks(agent))
