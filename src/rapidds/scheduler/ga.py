@@ -291,13 +291,8 @@ class GeneticScheduler:
     def _orders(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray) -> AllocationOrders:
         return expected_orders(self.problem, s, mean, d_init)
 
-    def mutate(
-        self,
-        parent: Schedule,
-        rng: random.Random,
-        weights: list[float] | None = None,
-        start: np.ndarray | None = None,
-    ) -> Schedule | None:
+    def mutate(self, parent: Schedule, rng: random.Random, weights: list[float] | None = None,
+               start: np.ndarray | None = None) -> Schedule | None:
         """One repaired mutant that differs from ``parent``; None if no operator applies
         (:meth:`Operators.mutate`)."""
         return self.ops.mutate(parent, rng, weights, start)
