@@ -49,18 +49,22 @@ def _wait_text(path: Path, text: str, proc: subprocess.Popen[bytes], timeout: fl
     raise AssertionError(f"{text!r} not in {path} after {timeout} s: {path.read_text()[-2000:]}")
 
 
-def _inject_faults(ep: str) -> None:
+def _inject_faults(ep: str, point: str, hub_err: Path, hub: subprocess.Popen[bytes]) -> None:
+    """Bytes that are no CDR, an event of no task in the plan and a tracked point from the past,
+    from a new peer; the peer stays until the hub has logged all three (a put is queued, not
+    sent, when it returns)."""
     from rapidds.bridge import ros2
     from rapidds.bridge.link import Link
     from rapidds.bridge.live import tracking_topic
 
     with Link({}, connect=ep) as peer:
-        time.sleep(1.0)  # the hub's subscriptions reach this new client
         peer.publish_raw(ros2.EVENTS_TOPIC, b"\x00\x01\x02 not CDR")
         peer.publish(ros2.EVENTS_TOPIC, ros2.event_message(
             ros2.Event("paint_wall", "human", "start")))
-        peer.publish(tracking_topic("left_hand"), ros2.point_stamped((0.0, 0.0, 0.0), 1))
-        time.sleep(0.5)
+        peer.publish(tracking_topic(point), ros2.point_stamped((0.0, 0.0, 0.0), 1))
+        for line in ("malformed message on /rapidds/events", "'paint_wall'",
+                     f"{tracking_topic(point)} stamped"):
+            _wait_text(hub_err, line, hub, timeout=60)
 
 
 def _stop(*procs: subprocess.Popen[bytes]) -> None:
@@ -76,7 +80,11 @@ def _stop(*procs: subprocess.Popen[bytes]) -> None:
 
 @pytest.mark.slow
 def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path) -> None:
+    from rapidds.worlds.base import body_point_names
+    from rapidds.worlds.registry import make_world
+
     ep, out = _endpoint(), tmp_path / "run"
+    point = body_point_names(make_world("painting"))[0]  # the person's tracked left wrist
     deploy = ["deploy", "painting", "--bridge", "zenoh", "--listen", ep, "--cycles", "2",
               "--out", str(out), "--json", "--time-scale", "4", "--robot-timeout", "2",
               "--startup-timeout", "90", *SEARCH]
@@ -92,7 +100,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
         # a faulty peer mid-cycle 0: bytes that are no message, an event of no task in the
         # plan, a tracked point from the past; each is dropped with one line
         _wait_text(hub_err, "cycle 0: human prep_vise start", hub, timeout=240)
-        _inject_faults(ep)
+        _inject_faults(ep, point, hub_err, hub)
         # the robot dies once it is moving in cycle 1
         _wait_text(hub_err, "cycle 1: robot ", hub, timeout=240)
         robot.kill()
@@ -101,7 +109,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
         dropped = [x for x in err if "dropped" in x]
         assert any("malformed message on /rapidds/events" in x for x in dropped), err
         assert any("'paint_wall'" in x for x in dropped)
-        assert any("/rapidds/human/left_hand stamped" in x for x in dropped)
+        assert any(f"/rapidds/human/{point} stamped" in x for x in dropped)
         assert err[-1].startswith("rapidds: error: cycle 1 stopped, not recorded: the robot "
                                   "has been silent"), err[-3:]
         first = [json.loads(x) for x in hub_out.read_text().splitlines()]
@@ -137,6 +145,8 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
                 assert np.ptp(path[:, 0], axis=0).max() > 0.1  # the left hand moved
         state0 = st.state(rid, 0)
     assert first[0]["observed"] == records[0]["observed"]
+    # what the link saw beyond the deployment is stored with the cycle, as --json printed it
+    assert [r["live"] for r in records] == [first[0]["live"], second[0]["live"]]
     live = second[0]["live"]
     assert set(live["robot_durations"]) == set(records[1]["robot"]) - {
         x for x in records[1]["robot"] if x.startswith("wait:")}

@@ -34,8 +34,12 @@ def test_events_round_trip_and_refusals() -> None:
     ev = ros2.Event("brush", "human", "start")
     msg = ros2.deserialize(ros2.serialize(ros2.event_message(ev)), "std_msgs/msg/String")
     assert ros2.parse_event(msg.data) == ev
+    stamped = ros2.Event("brush", "robot", "end", 1_700_000_000_123_456_789)
+    assert ros2.parse_event(ros2.event_message(stamped).data) == stamped
     for bad in ["not json", "[" * 5000, '{"task": "a", "agent": "dog", "event": "start"}',
-                '{"task": "a", "agent": "human", "event": "start", "x": 1}']:
+                '{"task": "a", "agent": "human", "event": "start", "x": 1}',
+                '{"task": "a", "agent": "human", "event": "start", "stamp_ns": 1.5}',
+                '{"task": "a", "agent": "human", "event": "start", "stamp_ns": -1}']:
         with pytest.raises(ros2.MessageError):
             ros2.parse_event(bad)
     with pytest.raises(ros2.MessageError):

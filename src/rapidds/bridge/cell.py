@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rapidds.bridge.link import Link, log
+from rapidds.bridge.link import Link, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     STOP_TOPIC,
@@ -104,6 +104,7 @@ class LiveCell:
     link: Link
     options: CellOptions = field(default_factory=CellOptions)
     _robot_seen: float = 0.0
+    _gate: StampGate = field(default_factory=StampGate)  # tracking stamps across cycles
 
     def __post_init__(self) -> None:
         self.joints = joint_names(self.run.world)
@@ -164,36 +165,51 @@ class LiveCell:
             sent.add(task)
             log.info("cycle %d: dispatched %s (%d rows)", plan.cycle, task, rows)
 
+    def _take(self, live: LivePlan, obs: CycleObservation) -> None:
+        """Read one message (or wait 20 ms) and file it."""
+        rec = self.link.receive(0.02)
+        if rec is None:
+            return
+        if rec.topic == JOINT_STATE_TOPIC:
+            self._robot_seen = time.monotonic()
+        elif rec.topic == CONTACTS_TOPIC:
+            obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
+                                 "touch": rec.msg.data})
+            log.warning("contact: %s", rec.msg.data)
+        else:
+            obs.handle(rec)
+
     def observe(self, plan: CyclePlan) -> CycleObservation:
         """Run one cycle on the link and return what was observed; CellFault on a fault."""
         live = self._publish_plan(plan)
-        obs = CycleObservation(live, self.points)
+        obs = CycleObservation(live, self.points, gate=self._gate)
         sent: set[str] = set()
         self._robot_seen = time.monotonic()
         while not obs.done:
             self._dispatch(plan, live, obs, sent)
-            rec = self.link.receive(0.02)
-            now = time.monotonic()
-            if rec is not None:
-                if rec.topic == JOINT_STATE_TOPIC:
-                    self._robot_seen = now
-                elif rec.topic == CONTACTS_TOPIC:
-                    obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
-                                         "touch": rec.msg.data})
-                    log.warning("contact: %s", rec.msg.data)
-                else:
-                    obs.handle(rec)
-            if now - self._robot_seen > self.options.robot_timeout:
+            self._take(live, obs)
+            if time.monotonic() - self._robot_seen > self.options.robot_timeout:
                 raise self._stop(plan.cycle, f"the robot has been silent for "
                                              f"{self.options.robot_timeout:g} s")
             if live.cell_seconds(time.time_ns()) > self.options.cycle_timeout:
                 raise self._stop(plan.cycle, f"the cycle took over "
                                              f"{self.options.cycle_timeout:g} s")
+        # Zenoh keeps the order of messages per key only: the person's last tracked rows may
+        # come after their last end event. A tracker streams at rest too, so read on until
+        # every body point is tracked past that end (robot_timeout wall s at most).
+        human = [obs.end[t] for t, a in live.agent.items() if a == "human"]
+        deadline = time.monotonic() + self.options.robot_timeout
+        while human and not obs.tracked_past(max(human)):
+            if time.monotonic() > deadline:
+                log.warning("cycle %d: tracking did not reach the person's last end", plan.cycle)
+                break
+            self._take(live, obs)
         return obs
 
     def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
         """Plan, run over the link, learn, record. Returns the result and what the link saw
-        beyond the record (the robot's realised durations, contacts)."""
+        beyond the deployment (the robot's realised durations, contacts; also the record's
+        ``live``)."""
         from rapidds.loop.run import CycleResult
 
         run = self.run
@@ -207,10 +223,9 @@ class LiveCell:
         plan = _as_executed(plan, obs.durations("robot"))
         dep = run.execute(plan, observed=human)
         run.learn(plan, dep)
-        record = run.record(plan, dep)
         live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
                 "contacts": obs.contacts}
-        return CycleResult(record, plan, dep), live
+        return CycleResult(run.record(plan, dep, live), plan, dep), live
 
     def run_all(self, on_cycle: Callable[[CycleResult, dict[str, Any]], None] | None = None,
                 ) -> None:

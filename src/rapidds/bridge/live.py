@@ -7,8 +7,9 @@ the nodes share a clock: one machine, or NTP/PTP in a cell). The plan names the 
 scale of 1 is real time; a larger one runs the simulated nodes faster than the wall clock (the
 tests do); a real cell runs at 1.
 
-Task events carry no stamp (the contract of ``/rapidds/events``): they are timed by when the
-hub receives them, as a bag's events are by its receive time.
+A task event may carry its sender's stamp (``stamp_ns``): the hub times it by that, so a
+duration is the sender's, not the link's delivery jitter; an unstamped event is timed by when
+the hub receives it (a bag's events are timed by its receive time, one clock with its points).
 """
 
 from __future__ import annotations
@@ -118,15 +119,17 @@ class CycleObservation:
     """What the hub saw in one cycle: task starts and ends (cell s), the person's tracked body
     points, the robot's contacts. Bad input is logged in one line and dropped: an event that is
     malformed, names a task not in the plan or the wrong agent, or comes out of order (an end
-    before its start, a second start or end); a tracking sample older than its source's last."""
+    before its start, a second start or end); a tracking sample older than its source's last.
+    ``gate``: the hub passes one for the whole run, so a sample from before the last one
+    accepted is dropped at a cycle's start too, not taken as its first."""
 
     plan: LivePlan
     points: tuple[str, ...]
     start: dict[str, float] = field(default_factory=dict)
     end: dict[str, float] = field(default_factory=dict)
     contacts: list[dict[str, Any]] = field(default_factory=list)
+    gate: StampGate = field(default_factory=StampGate)
     _tracks: dict[str, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
-    _gate: StampGate = field(default_factory=StampGate)
 
     @property
     def done(self) -> bool:
@@ -139,15 +142,17 @@ class CycleObservation:
             log.warning("dropped an event: %s", exc)
             return
         agent = self.plan.agent.get(ev.task)
-        t = self.plan.cell_seconds(rec.received_ns)
+        t = self.plan.cell_seconds(rec.received_ns if ev.stamp_ns is None else ev.stamp_ns)
         if agent is None or agent != ev.agent:
             log.warning("dropped an event of %s task %r: not in cycle %d's plan for that agent",
                         ev.agent, ev.task, self.plan.cycle)
         elif ev.event == "start" and ev.task in self.start:
             log.warning("dropped a second start of %r", ev.task)
-        elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end):
+        elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end
+                                    or t < self.start[ev.task]):
             log.warning("dropped an end of %r: %s", ev.task,
-                        "it has ended" if ev.task in self.end else "it never started")
+                        "it has ended" if ev.task in self.end else "it never started"
+                        if ev.task not in self.start else "stamped before its start")
         else:
             (self.start if ev.event == "start" else self.end)[ev.task] = t
             log.info("cycle %d: %s %s %s at %.2f s", self.plan.cycle, ev.agent, ev.task,
@@ -159,7 +164,7 @@ class CycleObservation:
             log.warning("dropped tracking of unknown body point %r", name)
             return
         ns = stamp_ns(rec.msg.header)
-        if not self._gate.accept(rec.topic, ns):
+        if not self.gate.accept(rec.topic, ns):
             return
         p = rec.msg.point
         pos = np.array([p.x, p.y, p.z], dtype=float)
@@ -174,6 +179,10 @@ class CycleObservation:
             self.event(rec)
         elif rec.topic.startswith(TRACKING_PREFIX):
             self.track(rec)
+
+    def tracked_past(self, t: float) -> bool:
+        """Every body point has a sample stamped at cell time ``t`` or later."""
+        return all(self._tracks.get(n) and self._tracks[n][-1][0] >= t for n in self.points)
 
     def durations(self, agent: str) -> dict[str, float]:
         return {t: self.end[t] - self.start[t] for t, a in self.plan.agent.items()

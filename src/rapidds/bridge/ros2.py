@@ -157,15 +157,20 @@ def string_message(payload: Any) -> Any:
 
 @dataclass(frozen=True)
 class Event:
-    """A task starts or ends: the contract of ``/rapidds/events``."""
+    """A task starts or ends: the contract of ``/rapidds/events``. ``stamp_ns`` (optional):
+    when it happened, on the sender's clock (wall ns, as tracking stamps are); the live hub
+    times a stamped event by it, an unstamped one by its arrival."""
 
     task: str
     agent: Agent
     event: Literal["start", "end"]
+    stamp_ns: int | None = None
 
 
 def event_message(event: Event) -> Any:
-    return string_message({"task": event.task, "agent": event.agent, "event": event.event})
+    stamp = {} if event.stamp_ns is None else {"stamp_ns": int(event.stamp_ns)}
+    return string_message({"task": event.task, "agent": event.agent, "event": event.event,
+                           **stamp})
 
 
 def parse_event(text: str) -> Event:
@@ -174,13 +179,17 @@ def parse_event(text: str) -> Event:
         raw = json.loads(text)
     except (ValueError, RecursionError) as exc:
         raise MessageError(f"event is not JSON: {exc}") from exc
-    if not isinstance(raw, dict) or set(raw) != {"task", "agent", "event"}:
-        raise MessageError(f"an event has exactly the keys task, agent, event; got {text[:80]!r}")
-    task, agent, kind = raw["task"], raw["agent"], raw["event"]
+    if not isinstance(raw, dict) or not {"task", "agent", "event"} <= set(raw) \
+            or not set(raw) <= {"task", "agent", "event", "stamp_ns"}:
+        raise MessageError(f"an event has the keys task, agent, event (and stamp_ns); got "
+                           f"{text[:80]!r}")
+    task, agent, kind, stamp = raw["task"], raw["agent"], raw["event"], raw.get("stamp_ns")
     if not isinstance(task, str) or agent not in ("human", "robot") \
-            or kind not in ("start", "end"):
-        raise MessageError(f"bad event {text[:80]!r}: agent human|robot, event start|end")
-    return Event(task, agent, kind)
+            or kind not in ("start", "end") or (stamp is not None and (
+                type(stamp) is not int or stamp < 0)):
+        raise MessageError(f"bad event {text[:80]!r}: agent human|robot, event start|end, "
+                           "stamp_ns whole ns >= 0")
+    return Event(task, agent, kind, stamp)
 
 
 def point_cloud(points: np.ndarray, values: np.ndarray | None = None, value_name: str = "cost",

@@ -32,11 +32,13 @@ def _logging(quiet: bool) -> None:
 def deploy_cmd(
     world: str = typer.Argument(..., help="World of the cell (see 'rapidds worlds')."),
     bridge: str = typer.Option("zenoh", help="The link to the cell: zenoh."),
-    listen: str = typer.Option(_ENDPOINT, help="Endpoint the hub listens on."),
+    listen: str = typer.Option(_ENDPOINT, help="Endpoint the hub listens on, PROTO/HOST:PORT "
+                               "(the nodes' --connect)."),
     cycles: int = typer.Option(_D["cycles"].default, min=1, help="Cycles I."),
     out: Path = typer.Option(..., help="Folder for run.sqlite."),
-    resume: bool = typer.Option(False, help="Continue the run stored in --out."),
-    as_json: bool = typer.Option(False, "--json", help="One JSON object per cycle on stdout."),
+    resume: bool = typer.Option(False, help="Continue the run stored in --out (after a stop)."),
+    as_json: bool = typer.Option(False, "--json", help="Print each cycle's record as one JSON "
+                                 "line, as 'rapidds run --json' does, with its 'live' object."),
     variant: str | None = typer.Option(None, help="Variant of the world's job."),
     adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: {', '.join(ADAPT_LEVELS)}."),
     seed: int = typer.Option(_D["seed"].default, help="Seed; the same seed plans the same."),
@@ -56,7 +58,11 @@ def deploy_cmd(
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
-    cycle is planned here, executed by the robot and the person, observed, learned, recorded."""
+    cycle is planned here, executed by the robot and the person, observed, learned, recorded.
+
+    Start 'rapidds sim-robot' and 'rapidds sim-human' (or a real robot driver and tracker) with
+    --connect to this hub's --listen. A cycle stopped by a fault (a silent robot, an overrun) is
+    not recorded and the hub exits with code 3; --resume continues the run."""
     if bridge != "zenoh":
         fail(f"unknown --bridge {bridge!r}; the live link is zenoh")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
@@ -91,7 +97,7 @@ def deploy_cmd(
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record
         if as_json:
-            print(json.dumps({**rec, "live": live}, allow_nan=False), flush=True)
+            print(json.dumps(rec, allow_nan=False), flush=True)  # its "live" included
         else:
             robot = ", ".join(f"{t} {d:.2f} s" for t, d in live["robot_durations"].items())
             human = ", ".join(f"{t} {d:.2f} s" for t, d in rec["observed"].items())
@@ -109,12 +115,13 @@ def deploy_cmd(
 @app.command("sim-robot")
 def sim_robot_cmd(
     world: str = typer.Argument(..., help="World whose robot to simulate (painting)."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint."),
+    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
     quiet: bool = typer.Option(False, help="Log faults only."),
 ) -> None:
     """The reference robot: runs received joint trajectories in MuJoCo under physics, publishes
-    joint states, its task events and touches on the person."""
+    joint states, its task events and touches on the person. Waits for the hub, follows it
+    across restarts, runs until stopped."""
     from rapidds.bridge.link import Link
     from rapidds.bridge.nodes.sim_robot import SimRobot
     from rapidds.worlds.base import body_point_names
@@ -133,12 +140,13 @@ def sim_robot_cmd(
 def sim_human_cmd(
     world: str = typer.Argument(..., help="World of the cell (see 'rapidds worlds')."),
     human: str = typer.Option(..., help="Simulated teammate, by the world's name for it."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint."),
+    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
 ) -> None:
     """The reference person: does their tasks of each received plan in real time, publishing
-    task events and tracked body points."""
+    task events and tracked body points. Waits for the hub, follows it across restarts, runs
+    until stopped."""
     from rapidds.bridge.link import Link
     from rapidds.bridge.nodes.sim_human import SimHuman
     from rapidds.worlds.registry import make_world

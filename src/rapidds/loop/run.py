@@ -418,9 +418,12 @@ class AdaptiveRun:
                                                      else {})}
 
     # -- record -------------------------------------------------------------------------------
-    def record(self, plan: CyclePlan, deployment: Deployment) -> dict[str, Any]:
+    def record(self, plan: CyclePlan, deployment: Deployment,
+               live: dict[str, Any] | None = None) -> dict[str, Any]:
         """The cycle's record; stored (with the model after learning) in one transaction when a
-        store is attached. Advances the run to the next cycle."""
+        store is attached. Advances the run to the next cycle. ``live``: what a live cell saw
+        beyond the deployment (the robot's realised durations, touches), kept under ``live``
+        (absent from every other record)."""
         self._check_current(plan)
         cfg, best, dep = self.config, plan.best, deployment
         idx = self.problem.index
@@ -455,6 +458,7 @@ class AdaptiveRun:
             changes=self._changes.pop(plan.cycle, []) if cfg.detect else None,
             has_comfort=comfort, comfort=self._evidence.pop(plan.cycle, None) if comfort else None,
             gamma_belief=self.model.gamma.summary() if self.model.gamma else None,
+            live=live,
             seconds={"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                      "total": plan.seconds + deploy_s + update_s},
         )

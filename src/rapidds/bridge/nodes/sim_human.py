@@ -106,7 +106,7 @@ class SimHuman:
             return
         d, path = self.teammate.at(plan.cycle).perform(task, self._rng)
         self._doing = _Doing(task, now, float(d), body_points(path))
-        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "human", "start")))
+        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "human", "start", now)))
 
     def tick(self) -> float:
         """Act on the clock; returns the wall seconds until something is next due."""
@@ -128,7 +128,8 @@ class SimHuman:
             self._publish(job.path[job.sent], job.start_ns + round(t / self.scale * 1e9))
             job.sent += 1
         if elapsed >= job.duration:
-            self.link.publish(EVENTS_TOPIC, event_message(Event(job.task, "human", "end")))
+            end = job.start_ns + round(job.duration / self.scale * 1e9)  # the drawn duration
+            self.link.publish(EVENTS_TOPIC, event_message(Event(job.task, "human", "end", end)))
             self._ended.add(job.task)
             self._next += 1
             self._doing = None

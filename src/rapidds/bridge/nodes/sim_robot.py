@@ -2,8 +2,9 @@
 
 It takes ``trajectory_msgs/JointTrajectory`` on ``/rapidds/robot/trajectory`` (started at the
 header stamp, or on arrival when that has passed; one queued behind the other), runs them with
-:class:`~rapidds.bridge.nodes.arm.PhysicsArm`, publishes ``sensor_msgs/JointState`` at
-``rate`` Hz of simulated time, the robot's task events (the k-th trajectory of a cycle is the
+:class:`~rapidds.bridge.nodes.arm.PhysicsArm` in control periods of 1/``rate`` simulated s,
+publishes ``sensor_msgs/JointState`` after each pass (every period while the machine keeps
+up), the robot's task events (the k-th trajectory of a cycle is the
 k-th robot task of its plan) and every new touch of the arm on the person's bodies, whom it
 places where the tracking says. ``/rapidds/stop`` holds the arm where it is and drops the
 cycle's queue. Simulated time runs ``time_scale`` (from the plan) times faster than the wall.
@@ -66,6 +67,7 @@ class SimRobot:
     _tasks: deque[str] = field(default_factory=deque)
     _queue: deque[_Queued] = field(default_factory=deque)
     _current: str | None = None
+    _began: tuple[int, float] = (0, 0.0)  # the current task's start: wall ns, simulated s
     _people: dict[str, np.ndarray] = field(default_factory=dict)
     _touching: set[tuple[str, str]] = field(default_factory=set)
     _gate: StampGate = field(default_factory=StampGate)
@@ -131,20 +133,25 @@ class SimRobot:
             return
         self._queue.append(_Queued(self._tasks.popleft(), q[:, rows], t, stamp_ns(msg.header)))
 
-    def _event(self, task: str, kind: str) -> None:
-        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind)))  # type: ignore[arg-type]
+    def _event(self, task: str, kind: str, stamp: int) -> None:
+        self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind, stamp)))  # type: ignore[arg-type]
 
-    def tick(self) -> None:
-        """One control period: start a due trajectory, step the physics, report."""
+    def _control(self) -> None:
+        """One control period: start a due trajectory, step the physics, report its events and
+        new touches."""
         now = time.time_ns()
         if self._current is None and self._queue and now >= self._queue[0].start_ns:
             job = self._queue.popleft()
             self.arm.follow(job.positions, job.times)
-            self._current = job.task
-            self._event(job.task, "start")
+            self._current, self._began = job.task, (now, self.arm.time)
+            self._event(job.task, "start", now)
         self.arm.step(1.0 / self.rate)
         if self._current is not None and self.arm.settled():
-            self._event(self._current, "end")
+            # stamped on the simulated clock: the task took what the physics took, however
+            # late this process got there
+            wall, sim = self._began
+            self._event(self._current, "end",
+                        wall + round((self.arm.time - sim) / self.scale * 1e9))
             self._current = None
         touching = set()
         for touch in self.arm.touches():
@@ -154,19 +161,32 @@ class SimRobot:
                 self.link.publish(CONTACTS_TOPIC, string_message(
                     {"robot": touch.robot, "person": touch.person, "depth": touch.depth}))
         self._touching = touching
+
+    def tick(self) -> None:
+        """One control period, then the joint state."""
+        self._control()
         self.link.publish(JOINT_STATE_TOPIC, joint_state(self.joints, self.arm.q, self.arm.qdot,
                                                          stamp_ns=time.time_ns()))
 
     def spin(self, until: float | None = None) -> None:
-        """Run in (scaled) real time: each tick is 1/rate simulated seconds."""
-        next_tick = time.monotonic()
+        """Run in (scaled) real time: the physics keeps to the cell's clock in control periods
+        of 1/rate simulated seconds, and a joint state goes out after each pass. A process
+        that falls behind (a loaded machine) catches up on physics alone, one joint state per
+        pass, so the robot's motions take the cell's time, not the CPU's; a lag over a second
+        (the process was stopped) is dropped, not raced through."""
+        last = time.monotonic()
+        owed = 0.0  # control periods due
         while until is None or time.monotonic() < until:
             for rec in self.link.drain():
                 self.handle(rec)
+            now = time.monotonic()
+            owed = min(owed + (now - last) * self.scale * self.rate, self.rate * self.scale)
+            last = now
+            if owed < 1.0:
+                time.sleep((1.0 - owed) / (self.rate * self.scale))
+                continue
+            n = min(int(owed), max(1, round(0.05 * self.rate)))  # 50 ms, then read the link
+            for _ in range(n - 1):
+                self._control()
             self.tick()
-            next_tick += 1.0 / (self.rate * self.scale)
-            lag = next_tick - time.monotonic()
-            if lag > 0:
-                time.sleep(lag)
-            elif lag < -0.5:  # fell behind (a loaded machine): do not race to catch up
-                next_tick = time.monotonic()
+            owed -= n

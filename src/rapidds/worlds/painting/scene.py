@@ -181,6 +181,8 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
             raise SceneError(f"Panda asset {folder / name} is missing")
     try:
         spec = mujoco.MjSpec.from_string(_wrapper_xml(folder, layout.robot_base, physics))
+        if physics:
+            _panda_fingers(spec)
         _add_cell(spec, layout, physics)
         model = spec.compile()
     except (ValueError, RuntimeError, OSError) as exc:
@@ -197,6 +199,32 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
 def load_model(layout: CellLayout = LAYOUT) -> mujoco.MjModel:
     """:func:`build_model` compiled once per process and layout (about 0.2 s, mostly meshes)."""
     return build_model(layout)
+
+
+FINGERS: tuple[str, ...] = ("panda0_leftfinger", "panda0_rightfinger")
+
+
+def _panda_fingers(spec: mujoco.MjSpec) -> None:
+    """The fingers at the Panda's own length, for ``mj_step``.
+
+    The kitchen model stretches the finger mesh 1.75 times along the finger (``finger_viz``'s
+    scale in assets.xml) and lays its finger collision capsules along the stretched finger, out
+    to 0.26 m past link7, but keeps its ``end_effector`` site at the Panda's TCP (0.210 m: the
+    flange's 0.107 plus Franka's 0.1034). The kinematic world takes that site as the tool tip
+    and plans the tool down to 2 cm above the table in the trays; the stretched fingertips then
+    reach 3 cm into the table top and hold the arm 2-3 cm short of every mix. Unstretched, the
+    fingers end 1 cm past the TCP, as Franka's hand does, and the arm reaches what is planned."""
+    stretch = float(spec.mesh("finger_viz").scale[2])
+    spec.mesh("finger_viz").scale = [*spec.mesh("finger_viz").scale[:2], 1.0]
+    for name in FINGERS:
+        for g in spec.body(name).geoms:
+            if not g.contype:  # the visual mesh (unstretched above)
+                continue
+            if np.isfinite(g.fromto[0]):  # a capsule from-to along the finger (its z)
+                g.fromto = [v / stretch if i % 3 == 2 else v for i, v in enumerate(g.fromto)]
+            else:
+                g.pos = [g.pos[0], g.pos[1], g.pos[2] / stretch]
+                g.size = [g.size[0], g.size[1], g.size[2] / stretch]
 
 
 def _add_box(body: mujoco.MjsBody, name: str, box: Box, rgba: tuple[float, ...],
