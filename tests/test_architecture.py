@@ -15,7 +15,8 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: list[tuple[str, ...]] = [
     ("rapidds", "rapidds.errors", "rapidds.fileio", "rapidds.lazy", "rapidds.settings",
-     "rapidds.problem", "rapidds.schedule", "rapidds.bundled", "rapidds.store", "rapidds.codec"),
+     "rapidds.problem", "rapidds.schedule", "rapidds.record", "rapidds.bundled", "rapidds.store",
+     "rapidds.codec"),
     ("rapidds.human",),
     ("rapidds.scheduler", "rapidds.motion"),  # scheduler <-> motion: one layer
     ("rapidds.plots", "rapidds.render"),
