@@ -19,6 +19,7 @@ from rapidds.experiments.report import gamma_markdown, gamma_rows
 from rapidds.human.gamma import GammaBelief, GammaEvidence, parse_gamma_prior
 from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.comfort import SimulatedComfort
+from rapidds.record import CycleRecord
 from rapidds.worlds.registry import make_world
 
 
@@ -108,7 +109,7 @@ def test_simulated_person_learns_and_answers_by_their_own_gamma(policy):
     assert [r["gamma"] for r in records[1:]] == [
         pytest.approx(r["gamma_belief"]["mean"]) for r in records[:-1]]
     assert abs(math.log(records[-1]["gamma_belief"]["mean"] / 8.0)) < math.log(2.0), records[-1]
-    rows = gamma_rows(records)
+    rows = gamma_rows([CycleRecord.from_json(r) for r in records])
     assert [r["planned"] for r in rows] == [r["gamma"] for r in records]
     assert [r["answer"] for r in rows] == [r["comfort"]["answer"] for r in records]
     table = gamma_markdown(rows).splitlines()

@@ -1,9 +1,13 @@
+import json
+from pathlib import Path
+
 import matplotlib.image as mpimg
 import numpy as np
 
 from rapidds.plots.curves import plot_run_costs, plot_study_panels
 from rapidds.plots.gantt import save_gantt
 from rapidds.problem import Problem, Task
+from rapidds.record import CycleRecord
 from rapidds.schedule import Schedule, Wait, compile_schedule
 
 
@@ -23,12 +27,13 @@ def test_gantt_png_has_content(tmp_path):
 
 
 def test_cost_curves_and_study_panels(tmp_path):
-    recs = [
-        {"cycle": c, "gamma": 1.0,
-         "expected": {"makespan": 10.0 - c, "spatial": 0.5},
-         "realised": {"cost": 11.0 - c, "makespan": 10.0 - c, "spatial": 0.4}}
-        for c in range(4)
-    ]
+    base = json.loads((Path(__file__).parent / "data" / "records-3412e09-fetch.json")
+                      .read_text())[0]
+    recs = [CycleRecord.from_json({
+        **base, "cycle": c, "gamma": 1.0,
+        "expected": {**base["expected"], "makespan": 10.0 - c, "spatial": 0.5},
+        "realised": {**base["realised"], "cost": 11.0 - c, "makespan": 10.0 - c,
+                     "spatial": 0.4}}) for c in range(4)]
     assert _drawn(plot_run_costs(recs, tmp_path / "c.png", exploration_end=2)) > 0.05
     rng = np.random.default_rng(0)
     curves = {"fast": {"full": rng.random((3, 5)), "none": rng.random((3, 5)) + 1}}

@@ -200,6 +200,16 @@ def test_invalid_schedule_is_an_error_not_inf() -> None:
         _evaluate(p, [Schedule(("t0",), ("t1",))], FixedDurationMotion(p))
     with pytest.raises(ValueError, match="not allowed"):
         _evaluate(p, [Schedule(("t0",), ("t1", "t2"))], FixedDurationMotion(p))
+    ok = _evaluate(p, [Schedule(("t0", "t2"), ("t1",))], FixedDurationMotion(p))[0]
+    assert ok.feasible  # the valid schedule the broken ones below are made from
+    bad = {  # the fast set check must refuse what the item-by-item validate refuses
+        "repeated": Schedule(("t0", "t2", "t0"), ("t1",)),
+        "unknown task 'x'": Schedule(("t0", "t2", "x"), ("t1",)),
+        "unknown task 'y'": Schedule(("t0", Wait("y"), "t2"), ("t1",)),
+    }
+    for message, schedule in bad.items():
+        with pytest.raises(ValueError, match=message):
+            _evaluate(p, [schedule], FixedDurationMotion(p))
 
 
 def test_overlap_loop_converges_when_overlaps_settle() -> None:

@@ -47,6 +47,8 @@ from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
 if TYPE_CHECKING:  # numpy is imported where arrays are (de)serialised: light commands skip it
     import numpy as np
 
+    from rapidds.record import CycleRecord
+
 SCHEMA_VERSION = 1
 
 _SCHEMA = """
@@ -498,6 +500,19 @@ class RunStore:
                                  f"(a {type(d).__name__}, not an object)")
             d.update(run_id=rid, cycle=cyc)
             out.append(d)
+        return out
+
+    def cycle_records(self, run_id: str | None = None) -> list[CycleRecord]:
+        """:meth:`records`, typed (StateError naming the cycle if one is not a cycle record)."""
+        from rapidds.record import CycleRecord  # its schedule items need numpy: see above
+
+        out = []
+        for d in self.records(run_id):
+            try:
+                out.append(CycleRecord.from_json(d))
+            except StateError as exc:
+                raise StateError(f"{self.path}: run '{d['run_id']}' cycle {d['cycle']}: "
+                                 f"{exc}") from None
         return out
 
     def state(self, run_id: str, cycle: int) -> bytes | None:

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from rapidds.loop.run import AdaptiveRun, CycleResult
     from rapidds.motion.policy import DiffusionPolicy
+    from rapidds.record import CycleRecord
 
 _D = RunConfig.model_fields
 
@@ -40,14 +41,14 @@ def set_threads(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
-def _cycle_row(rec: dict[str, Any]) -> list[str]:
-    routes = ",".join(f"{j}:{m[0]}" for j, m in sorted(rec["routes"].items()) if m != "direct")
-    e, r = rec["expected"], rec["realised"]
+def _cycle_row(rec: CycleRecord) -> list[str]:
+    p, e, r = rec.plan, rec.expected, rec.realised
+    routes = ",".join(f"{j}:{m[0]}" for j, m in sorted(p.routes.items()) if m != "direct")
     return [
-        str(rec["cycle"]), f"{rec['lambda']:g}", " ".join(rec["human"]), " ".join(rec["robot"]),
-        routes or "-", f"{e['makespan'] + rec['gamma'] * e['spatial']:.2f}",
-        f"{r['makespan']:.2f}", f"{r['spatial']:.2f}", f"{r['cost']:.2f}",
-        f"{r['min_separation']:.2f}", f"{rec['seconds']['total']:.2f}",
+        str(rec.cycle), f"{p.lam:g}", " ".join(map(str, p.human)), " ".join(map(str, p.robot)),
+        routes or "-", f"{e.makespan + p.gamma * e.spatial:.2f}",
+        f"{r.makespan:.2f}", f"{r.spatial:.2f}", f"{r.cost:.2f}",
+        f"{r.min_separation:.2f}", "-" if rec.seconds is None else f"{rec.seconds['total']:.2f}",
     ]
 
 
@@ -67,8 +68,8 @@ def write_pictures(run: AdaptiveRun, out: Path) -> list[Path]:
 
     assert run.store is not None
     rid = run.config.run_id
-    records = run.store.records(rid)
-    arrays = run.store.arrays(rid, records[-1]["cycle"]) if records else {}
+    records = run.store.cycle_records(rid)
+    arrays = run.store.arrays(rid, records[-1].cycle) if records else {}
     return save_run_pictures(out, rid, records, arrays, run.model.spatial, run.world,
                              run.config.exploration_end)
 
@@ -81,12 +82,13 @@ def redraw_missing_gantts(run: AdaptiveRun, out: Path) -> None:
 
     assert run.store is not None
     rid = run.config.run_id
-    for rec in run.store.records(rid):
-        path = gantt_path(out, rid, rec["cycle"])
+    for rec in run.store.cycle_records(rid):
+        path = gantt_path(out, rid, rec.cycle)
         if not path.exists():
+            ex = rec.execution.in_cycle
             save_gantt(timeline_of(run.problem, rec), path,
-                       title=f"{rid} cycle {rec['cycle']} (realised)",
-                       pauses=rec.get("pauses", ()), replans=rec.get("replans", ()))
+                       title=f"{rid} cycle {rec.cycle} (realised)",
+                       pauses=ex.pauses if ex else (), replans=ex.replans if ex else ())
 
 
 def execute(
@@ -100,6 +102,7 @@ def execute(
     from rapidds.loop.run import AdaptiveRun
     from rapidds.plots.gantt import save_gantt
     from rapidds.plots.run import gantt_path
+    from rapidds.record import CycleRecord
     from rapidds.store import RunStore
 
     store = RunStore(out / "run.sqlite", lock_as="rapidds run") if out is not None else None
@@ -125,7 +128,7 @@ def execute(
             if as_json:
                 print(json.dumps(rec, allow_nan=False), flush=True)
             else:
-                con.print(_line(_cycle_row(rec)), highlight=False)
+                con.print(_line(_cycle_row(CycleRecord.from_json(rec))), highlight=False)
             if out is not None:
                 save_gantt(res.deployment.timeline, gantt_path(out, rid, rec["cycle"]),
                            title=f"{rid} cycle {rec['cycle']} (realised)",
@@ -252,7 +255,7 @@ def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
         from rapidds.experiments.report import gamma_markdown, gamma_rows
 
         con.print("\nlearned gamma (docs/design-notes.md \"Learning each person's gamma\")")
-        con.print(gamma_markdown(gamma_rows(run.store.records(run.config.run_id))),
+        con.print(gamma_markdown(gamma_rows(run.store.cycle_records(run.config.run_id))),
                   highlight=False)
     if out is not None:
         rid = run.config.run_id

@@ -40,6 +40,7 @@ from rapidds.experiments.ablation import (
 )
 from rapidds.experiments.sessions import read_sessions
 from rapidds.fileio import atomic_write_text
+from rapidds.record import CycleRecord
 from rapidds.store import RunStore
 
 METRICS = ("cost", "makespan", "spatial", "min_separation", "plan_cost")
@@ -112,9 +113,9 @@ def load_ablation(out: Path) -> AblationData:
     cycles: int | None = None
     settings: dict[str, Any] | None = None
     with RunStore.open_readonly(path) as store:
-        by_run: dict[str, list[dict[str, Any]]] = {}
-        for rec in store.records():
-            by_run.setdefault(rec["run_id"], []).append(rec)
+        by_run: dict[str | None, list[CycleRecord]] = {}
+        for rec in store.cycle_records():
+            by_run.setdefault(rec.run_id, []).append(rec)
         for rid in store.run_ids():
             cfg = store.run_config(rid) or {}
             shared = shared_settings(cfg)
@@ -123,10 +124,10 @@ def load_ablation(out: Path) -> AblationData:
             elif shared != settings:
                 raise StateError(f"{path}: run '{rid}' has other settings than the study's")
             recs = by_run.get(rid, [])
-            if [r["cycle"] for r in recs] != list(range(int(cfg["cycles"]))):
+            if [r.cycle for r in recs] != list(range(int(cfg["cycles"]))):
                 incomplete.append(rid)
                 continue
-            arr = np.array([[float(r["realised"][m]) for m in METRICS[:-1]]
+            arr = np.array([[float(getattr(r.realised, m)) for m in METRICS[:-1]]
                             + [_plan_cost(r)] for r in recs])
             raw.setdefault(cfg["human"], {}).setdefault(cfg["adapt"], {})[int(cfg["seed"])] = arr
     if cycles is None or settings is None or not raw:
@@ -136,9 +137,9 @@ def load_ablation(out: Path) -> AblationData:
     return AblationData(out, cycles, settings, trials, incomplete, read_sessions(out))
 
 
-def _plan_cost(record: Mapping[str, Any]) -> float:
-    pc = record.get("plan_cost")
-    return float(pc["cost"]) if pc else float("nan")
+def _plan_cost(record: CycleRecord) -> float:
+    pc = record.plan_cost
+    return float("nan") if pc is None else float(pc.cost)
 
 
 # --------------------------------------------------------------------------------------------
@@ -431,15 +432,15 @@ def report_markdown(data: AblationData, md_table: str, claims: dict[str, Any],
     )
 
 
-def gamma_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def gamma_rows(records: list[CycleRecord]) -> list[dict[str, Any]]:
     """Per cycle of a run that learned gamma (records with ``gamma_belief``): the gamma it was
     planned with, what the person said and signalled, and the posterior after it."""
     rows = []
     for r in records:
-        if "gamma_belief" not in r:
+        if r.gamma_belief is None:
             continue
-        ev, post = r.get("comfort") or {}, r["gamma_belief"]
-        rows.append({"cycle": r["cycle"], "planned": r["gamma"], "answer": ev.get("answer"),
+        ev, post = r.comfort or {}, r.gamma_belief
+        rows.append({"cycle": r.cycle, "planned": r.plan.gamma, "answer": ev.get("answer"),
                      "too_close": len(ev.get("too_close", [])), "peak": ev.get("peak"),
                      "mean": post["mean"], "q10": post["q10"], "q90": post["q90"],
                      "true": ev.get("true_gamma")})

@@ -47,7 +47,8 @@ from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
-from rapidds.schedule import Schedule, Timeline
+from rapidds.record import CycleRecord, Execution, InCycle, PlanCost, PlanPart, Predicted, Realised
+from rapidds.schedule import Timeline
 from rapidds.scheduler import (
     Evaluation,
     GAConfig,
@@ -93,11 +94,10 @@ def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
     return DiffusionPolicy.load(directory, device="cpu")
 
 
-def timeline_of(problem: Problem, record: Mapping[str, Any]) -> Timeline:
+def timeline_of(problem: Problem, record: CycleRecord) -> Timeline:
     """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
-    done = record.get("executed", record)  # who did what, where the person deviated
-    schedule = Schedule.from_json({"human": done["human"], "robot": done["robot"]})
-    times = record["realised"]["timeline"]
+    schedule = record.done  # who did what, where the person deviated
+    times = record.realised.timeline
     start = np.array([[times[t][0] for t in problem.ids]])
     finish = np.array([[times[t][1] for t in problem.ids]])
     return Timeline(problem, schedule, start, finish)
@@ -429,42 +429,40 @@ class AdaptiveRun:
         idx = self.problem.index
         timing = self._timing.pop(plan.cycle, {})
         deploy_s, update_s = timing.get("deploy", 0.0), timing.get("update", 0.0)
-        record: dict[str, Any] = {
-            "cycle": plan.cycle,
-            "human": [str(x) for x in best.schedule.human],
-            "robot": [str(x) for x in best.schedule.robot],
-            "routes": {j: self.world.motion_label(j, p.trajectory)
-                       for j, p in best.motions.items() if p.trajectory is not None},
-            "gamma": self.problem.objective.gamma,
-            "lambda": plan.lam,
-            "expected": {
-                "makespan": best.makespan_mean, "makespan_std": best.makespan_std,
-                "spatial": best.spatial, "diversity": best.diversity,
-                "objective": best.objective, "converged": best.converged,
-                "overlaps": {j: sorted(v) for j, v in best.overlaps.items()},
-            },
-            "realised": {
-                "makespan": dep.makespan, "spatial": dep.spatial, "cost": dep.cost,
-                "min_separation": dep.min_separation,
-                "overlaps": {j: sorted(v) for j, v in dep.overlaps.items()},
-                "timeline": {t: [float(dep.timeline.start[0, idx[t]]),
-                                 float(dep.timeline.finish[0, idx[t]])] for t in self.problem.ids},
-            },
-            "observed": {t: ex.duration for t, ex in dep.human.items()},
-            "belief": {"mean_durations": {  # of the tasks the person may do
+        in_cycle = cycle_record(cfg, dep, self._deviations.pop(plan.cycle, None))
+        comfort = cfg.simulates_comfort or plan.cycle in self._evidence
+        pc = self.plan_cost(plan)
+        typed = CycleRecord(
+            cycle=plan.cycle,
+            plan=PlanPart(
+                human=tuple(best.schedule.human), robot=tuple(best.schedule.robot),
+                routes={j: self.world.motion_label(j, p.trajectory)
+                        for j, p in best.motions.items() if p.trajectory is not None},
+                gamma=self.problem.objective.gamma, lam=plan.lam,
+                expected=Predicted(
+                    best.makespan_mean, best.makespan_std, best.spatial, best.diversity,
+                    best.objective, best.converged,
+                    {j: tuple(sorted(v)) for j, v in best.overlaps.items()})),
+            execution=Execution(
+                Realised(dep.makespan, dep.spatial, dep.cost, dep.min_separation,
+                         {j: tuple(sorted(v)) for j, v in dep.overlaps.items()},
+                         {t: (float(dep.timeline.start[0, idx[t]]),
+                              float(dep.timeline.finish[0, idx[t]])) for t in self.problem.ids}),
+                InCycle.from_json(in_cycle) if in_cycle else None),
+            observed={t: ex.duration for t, ex in dep.human.items()},
+            belief={"mean_durations": {  # of the tasks the person may do
                 t: m for t, m in zip(self.problem.ids, self.model.temporal.mean().tolist(),
                                      strict=True) if math.isfinite(m)}},
-            "plan_cost": self.plan_cost(plan),
-            "search": plan.search,
-            **({"changes": self._changes.pop(plan.cycle, [])} if cfg.detect else {}),
-            **({"comfort": self._evidence.pop(plan.cycle, None)}
-               if cfg.simulates_comfort or plan.cycle in self._evidence else {}),
-            **({"gamma_belief": self.model.gamma.summary()} if self.model.gamma else {}),
-            **cycle_record(cfg, dep, self._deviations.pop(plan.cycle, None)),
-            **({"live": live} if live is not None else {}),
-            "seconds": {"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
-                        "total": plan.seconds + deploy_s + update_s},
-        }
+            plan_cost=None if pc is None else PlanCost(**pc),
+            search=plan.search,
+            changes=self._changes.pop(plan.cycle, []) if cfg.detect else None,
+            has_comfort=comfort, comfort=self._evidence.pop(plan.cycle, None) if comfort else None,
+            gamma_belief=self.model.gamma.summary() if self.model.gamma else None,
+            live=live,
+            seconds={"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
+                     "total": plan.seconds + deploy_s + update_s},
+        )
+        record = typed.to_json()
         if self.store is not None:
             arrays = path_arrays(dep.robot, {t: ex.trajectory for t, ex in dep.human.items()})
             self.store.record_cycle(cfg.run_id, plan.cycle, record, arrays, self.model.to_bytes())

@@ -8,20 +8,21 @@ from pathlib import Path
 import numpy as np
 
 from rapidds.plots._mpl import plt, save
+from rapidds.record import CycleRecord
 
 
 def plot_run_costs(
-    records: Sequence[Mapping], path: str | Path, exploration_end: float | None = None
+    records: Sequence[CycleRecord], path: str | Path, exploration_end: float | None = None
 ) -> Path:
     """Realised and expected cost of each cycle of one run, with its makespan and spatial parts."""
-    cyc = np.array([r["cycle"] for r in records])
+    cyc = np.array([r.cycle for r in records])
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.2))
-    a.plot(cyc, [r["realised"]["cost"] for r in records], "o-", label="realised cost")
-    a.plot(cyc, [r["expected"]["makespan"] + r["gamma"] * r["expected"]["spatial"]
+    a.plot(cyc, [r.realised.cost for r in records], "o-", label="realised cost")
+    a.plot(cyc, [r.expected.makespan + r.plan.gamma * r.expected.spatial
                  for r in records], "s--", alpha=0.7, label="expected cost (no diversity)")
-    b.plot(cyc, [r["realised"]["makespan"] for r in records], "o-", label="makespan [s]")
+    b.plot(cyc, [r.realised.makespan for r in records], "o-", label="makespan [s]")
     b2 = b.twinx()
-    b2.plot(cyc, [r["realised"]["spatial"] for r in records], "^-", color="C3",
+    b2.plot(cyc, [r.realised.spatial for r in records], "^-", color="C3",
             label="spatial cost")
     b2.set_ylabel("spatial cost", color="C3")
     for ax in (a, b):
@@ -65,28 +66,28 @@ def plot_study_panels(
     return save(fig, path)
 
 
-def plot_gamma_posterior(records: Sequence[Mapping], path: str | Path) -> Path:
+def plot_gamma_posterior(records: Sequence[CycleRecord], path: str | Path) -> Path:
     """A run that learned gamma: the gamma each cycle was planned with, the posterior after it
     (geometric mean, 10-90 % band), the comfort answers, and the person's true gamma when the
     person was simulated."""
-    cyc = np.array([r["cycle"] for r in records])
-    post = [r["gamma_belief"] for r in records]
+    cyc = np.array([r.cycle for r in records])
+    post = [r.gamma_belief or {} for r in records]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.2))
     a.fill_between(cyc, [p["q10"] for p in post], [p["q90"] for p in post], alpha=0.2,
                    label="posterior 10-90 %")
     a.plot(cyc, [p["mean"] for p in post], "o-", label="posterior mean (after the cycle)")
-    a.plot(cyc, [r["gamma"] for r in records], "s--", alpha=0.7, label="planned with")
-    truth = {r["comfort"]["true_gamma"] for r in records
-             if r.get("comfort") and "true_gamma" in r["comfort"]}
+    a.plot(cyc, [r.plan.gamma for r in records], "s--", alpha=0.7, label="planned with")
+    truth = {r.comfort["true_gamma"] for r in records
+             if r.comfort and "true_gamma" in r.comfort}
     for g in truth:
         a.axhline(g, color="k", ls=":", lw=1, label="true gamma (simulated person)")
     a.set_yscale("log")
     a.set_ylabel("gamma")
-    answers = [(r["cycle"], r["comfort"]["answer"]) for r in records
-               if r.get("comfort") and r["comfort"]["answer"] is not None]
+    answers = [(r.cycle, r.comfort["answer"]) for r in records
+               if r.comfort and r.comfort["answer"] is not None]
     if answers:
         b.plot(*zip(*answers, strict=True), "o-", label='"came too close" (1-7)')
-    b.bar(cyc, [len(r["comfort"]["too_close"]) if r.get("comfort") else 0 for r in records],
+    b.bar(cyc, [len(r.comfort["too_close"]) if r.comfort else 0 for r in records],
           alpha=0.4, color="C3", label='"too close" signals')
     b.set_ylim(0, 7.5)
     for ax in (a, b):

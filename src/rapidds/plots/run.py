@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -15,6 +15,7 @@ from rapidds.human.spatial import SpatialModel
 from rapidds.plots._mpl import plt, save
 from rapidds.plots.curves import plot_run_costs
 from rapidds.plots.maps import plot_paths, plot_spatial_cost
+from rapidds.record import CycleRecord
 from rapidds.store import cycle_paths
 
 if TYPE_CHECKING:  # a type only: worlds sit above plots
@@ -26,7 +27,7 @@ def gantt_path(out: Path, run_id: str, cycle: int) -> Path:
     return out / "gantt" / f"{run_id}-cycle-{cycle:02d}.png"
 
 
-def save_run_pictures(out: Path, run_id: str, records: Sequence[Mapping[str, Any]],
+def save_run_pictures(out: Path, run_id: str, records: Sequence[CycleRecord],
                       arrays: Mapping[str, np.ndarray], spatial: SpatialModel, world: World,
                       exploration_end: float) -> list[Path]:
     """Cost curve over ``records`` (a run's stored cycles), the gamma posterior of a run that
@@ -37,7 +38,7 @@ def save_run_pictures(out: Path, run_id: str, records: Sequence[Mapping[str, Any
     if not records:
         return []
     written = [plot_run_costs(records, out / f"{run_id}-cost.png", exploration_end)]
-    if any("gamma_belief" in r for r in records):  # a run that learns the person's gamma
+    if any(r.gamma_belief is not None for r in records):  # a run that learns the person's gamma
         from rapidds.plots.curves import plot_gamma_posterior
 
         written.append(plot_gamma_posterior(records, out / f"{run_id}-gamma.png"))
@@ -49,8 +50,8 @@ def save_run_pictures(out: Path, run_id: str, records: Sequence[Mapping[str, Any
             spatial, out / name, human_paths=paths["human"],
             robot_paths={j: np.swapaxes(world.robot_points(v), 0, 1)
                          for j, v in paths["robot"].items()},
-            overlaps=rec["realised"]["overlaps"], scene=partial(world.draw, view=view),
-            axes=axes, title=f"{run_id}, cycle {rec['cycle']} ({view}): learned spatial cost, "
+            overlaps=rec.realised.overlaps, scene=partial(world.draw, view=view),
+            axes=axes, title=f"{run_id}, cycle {rec.cycle} ({view}): learned spatial cost, "
                              "human (gold) and concurrent robot (blue) paths",
         ))
     return written

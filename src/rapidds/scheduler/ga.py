@@ -30,28 +30,27 @@ from __future__ import annotations
 
 import dataclasses
 import gc
-import math
 import random
 import time
-from bisect import bisect_left
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
-from rapidds.errors import RapiddsError
-from rapidds.motion.interface import FixedDurationMotion, MotionModel, TrajectoryCache
-from rapidds.problem import AGENTS, Agent, Problem
-from rapidds.schedule import Item, Schedule, Wait, repair, validate
-from rapidds.scheduler.active import AllocationOrders, longest_tails
-from rapidds.scheduler.config import MUTATIONS, GAConfig
+from rapidds.motion.interface import MotionModel, TrajectoryCache
+from rapidds.problem import Problem
+from rapidds.schedule import Schedule
+from rapidds.scheduler import polish as polishing
+from rapidds.scheduler import seeding
+from rapidds.scheduler.active import AllocationOrders
+from rapidds.scheduler.config import GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
-from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+from rapidds.scheduler.evaluate import Evaluation
+from rapidds.scheduler.evaluator import Evaluator, allocation, expected_orders, rank
+from rapidds.scheduler.operators import Operators
 
 Progress = Callable[[int, float], None]
-# (parent, rng, parent's expected start times (n,) or None) -> child before repair, or None
-Operator = Callable[[Schedule, random.Random, np.ndarray | None], Schedule | None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,29 +88,18 @@ class PlanResult:
     seeds: list[Schedule] = dataclasses.field(default_factory=list)
 
 
-def _other(agent: Agent) -> Agent:
-    return "robot" if agent == "human" else "human"
+@dataclass
+class _Loop:
+    """The state of the generation loop: the ranked population, the best objective after each
+    generation, and the counters that stop it or restart the population."""
 
-
-def _closure(ids: Sequence[str], edges: Sequence[tuple[str, str]]) -> dict[str, frozenset[str]]:
-    """Transitive successors of every task."""
-    succ: dict[str, list[str]] = {i: [] for i in ids}
-    for a, b in edges:
-        succ[a].append(b)
-    out: dict[str, frozenset[str]] = {}
-
-    def visit(u: str) -> frozenset[str]:
-        if u not in out:
-            acc: set[str] = set()
-            for v in succ[u]:
-                acc.add(v)
-                acc |= visit(v)
-            out[u] = frozenset(acc)
-        return out[u]
-
-    for i in ids:
-        visit(i)
-    return out
+    ranked: list[Evaluation]
+    history_best: list[float]
+    polished: set[Schedule] = dataclasses.field(default_factory=set)
+    generations: int = 0
+    timed_out: bool = False
+    stall: int = 0  # generations since the overall best improved (patience)
+    local_stall: int = 0  # generations since this population's best improved (restart)
 
 
 class GeneticScheduler:
@@ -127,20 +115,7 @@ class GeneticScheduler:
         self.problem = problem
         self.motion = motion
         self.config = config or GAConfig()
-        self._allowed = {t.id: t.allowed for t in problem.tasks}
-        self._index = problem.index
-        self._shared = problem.shared_tasks
-        self._desc = _closure(problem.ids, problem.precedence)
-        self._anc = _closure(problem.ids, [(b, a) for a, b in problem.precedence])
-        self._preds = problem.preceding
-        self._succ = problem.following
-        self._ops: dict[str, Operator] = {
-            "move": self._move,
-            "reorder": self._reorder,
-            "crossover": self._crossover,
-            "add_wait": self._add_wait,
-            "remove_wait": self._remove_wait,
-        }
+        self.ops = Operators(problem, self.config.weights())
 
     # ----------------------------------------------------------------------------- search
 
@@ -170,175 +145,101 @@ class GeneticScheduler:
                 (re-use across cycles); each must hold every task once on an allowed agent
                 (ValueError otherwise). Empty (the default) leaves the search as it was.
         """
-        with _without_cyclic_gc():
-            return self._search(human_samples, human_mean, gamma, lam, history, progress,
-                                initial)
-
-    def _search(
-        self,
-        human_samples: np.ndarray,
-        human_mean: np.ndarray,
-        gamma: float | None,
-        lam: float | None,
-        history: AllocationHistory | None,
-        progress: Progress | None,
-        initial: Sequence[Schedule],
-    ) -> PlanResult:
-        """The body of :meth:`solve`."""
         t0 = time.perf_counter()
-        cfg = self.config
         problem = self.problem
-        gamma = problem.objective.gamma if gamma is None else float(gamma)
-        lam = problem.objective.lam if lam is None else float(lam)
-        samples = np.atleast_2d(np.asarray(human_samples, dtype=float))
-        mean = np.asarray(human_mean, dtype=float)
+        ev = Evaluator(
+            problem, self.config, np.atleast_2d(np.asarray(human_samples, dtype=float)),
+            np.asarray(human_mean, dtype=float),
+            np.asarray(self.motion.nominal_durations(problem), dtype=float),
+            TrajectoryCache(self.motion),
+            problem.objective.gamma if gamma is None else float(gamma),
+            problem.objective.lam if lam is None else float(lam),
+            history, t0,
+        )
+        with _without_cyclic_gc():
+            return self._search(ev, progress, initial)
+
+    def _search(self, ev: Evaluator, progress: Progress | None, initial: Sequence[Schedule]
+                ) -> PlanResult:
+        """The body of :meth:`solve`: the first population, the generations, the polish."""
+        cfg = self.config
         rng = random.Random(cfg.seed)
-        cache = TrajectoryCache(self.motion)
-        d_init = np.asarray(self.motion.nominal_durations(problem), dtype=float)
-        evaluated: dict[Schedule, Evaluation] = {}
-        best: Evaluation | None = None
-        best_time = 0.0
-        improvements: list[tuple[float, float]] = []
-        deadline = math.inf if cfg.time_limit_s is None else t0 + cfg.time_limit_s
-
-        def late() -> bool:
-            return time.perf_counter() > deadline
-
-        searched: set[int] = set()  # allocations whose order has been searched, as bit masks
-
-        def evaluate(schedules: Sequence[Schedule]) -> list[Evaluation]:
-            """Evaluations of ``schedules`` and then, with ``order_search_nodes``, of the
-            shortest order of each allocation among them not met before."""
-            nonlocal best, best_time
-            if cfg.order_search_nodes:
-                schedules = [*schedules, *self._shortest_orders(schedules, searched, mean, d_init)]
-            new = [s for s in dict.fromkeys(schedules) if s not in evaluated]
-            full: dict[Schedule, Evaluation] = {}
-            if new:
-                fresh = evaluate_population(
-                    problem, new, samples, mean, cache, d_init, gamma, lam, history,
-                    cfg.max_overlap_iters,
-                )
-                for e in fresh:
-                    full[e.schedule] = e
-                    evaluated[e.schedule] = _slim(e)
-                    if best is None or e.objective < best.objective:
-                        best, best_time = e, time.perf_counter() - t0
-                        improvements.append((best_time, e.objective))
-            return [full[s] if s in full else evaluated[s] for s in schedules]
-
-        def complete(evaluations: list[Evaluation]) -> list[Evaluation]:
-            """``evaluations`` with their expected start times: cached slim ones are evaluated
-            again (the same values; their motions are all in the memory M already)."""
-            slim = [e.schedule for e in evaluations if e.feasible and not e.expected_start.size]
-            if not slim:
-                return evaluations
-            again = {e.schedule: e for e in evaluate_population(
-                problem, slim, samples, mean, cache, d_init, gamma, lam, history,
-                cfg.max_overlap_iters)}
-            return [again.get(e.schedule, e) for e in evaluations]
-
-        search = _Search(evaluate, complete)
-
-        seeds = self._seeds(initial, mean, d_init)
-        population = self._initial_population(rng, mean, d_init, seeds)
-        ranked = _rank(evaluate(population))
-        assert best is not None
-        history_best = [best.objective]
+        seeds = seeding.seeds(self.ops, self.motion, cfg, initial, ev.mean, ev.d_init)
+        population = seeding.initial_population(self.ops, cfg.population, rng, ev.mean,
+                                                ev.d_init, seeds)
+        ranked = rank(ev.evaluate(population))
+        assert ev.best is not None
+        loop = _Loop(ranked, [ev.best.objective])
         if progress:
-            progress(0, best.objective)
+            progress(0, ev.best.objective)
         n_elite = min(cfg.n_elite, len(ranked))
-        stall = 0  # generations since the overall best improved (patience)
-        local_stall = 0  # generations since this population's best improved (restart)
-        polished: set[Schedule] = set()
-        generations = 0
-        timed_out = False
         for generation in range(1, cfg.generations + 1):
-            if late():
-                timed_out = True
+            if ev.late():
+                loop.timed_out = True
                 break
-            generations = generation
-            before, local_before = best.objective, ranked[0].objective
-            elites = complete(_select_elites(ranked, n_elite, cfg.elites_per_allocation))
-            children = self._children(
-                elites, cfg.population - len(elites), rng, evaluated, mean, d_init
-            )
-            if not children:  # every mutant of the elite has been evaluated: nothing to gain
-                history_best.append(best.objective)
-                if progress:
-                    progress(generation, best.objective)
+            loop.generations = generation
+            if not self._generation(ev, rng, loop, n_elite, progress):
                 break
-            ranked = _rank(evaluate(children) + elites)  # ties: newcomers first (plateau drift)
-            local_stall = local_stall + 1 if ranked[0].objective >= local_before else 0
-            if cfg.restart_after and local_stall >= cfg.restart_after:
-                if cfg.polish and ranked[0].schedule not in polished:
-                    polished.add(ranked[0].schedule)
-                    polished.add(self._polish(ranked[0], search).schedule)
-                ranked = _rank(evaluate(self._initial_population(rng, mean, d_init)))
-                local_stall = 0
-            stall = stall + 1 if best.objective >= before else 0
-            history_best.append(best.objective)
-            if progress:
-                progress(generation, best.objective)
-            if cfg.patience and stall >= cfg.patience:
-                break
-        if cfg.polish and best.schedule not in polished and not late():
-            polished.add(self._polish(best, search, late).schedule)
-        if cfg.polish and cfg.polish_allocations > 1 and not late():
-            self._polish_runners_up(evaluated, search, polished, late)
-        timed_out = timed_out or late()
-        cache_stats = (cache.hits, cache.misses, len(cache))
+        self._final_polish(ev, loop.polished)
+        best = ev.best
         return PlanResult(
             best=best,
-            best_by_generation=history_best,
-            generations_run=generations,
-            evaluations=len(evaluated),
-            seconds=time.perf_counter() - t0,
-            seconds_to_best=best_time,
-            cache_hits=cache_stats[0],
-            cache_misses=cache_stats[1],
-            cache_size=cache_stats[2],
-            improvements=improvements,
-            timed_out=timed_out,
+            best_by_generation=loop.history_best,
+            generations_run=loop.generations,
+            evaluations=len(ev.evaluated),
+            seconds=time.perf_counter() - ev.t0,
+            seconds_to_best=ev.best_time,
+            cache_hits=ev.cache.hits,
+            cache_misses=ev.cache.misses,
+            cache_size=len(ev.cache),
+            improvements=ev.improvements,
+            timed_out=loop.timed_out or ev.late(),
             seeds=seeds,
         )
 
-    def _polish_runners_up(
-        self,
-        evaluated: dict[Schedule, Evaluation],
-        search: _Search,
-        polished: set[Schedule],
-        late: Callable[[], bool],
-    ) -> None:
-        """The end of a solve: a polish of the best schedule of each of the
-        ``polish_allocations`` best allocations, within ``polish_budget``. The trap it targets:
-        the right allocation with an order no single move improves."""
+    def _generation(self, ev: Evaluator, rng: random.Random, loop: _Loop, n_elite: int,
+                    progress: Progress | None) -> bool:
+        """One generation: elites, their children, a restart of a stalled population. False
+        when the search should stop (nothing new to evaluate, or out of patience)."""
         cfg = self.config
-        limit = (1.0 + cfg.polish_budget) * len(evaluated)
-        best_of: dict[frozenset[str], Evaluation] = {}
-        for e in _rank(list(evaluated.values())):
-            best_of.setdefault(_allocation(e.schedule), e)
-        for e in list(best_of.values())[: cfg.polish_allocations]:
-            if len(evaluated) > limit:
-                return
-            if e.schedule not in polished:
-                polished.add(e.schedule)
-                self._polish(e, search, lambda: len(evaluated) > limit or late())
+        assert ev.best is not None
+        before, local_before = ev.best.objective, loop.ranked[0].objective
+        elites = ev.complete(_select_elites(loop.ranked, n_elite, cfg.elites_per_allocation))
+        children = self._children(elites, cfg.population - len(elites), rng, ev.evaluated,
+                                  ev.mean, ev.d_init)
+        if not children:  # every mutant of the elite has been evaluated: nothing to gain
+            loop.history_best.append(ev.best.objective)
+            if progress:
+                progress(loop.generations, ev.best.objective)
+            return False
+        loop.ranked = rank(ev.evaluate(children) + elites)  # ties: newcomers first (plateau drift)
+        loop.local_stall = loop.local_stall + 1 if loop.ranked[0].objective >= local_before else 0
+        if cfg.restart_after and loop.local_stall >= cfg.restart_after:
+            self._restart(ev, rng, loop)
+        loop.stall = loop.stall + 1 if ev.best.objective >= before else 0
+        loop.history_best.append(ev.best.objective)
+        if progress:
+            progress(loop.generations, ev.best.objective)
+        return not (cfg.patience and loop.stall >= cfg.patience)
 
-    def _shortest_orders(self, schedules: Sequence[Schedule], searched: set[int],
-                         mean: np.ndarray, d_init: np.ndarray) -> list[Schedule]:
-        """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
-        ``schedules`` not in ``searched`` (then added to it). Without waits: they only delay,
-        and the first schedule met with an allocation may carry any."""
-        out = []
-        for s in schedules:
-            key = sum(1 << self._index[t] for t in s.tasks("human"))  # small, unlike a set
-            if key not in searched:
-                searched.add(key)
-                bare = Schedule(s.tasks("human"), s.tasks("robot"))
-                out += self._orders(bare, mean, d_init).search(self.config.order_search_nodes,
-                                                               keep=1)[0]
-        return out
+    def _restart(self, ev: Evaluator, rng: random.Random, loop: _Loop) -> None:
+        """A stalled population: polish its best, then start again from list schedules."""
+        head = loop.ranked[0]
+        if self.config.polish and head.schedule not in loop.polished:
+            loop.polished.add(head.schedule)
+            loop.polished.add(polishing.polish(self.ops, self.config, head, ev).schedule)
+        loop.ranked = rank(ev.evaluate(seeding.initial_population(
+            self.ops, self.config.population, rng, ev.mean, ev.d_init)))
+        loop.local_stall = 0
+
+    def _final_polish(self, ev: Evaluator, polished: set[Schedule]) -> None:
+        """The end of a solve: polish the best, then the best of the runner-up allocations."""
+        cfg = self.config
+        assert ev.best is not None
+        if cfg.polish and ev.best.schedule not in polished and not ev.late():
+            polished.add(polishing.polish(self.ops, cfg, ev.best, ev, ev.late).schedule)
+        if cfg.polish and cfg.polish_allocations > 1 and not ev.late():
+            polishing.polish_runners_up(self.ops, cfg, ev, polished)
 
     def _children(
         self,
@@ -370,6 +271,8 @@ class GeneticScheduler:
                         out[active] = None
         return list(out)
 
+    # ------------------------------------------------------------------ public building blocks
+
     def activate(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray,
                  critical_path: bool = False) -> Schedule | None:
         """Giffler-Thompson left-justification of ``s`` on expected durations.
@@ -386,333 +289,22 @@ class GeneticScheduler:
         return self._orders(s, mean, d_init).active(critical_path)
 
     def _orders(self, s: Schedule, mean: np.ndarray, d_init: np.ndarray) -> AllocationOrders:
-        """The allocation of ``s`` on expected durations (human ``mean``, robot ``d_init``)."""
-        index = self._index
-        return AllocationOrders(
-            s, self.problem,
-            lambda t, a: mean[index[t]] if a == "human" else d_init[index[t]],
-        )
+        return expected_orders(self.problem, s, mean, d_init)
 
-    def mutate(
-        self,
-        parent: Schedule,
-        rng: random.Random,
-        weights: list[float] | None = None,
-        start: np.ndarray | None = None,
-    ) -> Schedule | None:
-        """One repaired mutant that differs from ``parent``; None if no operator applies.
-        ``start``: the parent's (n,) expected start times, where known (used by "move")."""
-        weights = list(weights or self.config.weights())
-        while sum(weights) > 0:
-            k = rng.choices(range(len(MUTATIONS)), weights)[0]
-            child = self._ops[MUTATIONS[k]](parent, rng, start)
-            if child is not None:
-                child = repair(child)
-                if child != parent:
-                    return child
-            weights[k] = 0.0  # operator does not apply here; try the others
-        return None
-
-    def _polish(
-        self,
-        start: Evaluation,
-        search: _Search,
-        stop: Callable[[], bool] | None = None,
-    ) -> Evaluation:
-        """Best-improvement local search over :meth:`neighbours`, one batch per pass; ``stop``
-        is asked before every pass."""
-        current = start
-        for _ in range(self.config.polish_passes):
-            if stop is not None and stop():
-                break
-            current = search.complete([current])[0]  # the window needs its start times
-            candidates = self.neighbours(current.schedule, current.expected_start,
-                                         self.config.polish_window)
-            if not candidates:
-                break
-            best = min(search.evaluate(candidates), key=lambda e: e.objective)
-            if not best.objective < current.objective - 1e-12 * max(1.0, abs(current.objective)):
-                break
-            current = best
-        return current
-
-    # ------------------------------------------------------------------------- population
-
-    def _seeds(self, initial: Sequence[Schedule], mean: np.ndarray, d_init: np.ndarray
-               ) -> list[Schedule]:
-        """The caller's ``initial`` schedules (validated, repaired, distinct) and, with
-        ``exact_seed_work``, fixed robot durations and a job of ``exact_seed_min_tasks`` to
-        ``exact_seed_tasks`` tasks, CP-SAT's schedule on the expected durations; at most a
-        population's worth."""
-        out: dict[Schedule, None] = {}
-        for s in initial:
-            validate(self.problem, s)
-            out[repair(s)] = None
-        cfg = self.config
-        if (cfg.exact_seed_work > 0
-                and cfg.exact_seed_min_tasks <= len(self.problem.tasks) <= cfg.exact_seed_tasks
-                and isinstance(self.motion, FixedDurationMotion)):
-            from rapidds.scheduler.exact import solve_exact  # OR-Tools: 0.5 s to import
-
-            human = np.where([t.can("human") for t in self.problem.tasks], mean, np.nan)
-            try:  # a deterministic budget, so the seed does not depend on the machine's load;
-                # the wall-time limit only guards against a stalled solver
-                exact = solve_exact(self.problem, time_limit_s=60.0 + 20 * cfg.exact_seed_work,
-                                    human_mean=human, robot_durations=d_init, load_bound=True,
-                                    deterministic_time=cfg.exact_seed_work)
-            except (RapiddsError, ValueError):  # nothing found in time, or unusable durations
-                pass
-            else:
-                out[exact.schedule] = None
-        return list(out)[: cfg.population]
-
-    def _initial_population(
-        self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray,
-        seeds: Sequence[Schedule] = (),
-    ) -> list[Schedule]:
-        """``seeds`` and then distinct list schedules, C in all (fewer only if the problem
-        has fewer distinct ones)."""
-        size = self.config.population
-        out: dict[Schedule, None] = dict.fromkeys(seeds)
-        misses = 0
-        while len(out) < size and misses < size:
-            schedule = self.list_schedule(rng, mean, d_init)
-            misses = misses + 1 if schedule in out else 0
-            out[schedule] = None
-        pool = list(out)
-        misses = 0
-        while len(out) < size and misses < size:  # tiny problems: top up with mutants
-            child = self.mutate(rng.choice(pool), rng)
-            misses = misses + 1 if child is None or child in out else 0
-            if child is not None:
-                out[child] = None
-        return list(out)
+    def mutate(self, parent: Schedule, rng: random.Random, weights: list[float] | None = None,
+               start: np.ndarray | None = None) -> Schedule | None:
+        """One repaired mutant that differs from ``parent``; None if no operator applies
+        (:meth:`Operators.mutate`)."""
+        return self.ops.mutate(parent, rng, weights, start)
 
     def list_schedule(self, rng: random.Random, mean: np.ndarray, d_init: np.ndarray) -> Schedule:
-        """Randomised earliest-deadline-first list scheduling: always feasible.
-
-        Repeatedly takes a ready task (all predecessors placed) and appends it to an agent. The
-        task is the one with the earliest deadline, i.e. the longest remaining critical path
-        (shortest-agent expected durations), after perturbing each key by uniform noise; the
-        agent is the one that would finish the task first, or with some probability a random
-        allowed one. The noise level and the greediness are drawn per schedule, so a population
-        spans pure EDF/earliest-finish schedules and nearly random ones.
-        """
-        index = self._index
-        durations = {
-            t: {
-                "human": float(mean[index[t]]) if "human" in self._allowed[t] else math.inf,
-                "robot": float(d_init[index[t]]) if "robot" in self._allowed[t] else math.inf,
-            }
-            for t in self.problem.ids
-        }
-        tail = self._tails(durations)
-        spread = max(tail.values())
-        noise = rng.random() * spread
-        greedy = rng.random()
-        pending = {t: len(self._preds[t]) for t in self.problem.ids}
-        ready = [t for t in self.problem.ids if pending[t] == 0]
-        free = {"human": 0.0, "robot": 0.0}
-        finish: dict[str, float] = {}
-        seqs: dict[Agent, list[Item]] = {"human": [], "robot": []}
-        while ready:
-            keys = [tail[t] + noise * rng.random() for t in ready]
-            task = ready.pop(keys.index(max(keys)))
-            agents = [a for a in AGENTS if a in self._allowed[task]]
-            gate = max((finish[p] for p in self._preds[task]), default=0.0)
-            ends = {a: max(free[a], gate) + durations[task][a] for a in agents}
-            if len(agents) == 2 and rng.random() < greedy:
-                low = min(ends.values())
-                agent = rng.choice([a for a in agents if ends[a] == low])
-            else:
-                agent = rng.choice(agents)
-            finish[task] = free[agent] = ends[agent]
-            seqs[agent].append(task)
-            for nxt in self._succ[task]:
-                pending[nxt] -= 1
-                if pending[nxt] == 0:
-                    ready.append(nxt)
-        return Schedule(tuple(seqs["human"]), tuple(seqs["robot"]))
-
-    def _tails(self, durations: dict[str, dict[str, float]]) -> dict[str, float]:
-        """Longest path from the start of each task to the end of the job (its deadline slack
-        counted backwards), with each task at its faster agent's duration."""
-        return longest_tails(self.problem.ids, self._succ,
-                             {t: min(d.values()) for t, d in durations.items()})
-
-    # -------------------------------------------------------------------------- operators
-
-    def _window(self, seq: Sequence[Item], task: str) -> tuple[int, int]:
-        """Insertion positions [lo, hi] of ``task`` in ``seq`` that keep precedence: after its
-        ancestors, before its descendants and before waits on them."""
-        anc, desc = self._anc[task], self._desc[task]
-        lo, hi = 0, len(seq)
-        for k, x in enumerate(seq):
-            if isinstance(x, Wait):
-                if x.task in desc and k < hi:
-                    hi = k
-            elif x in anc:
-                lo = k + 1
-            elif x in desc and k < hi:
-                hi = k
-        return (lo, hi) if lo <= hi else (0, len(seq))
-
-    def _move(self, s: Schedule, rng: random.Random, start: np.ndarray | None) -> Schedule | None:
-        """A random shared task to the other agent. With the parent's expected start times it
-        goes where its start falls in the other sequence (ahead of any waits there), so the new
-        allocation is judged with a sensible order; otherwise to a random position. Either way
-        within the precedence window. (Measured: fewer runs stuck above the optimum than with
-        random positions only; "reorder" and activation still try the other positions.)"""
-        if not self._shared:
-            return None
-        task = rng.choice(self._shared)
-        src = s.agent_of(task)
-        dst = _other(src)
-        seq = list(s.sequence(dst))
-        lo, hi = self._window(seq, task)
-        if start is not None and start.size:
-            at = start[self._index[task]]
-            pos = next((k for k, x in enumerate(seq)
-                        if isinstance(x, str) and start[self._index[x]] >= at), len(seq))
-            while pos > 0 and isinstance(seq[pos - 1], Wait):
-                pos -= 1
-            seq.insert(min(max(pos, lo), hi), task)
-        else:
-            seq.insert(rng.randint(lo, hi), task)
-        return s.replace(src, (x for x in s.sequence(src) if x != task)).replace(dst, seq)
-
-    def _reorder(self, s: Schedule, rng: random.Random, _: np.ndarray | None) -> Schedule | None:
-        slots = [(a, k) for a in AGENTS if len(s.sequence(a)) >= 2
-                 for k in range(len(s.sequence(a)))]
-        if not slots:
-            return None
-        agent, k = rng.choice(slots)
-        seq = list(s.sequence(agent))
-        if rng.random() < 0.5:  # swap with another item of the same sequence
-            other = rng.choice([p for p in range(len(seq)) if p != k])
-            seq[k], seq[other] = seq[other], seq[k]
-            return s.replace(agent, seq)
-        item = seq.pop(k)
-        lo, hi = (0, len(seq)) if isinstance(item, Wait) else self._window(seq, item)
-        choices = [p for p in range(lo, hi + 1) if p != k]
-        if not choices:
-            return None
-        seq.insert(rng.choice(choices), item)
-        return s.replace(agent, seq)
-
-    def _crossover(self, s: Schedule, rng: random.Random, _: np.ndarray | None
-                   ) -> Schedule | None:
-        """Swap the tails after a cut point in each sequence. A task in a tail that the other
-        agent may not do stays with its agent, after the incoming tail."""
-        h, r = s.human, s.robot
-        ch, cr = rng.randint(0, len(h)), rng.randint(0, len(r))
-        if ch == len(h) and cr == len(r):
-            return None
-        tail_h, tail_r = h[ch:], r[cr:]
-
-        def fits(x: Item, agent: Agent) -> bool:
-            return isinstance(x, Wait) or agent in self._allowed[x]
-
-        human = (*h[:ch], *(x for x in tail_r if fits(x, "human")),
-                 *(x for x in tail_h if not fits(x, "robot")))
-        robot = (*r[:cr], *(x for x in tail_h if fits(x, "robot")),
-                 *(x for x in tail_r if not fits(x, "human")))
-        return Schedule(human, robot)
-
-    def _add_wait(self, s: Schedule, rng: random.Random, _: np.ndarray | None) -> Schedule | None:
-        agents = [a for a in AGENTS if s.sequence(a) and s.tasks(_other(a))]
-        if not agents:
-            return None
-        agent = rng.choice(agents)
-        seq = list(s.sequence(agent))
-        seq.insert(rng.randrange(len(seq)), Wait(rng.choice(s.tasks(_other(agent)))))
-        return s.replace(agent, seq)
-
-    def _remove_wait(self, s: Schedule, rng: random.Random, _: np.ndarray | None
-                     ) -> Schedule | None:
-        slots = [(a, k) for a in AGENTS for k, x in enumerate(s.sequence(a))
-                 if isinstance(x, Wait)]
-        if not slots:
-            return None
-        agent, k = rng.choice(slots)
-        seq = s.sequence(agent)
-        return s.replace(agent, seq[:k] + seq[k + 1 :])
+        """Randomised earliest-deadline-first list scheduling (:func:`seeding.list_schedule`)."""
+        return seeding.list_schedule(self.ops, rng, mean, d_init)
 
     def neighbours(self, s: Schedule, start: np.ndarray | None = None,
                    window: int = 0) -> list[Schedule]:
-        """Every single move, reorder, swap within an agent, pair of adjacent swaps (one in each
-        agent), exchange of two tasks between agents, and wait removal of ``s`` (repaired,
-        distinct, without ``s``): the polish neighbourhood, O(n^2) schedules.
-
-        With ``window`` and the expected start times ``start`` (n,), only changes within
-        ``window`` positions: an item moves at most that far in its sequence, a task goes to
-        the other agent at most that far from where its start falls there, and the adjacent
-        swaps and exchanges pair items at most that far apart in time order. O(n window)
-        schedules; on sequences of at most ``window`` items, the whole neighbourhood.
-        """
-        near = window > 0 and start is not None and start.size > 0
-        reach = window if near else 1 << 30
-        at: dict[Item, dict[Agent, int]] = {}  # item -> where its start falls in each sequence
-        if near:
-            assert start is not None
-            index = self._index
-            for agent in AGENTS:
-                seq = s.sequence(agent)
-                slots = [k for k, x in enumerate(seq) if isinstance(x, str)]
-                starts = [start[index[seq[k]]] for k in slots]  # nondecreasing along seq
-                slots.append(len(seq))
-                for item in self.problem.ids:
-                    at.setdefault(item, {})[agent] = slots[bisect_left(starts,
-                                                                       start[index[item]])]
-
-        def anchor(item: Item, agent: Agent, k: int) -> int:
-            """Where ``item`` (at ``k`` in the other sequence) falls in ``agent``'s."""
-            seq = s.sequence(_other(agent))
-            task = next((x for x in seq[k:] if isinstance(x, str)), None)
-            return at[task][agent] if near and task is not None else len(s.sequence(agent))
-
-        out: dict[Schedule, None] = {}
-        for task in self._shared:
-            src = s.agent_of(task)
-            dst = _other(src)
-            rest = tuple(x for x in s.sequence(src) if x != task)
-            seq = s.sequence(dst)
-            lo, hi = self._window(seq, task)
-            if near:
-                mid = at[task][dst]
-                lo, hi = max(lo, mid - reach), min(hi, mid + reach)
-            for p in range(lo, hi + 1):
-                out[repair(s.replace(src, rest).replace(dst, (*seq[:p], task, *seq[p:])))] = None
-        for agent in AGENTS:
-            seq = s.sequence(agent)
-            for k, item in enumerate(seq):
-                rest = seq[:k] + seq[k + 1 :]
-                if isinstance(item, Wait):
-                    out[repair(s.replace(agent, rest))] = None
-                lo, hi = (0, len(rest)) if isinstance(item, Wait) else self._window(rest, item)
-                for p in range(max(lo, k - reach), min(hi, k + reach) + 1):
-                    if p != k:
-                        out[repair(s.replace(agent, (*rest[:p], item, *rest[p:])))] = None
-                for j in range(k + 1, min(len(seq), k + reach + 1)):
-                    swapped = (*seq[:k], seq[j], *seq[k + 1 : j], item, *seq[j + 1 :])
-                    out[repair(s.replace(agent, swapped))] = None
-        h, r = s.human, s.robot
-        for i in range(len(h) - 1):  # adjacent swaps in both sequences at once: one agent's
-            mid = anchor(h[i], "robot", i)  # new order often pays only with the other's
-            for j in range(len(r) - 1):
-                if abs(j - mid) <= reach:
-                    out[repair(Schedule((*h[:i], h[i + 1], h[i], *h[i + 2 :]),
-                                        (*r[:j], r[j + 1], r[j], *r[j + 2 :])))] = None
-        for i, a in enumerate(h):
-            if isinstance(a, Wait) or "robot" not in self._allowed[a]:
-                continue
-            mid = anchor(a, "robot", i)
-            for j, b in enumerate(r):
-                if isinstance(b, Wait) or "human" not in self._allowed[b] or abs(j - mid) > reach:
-                    continue
-                out[repair(Schedule((*h[:i], b, *h[i + 1 :]), (*r[:j], a, *r[j + 1 :])))] = None
-        out.pop(s, None)
-        return list(out)
+        """The polish neighbourhood of ``s`` (:func:`polish.neighbours`)."""
+        return polishing.neighbours(self.ops, s, start, window)
 
 
 @contextmanager
@@ -731,32 +323,6 @@ def _without_cyclic_gc() -> Iterator[None]:
             gc.enable()
 
 
-@dataclass(frozen=True)
-class _Search:
-    """What a polish asks of the running search: ``evaluate`` schedules (cached ones come back
-    slim) and ``complete`` slim evaluations with their expected start times."""
-
-    evaluate: Callable[[Sequence[Schedule]], list[Evaluation]]
-    complete: Callable[[list[Evaluation]], list[Evaluation]]
-
-
-_NONE = np.empty(0)
-
-
-def _slim(e: Evaluation) -> Evaluation:
-    """What the search keeps of an evaluation it may meet again: the schedule and the
-    objective. The samples' makespans, the motions, the overlaps and the timeline of every
-    schedule evaluated would fill gigabytes on 64-128 tasks; the few cached schedules that
-    become parents or polish starts are evaluated again for their start times."""
-    return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
-                               expected_start=_NONE, expected_finish=_NONE)
-
-
-def _allocation(s: Schedule) -> frozenset[str]:
-    """Who does which task, as the set of the human's tasks."""
-    return frozenset(s.tasks("human"))
-
-
 def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) -> list[Evaluation]:
     """The ``count`` best, at most ``per_allocation`` of them with the same allocation (who does
     which task; 0 = no limit); slots left when allocations run out go to the best of the rest.
@@ -769,15 +335,10 @@ def _select_elites(ranked: list[Evaluation], count: int, per_allocation: int) ->
     for e in ranked:
         if len(chosen) == count:
             break
-        key = _allocation(e.schedule)
+        key = allocation(e.schedule)
         if taken.get(key, 0) < per_allocation:
             taken[key] = taken.get(key, 0) + 1
             chosen.append(e)
         else:
             skipped.append(e)
-    return _rank(chosen + skipped[: count - len(chosen)])
-
-
-def _rank(evaluations: list[Evaluation]) -> list[Evaluation]:
-    """Best first; ties keep their order (deterministic). nan (never produced) sorts last."""
-    return sorted(evaluations, key=lambda e: math.inf if math.isnan(e.objective) else e.objective)
+    return rank(chosen + skipped[: count - len(chosen)])

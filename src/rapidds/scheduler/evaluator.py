@@ -1,0 +1,128 @@
+"""The memory of one GA solve: every schedule evaluated (slim), the best so far and when it was
+found, the allocations whose order has been searched, and the deadline. The search loop, the
+polish and the seeding all evaluate through one :class:`Evaluator`."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from rapidds.motion.interface import TrajectoryCache
+from rapidds.problem import Problem
+from rapidds.schedule import Schedule
+from rapidds.scheduler.active import AllocationOrders
+from rapidds.scheduler.config import GAConfig
+from rapidds.scheduler.diversity import AllocationHistory
+from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+
+_NONE = np.empty(0)
+
+
+def slim(e: Evaluation) -> Evaluation:
+    """What the search keeps of an evaluation it may meet again: the schedule and the
+    objective. The samples' makespans, the motions, the overlaps and the timeline of every
+    schedule evaluated would fill gigabytes on 64-128 tasks; the few cached schedules that
+    become parents or polish starts are evaluated again for their start times."""
+    return dataclasses.replace(e, makespan=_NONE, motions={}, overlaps={},
+                               expected_start=_NONE, expected_finish=_NONE)
+
+
+def allocation(s: Schedule) -> frozenset[str]:
+    """Who does which task, as the set of the human's tasks."""
+    return frozenset(s.tasks("human"))
+
+
+def rank(evaluations: list[Evaluation]) -> list[Evaluation]:
+    """Best first; ties keep their order (deterministic). nan (never produced) sorts last."""
+    return sorted(evaluations, key=lambda e: math.inf if math.isnan(e.objective) else e.objective)
+
+
+def expected_orders(problem: Problem, s: Schedule, mean: np.ndarray, d_init: np.ndarray
+                    ) -> AllocationOrders:
+    """The allocation of ``s`` on expected durations (human ``mean``, robot ``d_init``)."""
+    index = problem.index
+    return AllocationOrders(
+        s, problem, lambda t, a: mean[index[t]] if a == "human" else d_init[index[t]],
+    )
+
+
+class Evaluator:
+    """Evaluates schedules for one solve (Algorithm 2 through :func:`evaluate_population`) and
+    remembers them.
+
+    Args:
+        problem, config: the job and the search settings.
+        samples, mean: (K, n) sampled and (n,) expected human durations.
+        d_init: (n,) nominal robot durations.
+        cache: the memory M of this solve.
+        gamma, lam, history: the objective's weights and past allocations.
+        t0: ``time.perf_counter()`` at the start of the solve.
+    """
+
+    def __init__(self, problem: Problem, config: GAConfig, samples: np.ndarray,
+                 mean: np.ndarray, d_init: np.ndarray, cache: TrajectoryCache, gamma: float,
+                 lam: float, history: AllocationHistory | None, t0: float):
+        self.problem, self.config = problem, config
+        self.samples, self.mean, self.d_init = samples, mean, d_init
+        self.cache, self.gamma, self.lam, self.history = cache, gamma, lam, history
+        self.t0 = t0
+        self.deadline = math.inf if config.time_limit_s is None else t0 + config.time_limit_s
+        self.evaluated: dict[Schedule, Evaluation] = {}
+        self.best: Evaluation | None = None
+        self.best_time = 0.0
+        self.improvements: list[tuple[float, float]] = []
+        self.searched: set[int] = set()  # allocations whose order was searched, as bit masks
+
+    def late(self) -> bool:
+        return time.perf_counter() > self.deadline
+
+    def evaluate(self, schedules: Sequence[Schedule]) -> list[Evaluation]:
+        """Evaluations of ``schedules`` (cached ones come back slim) and then, with
+        ``order_search_nodes``, of the shortest order of each allocation among them not met
+        before."""
+        if self.config.order_search_nodes:
+            schedules = [*schedules, *self._shortest_orders(schedules)]
+        new = [s for s in dict.fromkeys(schedules) if s not in self.evaluated]
+        full: dict[Schedule, Evaluation] = {}
+        if new:
+            for e in self._run(new):
+                full[e.schedule] = e
+                self.evaluated[e.schedule] = slim(e)
+                if self.best is None or e.objective < self.best.objective:
+                    self.best, self.best_time = e, time.perf_counter() - self.t0
+                    self.improvements.append((self.best_time, e.objective))
+        return [full[s] if s in full else self.evaluated[s] for s in schedules]
+
+    def complete(self, evaluations: list[Evaluation]) -> list[Evaluation]:
+        """``evaluations`` with their expected start times: cached slim ones are evaluated
+        again (the same values; their motions are all in the memory M already)."""
+        bare = [e.schedule for e in evaluations if e.feasible and not e.expected_start.size]
+        if not bare:
+            return evaluations
+        again = {e.schedule: e for e in self._run(bare)}
+        return [again.get(e.schedule, e) for e in evaluations]
+
+    def _run(self, schedules: list[Schedule]) -> list[Evaluation]:
+        return evaluate_population(
+            self.problem, schedules, self.samples, self.mean, self.cache, self.d_init,
+            self.gamma, self.lam, self.history, self.config.max_overlap_iters,
+        )
+
+    def _shortest_orders(self, schedules: Sequence[Schedule]) -> list[Schedule]:
+        """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
+        ``schedules`` not searched before. Without waits: they only delay, and the first
+        schedule met with an allocation may carry any."""
+        out = []
+        index = self.problem.index
+        for s in schedules:
+            key = sum(1 << index[t] for t in s.tasks("human"))  # small, unlike a set
+            if key not in self.searched:
+                self.searched.add(key)
+                bare = Schedule(s.tasks("human"), s.tasks("robot"))
+                orders = expected_orders(self.problem, bare, self.mean, self.d_init)
+                out += orders.search(self.config.order_search_nodes, keep=1)[0]
+        return out
