@@ -14,10 +14,12 @@ SEARCH = dict(population=8, generations=4, samples=8, patience=2, particles=2, c
 FACTORS = {"speed": ("fast", "slow"), "route": ("middle", "outside")}
 
 
-def make_study(folder: Path, world: World, participants: int = 1, seed: int = 3) -> Path:
-    """A study in ``folder`` (design.csv, study.sqlite); returns the folder."""
+def make_study(folder: Path, world: World, participants: int = 1, seed: int = 3,
+               comfort: bool = False) -> Path:
+    """A study in ``folder`` (design.csv, study.sqlite); returns the folder. comfort: the
+    round pages ask the comfort item and the runs learn each person's gamma from it."""
     design = StudyDesign(participants=participants, systems=("full", "none"), rounds=2,
-                         factors=FACTORS, seed=seed, require_balance=False)
-    cfg = RunConfig(world=world.name, **SEARCH).resolved(world)
+                         factors=FACTORS, seed=seed, require_balance=False, comfort=comfort)
+    cfg = RunConfig(world=world.name, gamma_learn=comfort, **SEARCH).resolved(world)
     create_study(folder, design, cfg).close()
     return folder

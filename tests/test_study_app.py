@@ -115,6 +115,7 @@ def test_a_round_page_shows_the_plan_and_each_submit_stores_one_round(study: Stu
     r = study.post(pid, "round", step, {"source": "simulated"})
     assert r.status_code == 200 and r.json() == {"next": f"/p/{pid}"}
     assert study.stored() == (1, 0, 0, 0)
+    assert "too_close" not in page.text  # a design without the comfort item does not ask it
     # the same page posted again (a double click, a second tab) is refused, not stored twice
     again = study.post(pid, "round", step, {"source": "simulated"})
     assert again.status_code == 409 and "out of date" in again.json()["error"]
@@ -179,6 +180,9 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
      "has 40 fields"),
     ({"source": "simulated", "d:mix_r": "3"}, {}, "unknown field(s) in the round: d:mix_r"),
     ({"source": "tracker", "launch": "1"}, {}, "unknown field(s) in the round: launch"),
+    # a design without the comfort item knows none of its fields
+    ({"source": "simulated", "comfort": "4"}, {}, "unknown field(s) in the round: comfort"),
+    ({"source": "simulated", "too_close": "1.5"}, {}, "unknown field(s) in the round: too_close"),
 ])
 def test_bad_round_input_is_refused_with_a_message_and_nothing_stored(
         study: Study, fields: dict[str, str], extra: dict[str, str], message: str) -> None:
@@ -195,6 +199,71 @@ def test_bad_round_input_is_refused_with_a_message_and_nothing_stored(
     assert message in r.json()["error"]
     assert study.stored() == (0, 0, 0, 0)
     assert study.step(pid) == step  # the same round, ready for a corrected submit
+
+
+@pytest.fixture()
+def comfort_study(tmp_path: Path, fetch_world: FetchWorld,
+                  fetch_policy: DiffusionPolicy) -> Iterator[Study]:
+    """A study whose design asks the comfort item and whose runs learn gamma (--gamma learn)."""
+    s = Study(make_study(tmp_path, fetch_world, comfort=True), fetch_world, fetch_policy)
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    ({"source": "simulated"}, "please answer \u201cThe robot came too close to me\u201d"),
+    ({"source": "simulated", "comfort": "9"}, "the answer must be 1..7, got '9'"),
+    ({"source": "simulated", "comfort": "0"}, "the answer must be 1..7"),
+    ({"source": "simulated", "comfort": "4.5"}, "the answer must be 1..7"),
+    ({"source": "simulated", "comfort": "abc"}, "the answer must be 1..7"),
+    ({"source": "simulated", "comfort": "4", "too_close": "-1"}, "'-1' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "abc"}, "'abc' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "nan"}, "'nan' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "inf"}, "'inf' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "1e12"}, "'1e12' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "99999"}, "'99999' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": "1.5,,2"}, "'' is not a time"),
+    ({"source": "simulated", "comfort": "4", "too_close": ",".join(["1"] * 201)},
+     "201 presses in one round, at most 200"),
+    ({"source": "simulated", "comfort": "4", "bag": "x", "launch": "1"},
+     "unknown field(s) in the round: launch"),
+])
+def test_bad_comfort_input_is_refused_with_a_message_and_nothing_stored(
+        comfort_study: Study, fields: dict[str, str], message: str) -> None:
+    pid = _pid(comfort_study)
+    step = comfort_study.step(pid)
+    r = comfort_study.post(pid, "round", step, fields)
+    assert r.status_code == 400, r.text
+    assert message in r.json()["error"]
+    assert comfort_study.stored() == (0, 0, 0, 0)
+    assert comfort_study.step(pid) == step
+
+
+def test_the_comfort_item_goes_with_the_round_to_the_gamma_learner(comfort_study: Study) -> None:
+    study = comfort_study
+    pid = _pid(study)
+    page = study.client.get(f"/p/{pid}").text
+    assert "The robot came too close to me" in page and "name=too_close" in page
+    assert "Too close!" in page and "name=comfort value=7" in page
+    r = study.post(pid, "round", study.step(pid), {"source": "simulated", "comfort": "7",
+                                                   "too_close": "2.5,0.75"})
+    assert r.status_code == 200, r.text
+    with StudyStore.open_readonly(study_path(study.folder)) as s:
+        rid = s.run_id(pid, s.participant(pid).systems[0])
+        rec = s.records(rid)[-1]
+    said = rec["comfort"]
+    assert said["answer"] == 7 and said["too_close"] == [0.75, 2.5]  # sorted, as sent
+    assert "simulated" not in said  # the person said it, not the simulated cell's model
+    assert len(said["closeness_at"]) == 2 and said["peak"] > 0
+    belief = rec["gamma_belief"]
+    assert belief["evidence"] == 1
+    # "too close" at 7 of 7 moves the belief above the prior's median (the world's gamma)
+    assert belief["median"] > study.world.problem().objective.gamma
+    assert rec["gamma"] == pytest.approx(study.world.problem().objective.gamma)  # planned prior
+    # a round played in the game is recorded without the item (the game page does not ask)
+    assert study.worker.run(lambda s: s._comfort("game", {})) is None
 
 
 def test_malformed_requests_get_4xx_never_500(study: Study) -> None:

@@ -246,3 +246,34 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
     learned = recs[0]["belief"]["mean_durations"]
     prior = {t: fetch_world.problem().task(t).human_mean for t in learned}
     assert any(abs(learned[t] - prior[t]) > 0.3 for t in recs[0]["observed"])
+
+
+def test_the_comfort_item_and_too_close_presses_are_sent_with_the_round(
+        browser: Any, tmp_path: Path, fetch_world: FetchWorld) -> None:
+    """A design with the comfort item: the "too close" button waits for the round clock, the
+    answer is required, and the presses (seconds on the page's round clock) are stored."""
+    folder = make_study(tmp_path, fetch_world, comfort=True)
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        pid = s.participants()[0].id
+    server = Server(folder, _free_port())
+    try:
+        page = open_page(browser, f"{server.url}p/{pid}", width=1000, height=900)
+        _plan(page)
+        assert page.is_disabled("button.too-close")  # no clock yet: a press has no time
+        page.check("input[name=source][value=simulated]")
+        _refused(page, "please answer")
+        page.click("button.clock")
+        page.click("button.too-close")
+        page.click("button.too-close")
+        assert page.inner_text(".presses").startswith("2 presses")
+        page.check("input[name=comfort][value='5']")
+        _submit(page)
+        assert page.errors == []
+    finally:
+        server.stop()
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        rec = s.records(s.run_id(pid, s.participant(pid).systems[0]))[0]
+    said = rec["comfort"]
+    assert said["answer"] == 5 and len(said["too_close"]) == 2
+    assert 0 <= said["too_close"][0] <= said["too_close"][1]  # seconds since the clock, in order
+    assert rec["gamma_belief"]["evidence"] == 1

@@ -63,6 +63,7 @@ def test_design_writes_csv_and_store_and_never_mixes_designs(tmp_path, capsys):
     (["--rounds", "0"], "rounds"),
     (["--items", "missing.yaml"], "cannot read"),
     (["--gamma", "-1"], "--gamma"),
+    (["--learn-gamma"], "--learn-gamma needs --comfort-item"),
 ])
 def test_design_bad_input_is_one_line(tmp_path, capsys, args, needle):
     code, _, err = _main(capsys, "study", "design", "--out", str(tmp_path / "s"), *args)
@@ -83,6 +84,21 @@ def test_a_fetch_design_primes_fetchs_groups_and_keeps_its_own_task_bound(tmp_pa
     code, _, err = _main(capsys, "study", "design", "--world", "fetch", "--participants", "16",
                          "--out", str(out))
     _one_line(code, err, "already holds a different study design")  # another bound
+
+
+def test_a_design_with_the_comfort_item_learns_gamma_when_asked(tmp_path, capsys):
+    out = tmp_path / "c"
+    code, _, err = _main(capsys, "study", "design", "--participants", "16", "--comfort-item",
+                         "--learn-gamma", "--out", str(out))
+    assert code == 0, err
+    with StudyStore.open_readonly(study_path(out)) as st:
+        assert st.design.comfort and st.base_config.gamma_learn
+        assert st.config_for("P01", "full").gamma_learn  # every run of the study learns
+    code, _, err = _main(capsys, "study", "design", "--participants", "16", "--comfort-item",
+                         "--out", str(tmp_path / "d"))
+    assert code == 0, err
+    with StudyStore.open_readonly(study_path(tmp_path / "d")) as st:
+        assert st.design.comfort and not st.base_config.gamma_learn
 
 
 def test_design_with_own_items_and_foreign_store(tmp_path, capsys):

@@ -163,6 +163,16 @@ def test_task_bounds_are_per_world_and_the_design_can_set_its_own():
             StudyDesign(participants=16, max_task_s=bad)
 
 
+def test_the_comfort_item_is_off_by_default_and_stored_only_when_asked():
+    d = StudyDesign(participants=16)
+    assert not d.comfort and "comfort" not in d.model_dump_json()  # old designs read the same
+    asked = StudyDesign(participants=16, comfort=True)
+    assert asked.model_dump()["comfort"] is True and asked != d
+    assert StudyDesign(**asked.model_dump()) == asked
+    with pytest.raises(StudyDesignError, match="comfort"):
+        StudyDesign(participants=16, comfort="yes")
+
+
 def test_near_balance_when_allowed():
     d = StudyDesign(participants=30, require_balance=False)
     assert not d.balanced

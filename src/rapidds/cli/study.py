@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app
+from rapidds.errors import StudyDesignError
 from rapidds.experiments.ablation import AblationConfig
 from rapidds.experiments.study.systems import SYSTEMS
 
@@ -62,11 +63,18 @@ _MAX_TASK = typer.Option(None, "--max-task-seconds", help="Longest a person's ta
 _UNBALANCED = typer.Option(False, "--allow-unbalanced", help="Accept a participant count that "
                            "cannot balance order rows x priming groups (near-balance; pilots, "
                            "tests).")
+_COMFORT = typer.Option(False, "--comfort-item", help="Ask on every round page how close the "
+                       "robot came (\"the robot came too close to me\", 1-7) and offer a 'too "
+                       "close' button; analyze relates the answers to the learned gamma.")
+_LEARN = typer.Option(False, "--learn-gamma", help="Runs plan with each person's learned gamma "
+                      "(--gamma learn, prior about --gamma) from the comfort item's evidence; "
+                      "needs --comfort-item.")
 
 
 def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
            gamma: float | None, seed: int, items: Path | None, search: dict[str, Any],
-           unbalanced: bool = False, max_task_s: float | None = None
+           unbalanced: bool = False, max_task_s: float | None = None,
+           comfort: bool = False, learn: bool = False
            ) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
     """Validate every option before anything is written: design, world, run settings, items.
     The priming groups are the world's (painting hand x speed, fetch speed x route)."""
@@ -78,8 +86,11 @@ def _build(participants: int, systems: str, world: str, variant: str | None, rou
     w = make_world(world, variant)
     design = StudyDesign(participants=participants, systems=_split(systems), rounds=rounds,
                          seed=seed, require_balance=not unbalanced, max_task_s=max_task_s,
-                         factors=priming_factors(w))
-    run = RunConfig(world=world, variant=w.variant, gamma=gamma, cycles=rounds, **search)
+                         factors=priming_factors(w), comfort=comfort)
+    if learn and not comfort:  # no evidence: the belief would stay the prior all study long
+        raise StudyDesignError("--learn-gamma needs --comfort-item (the evidence it learns from)")
+    run = RunConfig(world=world, variant=w.variant, gamma=gamma, cycles=rounds,
+                    **({"gamma_learn": True} if learn else {}), **search)
     survey = SurveyItems.load(items) if items is not None else None
     return design, run.resolved(w), survey
 
@@ -104,7 +115,8 @@ def design_cmd(
     seed: int = _SEED, items: Path | None = _ITEMS, population: int = _POP,
     generations: int = _GEN, samples: int = _SAMPLES, particles: int = _PARTICLES,
     candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED,
-    max_task_seconds: float | None = _MAX_TASK, as_json: bool = _JSON,
+    max_task_seconds: float | None = _MAX_TASK, comfort_item: bool = _COMFORT,
+    learn_gamma: bool = _LEARN, as_json: bool = _JSON,
 ) -> None:
     """Counterbalanced design (Williams squares, priming groups balanced across orders) written
     to DIR/design.csv and DIR/study.sqlite. The same design again changes nothing; a different
@@ -115,7 +127,7 @@ def design_cmd(
                                  items, dict(population=population, generations=generations,
                                              samples=samples, particles=particles,
                                              candidates=candidates), allow_unbalanced,
-                                 max_task_seconds)
+                                 max_task_seconds, comfort_item, learn_gamma)
     with create_study(out, design, run, survey, lock_as="rapidds study design") as store:
         summary = _summary(store, out)
     if as_json:

@@ -12,9 +12,10 @@ Objective measures, per round (the paper's two objectives, on what really happen
 Per participant x system the measure is the **reduction**: first round minus the mean of the last
 three (positive = the cost fell), tested by a two-way repeated-measures ANOVA (spatial adaptation
 x temporal adaptation). Ranking: Wilcoxon signed-rank (paired within participants; see
-:func:`.stats.ranking_test`). Survey: ART ANOVA per item. Any analysis without its data (no
-complete participant, no ranking, no survey answers: simulated participants give none) is
-skipped with a statement saying so, never filled in.
+:func:`.stats.ranking_test`). Survey: ART ANOVA per item. Comfort (a study that asked the comfort
+item): the learned gamma against the stated comfort (:mod:`.comfort`). Any analysis without
+its data (no complete participant, no ranking, no survey answers: simulated participants give
+none) is skipped with a statement saying so, never filled in.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from rapidds.experiments.study.art import art_by_item
+from rapidds.experiments.study.comfort import comfort_section, comfort_table
 from rapidds.experiments.study.stats import (
     cost_reduction,
     ranking_test,
@@ -115,6 +117,7 @@ def analyze_study(folder: str | Path) -> Analysis:
         rounds = round_table(store)
         rankings = store.rankings()
         survey = store.survey_frame()
+        comfort = comfort_table(store) if design.comfort else None
     systems = list(design.systems)
     s, md = _design_section(design, run, systems)
     files: list[Path] = []
@@ -126,6 +129,9 @@ def analyze_study(folder: str | Path) -> Analysis:
         s[key] = part
         md += [f"## {title}", "", *lines]
         files += drawn
+    if comfort is not None:  # only a study that asked the item: others' outputs stay as they were
+        s["comfort"], lines = comfort_section(comfort, run.gamma_learn, design.seed)
+        md += ["## Comfort and the learned gamma", "", *lines]
     report = "\n".join(md)
     s = _finite(s)
     atomic_write_text(folder / "report.md", report + "\n")

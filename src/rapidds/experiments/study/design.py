@@ -124,14 +124,21 @@ class StudyDesign(BaseModel):
         description="longest a person's task may take, seconds (None: the world's bound, "
         "world_task_bound)",
     )
+    comfort: bool = Field(
+        False, strict=True,
+        description="ask the comfort item on every round page (\"the robot came too close to "
+        "me\", 1-7, and a 'too close' button); its evidence goes to the run's gamma learner",
+    )
 
     @model_serializer(mode="wrap")
     def _without_unset_bound(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """An unset ``max_task_s`` is left out, so a design stored before the field existed
-        reads back, and compares, exactly as before."""
+        """An unset ``max_task_s`` and an unasked comfort item are left out, so a design stored
+        before those fields existed reads back, and compares, exactly as before."""
         data = handler(self)
         if data.get("max_task_s") is None:
             data.pop("max_task_s", None)
+        if not data.get("comfort"):
+            data.pop("comfort", None)
         return data
 
     def task_bound(self, world: World) -> float:

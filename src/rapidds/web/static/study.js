@@ -10,6 +10,33 @@ function showSources(form) {
   }
 }
 
+// The round's comfort item: "The round starts now" starts the round clock (performance.now(),
+// the page's monotonic clock); each "Too close!" press is kept as seconds since that start, in
+// the hidden too_close field (comma-separated, 3 decimals), sent with the round.
+function comfortClock(box) {
+  const start = box.querySelector("button.clock");
+  const press = box.querySelector("button.too-close");
+  const count = box.querySelector(".presses");
+  const field = box.querySelector("input[name=too_close]");
+  let t0 = null;
+  const times = [];
+  start.addEventListener("click", () => {
+    t0 = performance.now();
+    times.length = 0;
+    field.value = "";
+    start.textContent = "Restart the round clock";
+    press.disabled = false;
+    count.textContent = "clock running: no presses";
+  });
+  press.addEventListener("click", () => {
+    if (t0 === null) return;
+    times.push(((performance.now() - t0) / 1000).toFixed(3));
+    field.value = times.join(",");
+    count.textContent = times.length + (times.length === 1 ? " press, last at " : " presses, last at ")
+      + times[times.length - 1] + " s";
+  });
+}
+
 async function submitForm(form, event) {
   event.preventDefault();
   const error = form.querySelector(".error");
@@ -61,4 +88,5 @@ document.addEventListener("DOMContentLoaded", () => {
     }
     showSources(form);
   }
+  for (const box of document.querySelectorAll("fieldset#comfort")) comfortClock(box);
 });

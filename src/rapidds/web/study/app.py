@@ -227,8 +227,9 @@ def _page_routes(app: FastAPI, worker: StudyWorker, key: str) -> None:
             assert held is not None
             game = f"/p/{pid}/play" if worker.session.has_game else None
             sources = await worker.call(lambda s: s.sources(pid))
+            comfort = await worker.call(lambda s: s.store.design.comfort)
             return _html(pages.round_page(pid, held[1].as_dict(), tracker_help=_TRACKER_HELP,
-                                          game=game, sources=sources))
+                                          game=game, sources=sources, comfort=comfort))
         if step.kind == "survey":
             items = await worker.call(lambda s: s.items())
             return _html(pages.survey_page(pid, token, int(step.block or 0), blocks, items))

@@ -15,6 +15,7 @@ from typing import Any
 from rapidds.schedule import Timeline, Wait, parse_item, task_items
 
 __all__ = [
+    "comfort_fieldset",
     "demographics_page",
     "done_page",
     "gantt_svg",
@@ -29,6 +30,8 @@ __all__ = [
 LIKERT = ("Strongly disagree", "Disagree", "Somewhat disagree", "Neutral", "Somewhat agree",
           "Agree", "Strongly agree")
 """Labels of the 7 points (1..7)."""
+COMFORT_ITEM = "The robot came too close to me"
+"""The comfort item of a round (agreement 1-7), asked when the design's ``comfort`` is on."""
 
 DEMOGRAPHICS: tuple[tuple[str, str, str], ...] = (
     ("age", "Age (years)", "number"),
@@ -87,12 +90,41 @@ def where(pid: str, block: int | None = None, blocks: int | None = None,
     return " · ".join(parts)
 
 
+def _likert_head() -> str:
+    """The header cells of a 1-7 agreement row (the survey's and the comfort item's)."""
+    return "".join(f"<th>{i + 1}<br>{e(lab)}</th>" for i, lab in enumerate(LIKERT))
+
+
+def comfort_fieldset() -> str:
+    """The round's comfort item: the round clock, the "too close" button (its presses go in
+    the hidden ``too_close`` field, see static/study.js) and the 1-7 answer ``comfort``."""
+    points = "".join(
+        f"<td><input type=radio name=comfort value={v} aria-label='comfort {v}'></td>"
+        for v in range(1, 8))
+    head = _likert_head()
+    return (
+        "<fieldset id=comfort><legend>How close the robot came</legend>"
+        "<p><button type=button class=clock>The round starts now</button> "
+        "<button type=button class=too-close disabled>Too close!</button> "
+        "<span class='presses muted'>no presses</span></p>"
+        "<input type=hidden name=too_close value=''>"
+        "<p class='muted small'>Press <b>The round starts now</b> when the round starts (the "
+        "first task begins), then <b>Too close!</b> whenever the robot comes too close. Each "
+        "press is sent with the round as the seconds since that start, on this page's own "
+        "clock (the browser's monotonic clock, unaffected by changes of the computer's "
+        "time); the robot's plan puts its own start at the same moment.</p>"
+        f"<table class=likert><tr><th></th>{head}</tr><tr><td class=item>{e(COMFORT_ITEM)}"
+        f"</td>{points}</tr></table></fieldset>")
+
+
 def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
                game: str | None = None,
-               sources: Sequence[str] = ("tracker", "simulated", "typed")) -> str:
+               sources: Sequence[str] = ("tracker", "simulated", "typed"),
+               comfort: bool = False) -> str:
     """The plan of the round and the form for what the person did; game: the address where
     the round can be played in the browser game instead (fetch studies); sources: the form's
-    choices that can work for this participant (a tracker file always)."""
+    choices that can work for this participant (a tracker file always); comfort: ask the
+    design's comfort item (:func:`comfort_fieldset`)."""
     human = task_items(view["human"])
     seq = lambda items, cls: " → ".join(  # noqa: E731
         f"<span class={cls}>{e(t)}</span>" if not isinstance(t, Wait)
@@ -146,7 +178,8 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
            "round is recorded with your times and paths, and the study goes on.</p></section>"
            if game else "")
         + "<section class=card id=input><h2>After the round</h2>"
-        + _form(f"/api/p/{pid}/round", view["step"], src, "Record the round",
+        + _form(f"/api/p/{pid}/round", view["step"],
+                src + (comfort_fieldset() if comfort else ""), "Record the round",
                 "recording and planning the next round…") + "</section>")
     return page(f"{pid} round {view['round']}",
                 where(pid, view["block"], view["blocks"], view["round"], view["rounds"]), body)
@@ -154,7 +187,7 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
 
 def survey_page(pid: str, step: str, block: int, blocks: int,
                 items: Sequence[Mapping[str, Any]]) -> str:
-    head = "".join(f"<th>{i + 1}<br>{e(lab)}</th>" for i, lab in enumerate(LIKERT))
+    head = _likert_head()
     rows = "".join(
         f"<tr><td class=item>{e(it['text'])}</td>" + "".join(
             f"<td><input type=radio name='{e(it['id'])}' value={v} "

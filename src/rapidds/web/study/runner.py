@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rapidds.errors import RapiddsError, StateError, StudyDataError
+from rapidds.experiments.study.design import MAX_TASK_S_LIMIT
 from rapidds.experiments.study.store import (
     STORE_NAME,
     Step,
@@ -36,14 +37,14 @@ from rapidds.experiments.study.store import (
     validate_durations,
 )
 from rapidds.schedule import Timeline
-from rapidds.web.study.pages import DEMOGRAPHICS, gantt_svg
+from rapidds.web.study.pages import COMFORT_ITEM, DEMOGRAPHICS, gantt_svg
 from rapidds.web.study.tracker import (
     TrackerError,
     group_teammate,
     parse_tracker,
     typed_execution,
 )
-from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
 from rapidds.worlds.registry import make_world
 
 if TYPE_CHECKING:
@@ -51,7 +52,8 @@ if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CyclePlan
     from rapidds.motion.policy import DiffusionPolicy
 
-__all__ = ["InputError", "OutOfTurn", "StudySession", "View", "step_token"]
+__all__ = ["InputError", "OutOfTurn", "StudySession", "View", "parse_presses",
+           "step_token"]
 
 SOURCES = ("tracker", "bag", "simulated", "typed", "game")
 """Where a round's data come from; "game" (fetch only): played at ``/p/{pid}/play``."""
@@ -68,6 +70,29 @@ class OutOfTurn(RapiddsError):
     def __init__(self, message: str, next_step: Step):
         super().__init__(message)
         self.next_step = next_step
+
+
+COMFORT_FIELDS = ("comfort", "too_close")
+"""The round form's fields of the comfort item: the answer and the presses' times."""
+
+
+def parse_presses(text: str) -> list[float]:
+    """The "too close" presses a round page sent: seconds on the round clock, comma-separated
+    (empty: none), each in [0, :data:`CLOCK_LIMIT_S`], at most :data:`MAX_SIGNALS`; sorted."""
+    parts = [p.strip() for p in text.split(",")] if text.strip() else []
+    if len(parts) > MAX_SIGNALS:
+        raise InputError(f"too close: {len(parts)} presses in one round, at most {MAX_SIGNALS}")
+    times = []
+    for p in parts:
+        try:
+            t = float(p) if re.fullmatch(r"[0-9]+(\.[0-9]*)?", p) else math.nan
+        except ValueError:
+            t = math.nan
+        if not 0 <= t <= CLOCK_LIMIT_S:  # nan too
+            raise InputError(f"too close: {p[:20]!r} is not a time in seconds from the round's "
+                             f"start (0..{CLOCK_LIMIT_S:g})")
+        times.append(t)
+    return sorted(times)
 
 
 def step_token(step: Step) -> str:
@@ -99,12 +124,59 @@ class View:
         return dict(self.__dict__)
 
 
-class _Unobserved:
+MAX_SIGNALS = 200
+"""The most "too close" presses one round may send (one every 2 s of a long round; more is a
+stuck key or a script)."""
+CLOCK_LIMIT_S = MAX_TASK_S_LIMIT
+"""The latest time a press may have on the round clock: the longest task any design allows."""
+
+
+class _Says:
+    """What the participant said about the round being recorded, for the loop's
+    ``comfort_report(cycle)`` (loop/comfort.py): set just before the round is learned, taken
+    once. A round recorded without the comfort item says nothing (None), so the run learns and
+    records exactly as without it."""
+
+    said: dict[int, tuple[int, list[float]]]
+
+    def comfort_report(self, cycle: int) -> tuple[int, list[float]] | None:
+        return self.said.pop(cycle, None)
+
+
+class _Simulated(_Says):
+    """The priming group's simulated person (still a SimulatedTeammate, so the oracle and the
+    reference costs are theirs) who also passes on what the page collected."""
+
+    def __init__(self, mate: SimulatedTeammate):
+        self.mate, self.said = mate, {}
+
+    @property
+    def name(self) -> str:
+        return self.mate.name
+
+    def execute(self, cycle: int, tasks: Sequence[str],
+                rng: np.random.Generator) -> dict[str, HumanExecution]:
+        return self.mate.execute(cycle, tasks, rng)
+
+    def at(self, cycle: int) -> SimulatedTeammate:
+        return self.mate.at(cycle)
+
+    def perform(self, task: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+        return self.mate.perform(task, rng)
+
+    def true_mean_durations(self) -> dict[str, float]:
+        return self.mate.true_mean_durations()
+
+    def true_std_durations(self) -> dict[str, float]:
+        return self.mate.true_std_durations()
+
+
+class _Unobserved(_Says):
     """The teammate of a participant whose priming group has no simulated person: the loop
     always gets what they did from the page, and asking it to act is an input error."""
 
     def __init__(self, name: str, why: str):
-        self._name, self._why = name, why
+        self._name, self._why, self.said = name, why, {}
 
     @property
     def name(self) -> str:
@@ -200,9 +272,9 @@ class StudySession:
         rid = self.store.run_id(pid, system)
         run = self._runs.get(rid)
         if run is None:
-            mate: Teammate
+            mate: _Simulated | _Unobserved
             try:
-                mate = self.teammate(pid)
+                mate = _Simulated(self.teammate(pid))
             except TrackerError as exc:
                 mate = _Unobserved(pid, str(exc))
             run = AdaptiveRun(self.store.config_for(pid, system), self.policy, self.store,
@@ -274,16 +346,39 @@ class StudySession:
         assert held is not None
         plan, _ = held
         tasks = plan.best.schedule.tasks("human")
+        said = self._comfort(source, fields)
+        if self.store.design.comfort:  # else they stay, and are refused as unknown fields
+            fields = {k: v for k, v in fields.items() if k not in COMFORT_FIELDS}
         observed = self._observed(pid, source, fields, tracker, tasks, played)
         run = self._run(pid, step.system)
+        mate = run.teammate
+        assert isinstance(mate, _Says)
+        if said is not None:
+            mate.said[plan.cycle] = said
         try:
             dep = run.execute(plan, observed)
             run.learn(plan, dep)
             return run.record(plan, dep)
         finally:  # recorded or not, the next plan starts from the store
+            mate.said.pop(plan.cycle, None)
             self._plans.pop(run.config.run_id, None)
             if run.next_cycle != plan.cycle + 1:
                 self._forget(pid, step.system)
+
+    def _comfort(self, source: str, fields: Mapping[str, str]
+                 ) -> tuple[int, list[float]] | None:
+        """The round's comfort answer and "too close" times (seconds on the round clock) when
+        the design asks the item, else None; the fields are unknown to a design without it."""
+        if not self.store.design.comfort:
+            return None
+        answer = str(fields.get("comfort", "")).strip()
+        if not answer and source == "game":  # the study's game page does not ask (yet)
+            return None
+        if not re.fullmatch(r"[1-7]", answer):
+            raise InputError(f"\u201c{COMFORT_ITEM}\u201d: the answer must be 1..7, got "
+                             f"{answer[:20]!r}" if answer else
+                             f"please answer \u201c{COMFORT_ITEM}\u201d (1-7)")
+        return int(answer), parse_presses(str(fields.get("too_close", "")))
 
     def _observed(self, pid: str, source: str, fields: Mapping[str, str], tracker: str | None,
                   tasks: Sequence[str], played: Mapping[str, HumanExecution] | None
