@@ -42,11 +42,12 @@ KEYS = {(1, 0): "ArrowRight", (-1, 0): "ArrowLeft", (0, 1): "ArrowUp", (0, -1): 
 class RouteBot:
     """modes: task -> route mode the bot takes ("middle" or "outside" for t2 and t3).
     tol: metres per axis within which the bot stops pressing that axis; reach: metres at which a
-    waypoint counts as passed."""
+    waypoint counts as passed. prefer: tasks the bot fetches first whenever the page shows them
+    open (any order precedence allows), before the plan's next."""
 
     def __init__(self, world: FetchWorld, modes: dict[str, str] | None = None,
-                 tol: float = 0.08, reach: float = 0.3):
-        self.world, self.modes = world, dict(modes or {})
+                 tol: float = 0.08, reach: float = 0.3, prefer: tuple[str, ...] = ()):
+        self.world, self.modes, self.prefer = world, dict(modes or {}), prefer
         self.tol, self.reach = tol, reach
         self._leg: tuple[int, str, str] | None = None
         self._waypoints: list[np.ndarray] = []
@@ -64,6 +65,9 @@ class RouteBot:
         if not state.get("started") or state.get("human_done") or cur is None:
             return (0, 0)
         status = state["tasks"][cur]
+        if status != "carried":  # free: a preferred open object first, whatever the plan says
+            cur = next((t for t in self.prefer if state["tasks"].get(t) == "active"), cur)
+            status = state["tasks"][cur]
         if status not in ("active", "carried"):
             return (0, 0)  # locked or not started yet: wait where we are (at home)
         leg = "out" if status == "active" else "back"

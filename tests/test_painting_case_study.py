@@ -23,6 +23,7 @@ from rapidds.experiments.painting import (
     table_markdown,
     table_rows,
 )
+from rapidds.store import RunStore
 from rapidds.worlds.painting import PaintingWorld
 from rapidds.worlds.painting.cycles import loop_behaviours, summarize_record
 
@@ -222,3 +223,28 @@ def test_corrupt_checkpoint_and_scene_get_one_line(tmp_path, monkeypatch, capsys
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1, err
     assert lines[0].startswith("rapidds: error: cannot build the painting scene"), err
+
+
+def test_case_study_reactive_column_comes_from_stored_reactive_runs(tmp_path, monkeypatch,
+                                                                     capsys) -> None:
+    out = tmp_path / "cs"
+    argv = ["case-study", "painting", "--out", str(out), "--cycles", "1", "--settings",
+            "unconstrained-g85", "--json", "--no-gif", "--reactive"]
+    rc, stdout, err = _cli(argv, monkeypatch, capsys)
+    assert rc == 0, err
+    data = json.loads(stdout)
+    (row,) = data["rows"]
+    assert "unconstrained-g85-reactive" in data["behaviours"]
+    rid = "painting-unconstrained-left-slow-full-s0"
+    with RunStore.open_readonly(out / "unconstrained-g85-reactive" / "run.sqlite") as st:
+        (rec,) = st.records("painting-unconstrained-left-slow-full-reactive-s0")
+    assert row["reactive makespan (s)"] == f"{rec['realised']['makespan']:.2f}"
+    assert row["reactive min sep. (m)"] == f"{rec['realised']['min_separation']:.3f}"
+    assert row["reactive pauses/replans"] == f"{len(rec['pauses'])}/{len(rec['replans'])}"
+    with RunStore.open_readonly(out / "unconstrained-g85" / "run.sqlite") as st:
+        (paper,) = st.records(rid)
+    assert row["makespan (s)"] == f"{paper['realised']['makespan']:.2f}"  # the paper's beside
+    assert "replans" in rec and "replans" not in paper  # only the reactive record has them
+    header = (out / "table.csv").read_text().splitlines()[0]
+    assert header.endswith("reactive makespan (s),reactive min sep. (m),reactive pauses/replans")
+    assert "reactive pauses/replans" in (out / "table.md").read_text()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from play_bot import RouteBot
 
+from rapidds.execution import CycleExecutor, PlannedRobot, SimulatedHuman
 from rapidds.loop.deploy import deploy
 from rapidds.motion.interface import MotionPlan
 from rapidds.schedule import Schedule, Wait
@@ -155,3 +156,39 @@ def test_the_robot_plays_its_trajectory_row_by_row(fetch_world: FetchWorld) -> N
 def test_a_deadlocked_schedule_is_refused(fetch_world: FetchWorld) -> None:
     with pytest.raises(ValueError, match="deadlock"):
         _game(fetch_world, (Wait("t3"), "t2"), (Wait("t2"), "t3", "t0", "t1"))
+
+
+def test_the_person_fetches_in_any_order_precedence_allows(fetch_world: FetchWorld) -> None:
+    """No lock on the plan's order: the plan says t2 then t3, the person takes t3 first (both are
+    open at once), and t0 stays locked until both are home. The executor the loop records with
+    replays the order they took and gives the live timeline to the last bit."""
+    g = _game(fetch_world, ("t2", "t3"), ("t0", "t1"), hz=50)
+    g.start()
+    assert g.status("t2") == g.status("t3") == "active" and g.status("t0") == "locked"
+    assert g.state()["cur"] == "t2"  # the plan's next, as advice
+    _play(g, RouteBot(fetch_world, prefer=("t3",)))
+    assert g.order == ["t3", "t2"] and list(g.observations()) == ["t3", "t2"]
+    assert g.start_time["t3"] == 0.0
+    assert g.start_time["t2"] == pytest.approx(g.finish_time["t3"])
+    assert g.start_time["t0"] == pytest.approx(g.finish_time["t2"])
+    problem = fetch_world.problem()
+    obs = g.observations()
+    person = SimulatedHuman(fetch_world, obs, None, order=g.order)
+    dep = CycleExecutor(fetch_world, problem, g.schedule, person,
+                        PlannedRobot(fetch_world, g.motions), beta=1.0).run()
+    assert dep.timeline.schedule.tasks("human") == ("t3", "t2")
+    for t in problem.ids:
+        k = problem.index[t]
+        assert dep.timeline.start[0, k] == pytest.approx(g.start_time[t], abs=1e-9)
+        assert dep.timeline.finish[0, k] == pytest.approx(g.finish_time[t], abs=1e-9)
+
+
+def test_one_open_object_at_a_time_while_carrying(fetch_world: FetchWorld) -> None:
+    g = _game(fetch_world, ("t2", "t3"), ("t0", "t1"))
+    g.start()
+    g.pos = fetch_world.object_position("t3").astype(float)
+    g.step()
+    assert g.status("t3") == "carried" and g.status("t2") == "queued"
+    g.pos = fetch_world.object_position("t2").astype(float)
+    g.step()  # walking over t2 while carrying t3 picks nothing up
+    assert g.status("t2") == "queued" and g.order == ["t3"]

@@ -16,8 +16,9 @@ from play_bot import RouteBot
 
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
+from rapidds.loop.execute import execute_cycle
 from rapidds.loop.model import HumanModel, prior_model
-from rapidds.loop.run import AdaptiveRun, CyclePlan, LiveTeammate
+from rapidds.loop.run import AdaptiveRun, CyclePlan, FreeOrderTeammate, LiveTeammate
 from rapidds.motion.interface import MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.schedule import Schedule
@@ -243,3 +244,40 @@ def test_the_loop_shows_a_live_teammate_the_plan_before_asking(
     plan = run.plan()
     run.execute(plan, observed=person.execute(1, plan.best.schedule.tasks("human"), plan.rng))
     assert calls == [("show", 0), ("execute", 0)]  # observations given: nobody is asked
+
+
+def test_the_loop_records_the_order_the_person_fetched_in(fetch_world: FetchWorld) -> None:
+    """The plan says t2 then t3; the person fetches t3 first. The player hands the loop the
+    order they took (FreeOrderTeammate), and the loop's execute step stores that cycle: the
+    realised schedule in their order, the live timeline to the millisecond."""
+    player = BrowserPlayer(fetch_world, hz=30)
+    assert isinstance(player, FreeOrderTeammate)
+    plan = _plan(fetch_world, 0, ("t2", "t3"), ("t0", "t1"))
+    player.show(plan)
+    assert player.start(0) and player.played_order(0) is None
+    bot = RouteBot(fetch_world, prefer=("t3",))
+    state = player.snapshot()
+    while state is not None and not state["over"]:
+        player.steer(move=bot.move(state))
+        state = player.tick()
+    assert state is not None and state["over"]
+    obs = player.played(0, ("t2", "t3"))
+    assert obs is not None and player.played_order(0) == ["t3", "t2"]
+    cfg = RunConfig(world="fetch", human="tester", cycles=1, seed=0, **SEARCH)
+    model = prior_model(fetch_world, cfg.resolved(fetch_world))
+    problem = fetch_world.problem()
+    dep, deviation = execute_cycle(
+        fetch_world, problem, cfg, 0, plan.best.schedule, plan.best.motions, obs, player, None,
+        (model.temporal.mean(), model.temporal.std()), model.spatial, beta=1.0,
+        order=player.played_order(0))
+    assert deviation is None
+    assert dep.timeline.schedule.tasks("human") == ("t3", "t2")
+    for t, (s, f) in state["times"].items():
+        k = problem.index[t]
+        assert (dep.timeline.start[0, k], dep.timeline.finish[0, k]) == pytest.approx(
+            (s, f), abs=2e-3)
+    # without the order, the plan's order is replayed: another timeline than the one played
+    dep_plan, _ = execute_cycle(
+        fetch_world, problem, cfg, 0, plan.best.schedule, plan.best.motions, obs, player, None,
+        (model.temporal.mean(), model.temporal.std()), model.spatial, beta=1.0)
+    assert dep_plan.timeline.schedule.tasks("human") == ("t2", "t3")

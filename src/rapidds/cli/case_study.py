@@ -33,6 +33,9 @@ def case_study_cmd(
     cycles: int = typer.Option(7, min=1, max=1000, help="Cycles per setting (the paper's 7)."),
     settings: str = typer.Option(_SETTINGS, help="Settings, comma-separated."),
     gif: bool = typer.Option(True, help="Animate the last cycle of each setting (GIF)."),
+    reactive: bool = typer.Option(False, help="Also run every setting with --execution "
+                                  "reactive (folder <setting>-reactive) and report its cycles "
+                                  "in the table's reactive columns beside the paper's."),
     as_json: bool = typer.Option(False, "--json", help="One JSON object on stdout (table rows "
                                  "and behaviours); cycle rows go to stderr."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
@@ -64,12 +67,17 @@ def case_study_cmd(
     con = Console(stderr=True, soft_wrap=True) if as_json else console()
     set_threads(threads)
     policy = load_policy(w)
-    runs = {}
+    runs, reacted = {}, {}
     behaviours = {}
     for setting in chosen:
         runs[setting], behaviours[setting.name] = _run_setting(
             setting, world, human, seed, cycles, out / setting.name, policy, gif, con)
-    rows = table_rows(w, human, runs)
+        if reactive:
+            name = f"{setting.name}-reactive"
+            reacted[setting], behaviours[name] = _run_setting(
+                setting, world, human, seed, cycles, out / name, policy, gif, con,
+                execution="reactive")
+    rows = table_rows(w, human, runs, reacted if reactive else None)
     md, cs = write_tables(out, rows)
     if as_json:
         print(json.dumps({"rows": rows, "behaviours": behaviours}), flush=True)
@@ -84,23 +92,24 @@ def case_study_cmd(
 
 
 def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: int, sub: Path,
-                 policy: DiffusionPolicy, gif: bool, con: Console
+                 policy: DiffusionPolicy, gif: bool, con: Console, execution: str = "planned"
                  ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Run (or resume) one setting in its folder ``sub`` and draw its last cycle; its records
-    and the paper's behaviours tested on them."""
+    """Run (or resume) one setting under ``execution`` in its folder ``sub`` and draw its last
+    cycle; its records and the paper's behaviours tested on them."""
     from rapidds.cli.run import execute
     from rapidds.experiments.painting import save_cycle_gif, save_frames, setting_behaviours
     from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
-    cfg = setting.config(human, seed, cycles)
+    cfg = setting.config(human, seed, cycles, execution)
     rid = cfg.resolved(make_world(world, setting.variant)).run_id
     resume = False
     if (sub / "run.sqlite").exists():
         with RunStore.open_readonly(sub / "run.sqlite") as st:
             resume = st.last_cycle(rid) is not None
     run = execute(cfg, policy, sub, resume, False, con,
-                  title=f"{setting.name}, teammate {human}, seed {seed}")
+                  title=f"{setting.name}{', reactive' * (execution == 'reactive')}, "
+                        f"teammate {human}, seed {seed}")
     assert run.store is not None
     records = run.store.records(rid)
     behaviours = [{"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),

@@ -202,8 +202,10 @@ class SimulatedHuman:
 
     def __init__(self, world: World, executions: Mapping[str, HumanExecution],
                  perform: Any, reaction: Reaction | None = None,
-                 deviation: Deviation | None = None):
+                 deviation: Deviation | None = None, order: Sequence[str] | None = None):
         self.world, self._plan = world, dict(executions)
+        # a live person's tasks in the order they did them: replayed whatever the plan said
+        self._order = None if order is None else list(order)
         self._perform, self.reaction, self.deviation = perform, reaction, deviation
         self._rest = np.asarray(world.human_rest(), float)
         self._run: Progress | None = None
@@ -219,6 +221,9 @@ class SimulatedHuman:
     # -- choice -------------------------------------------------------------------------------
     def choose(self, now: float, planned: str | None, ready: Sequence[str],
                takeable: Sequence[str]) -> str | None:
+        if self._order is not None:  # the next they took, once it may start
+            nxt = self._order[self._started] if self._started < len(self._order) else None
+            return nxt if nxt in ready else None
         dev = self.deviation
         if dev is not None and not self._deviated:
             if dev.kind == "take" and takeable:

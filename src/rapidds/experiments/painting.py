@@ -55,10 +55,13 @@ class Setting:
     def name(self) -> str:
         return f"{self.variant}-g{self.gamma:g}"
 
-    def config(self, human: str, seed: int, cycles: int, **search: Any) -> RunConfig:
-        """The run of this setting: full adaptation, the world's lambda, ``search`` settings."""
+    def config(self, human: str, seed: int, cycles: int, execution: str = "planned",
+               **search: Any) -> RunConfig:
+        """The run of this setting: full adaptation, the world's lambda, ``search`` settings;
+        ``execution`` "reactive" for the reactive column (the paper's robot: "planned")."""
         return RunConfig(world="painting", variant=self.variant, human=human, adapt="full",
-                         cycles=cycles, gamma=self.gamma, seed=seed, **search)
+                         cycles=cycles, gamma=self.gamma, seed=seed, execution=execution,
+                         **search)
 
 
 SETTINGS: tuple[Setting, ...] = (Setting("unconstrained", 12.0), Setting("constrained", 12.0),
@@ -95,14 +98,34 @@ _COLUMNS = ("setting", "cycle", "lambda", "robot", "person", "first mix",
             "mix during Secure Piece (planned)", "mix during Secure Piece (realised)",
             "motions (mode, s)", "waits", "brush", "exp. spatial", "real. spatial",
             "min sep. (m)", "makespan (s)", "behaviour")
+# the same setting with --execution reactive, its cycle beside the paper's
+_REACTIVE = ("reactive makespan (s)", "reactive min sep. (m)", "reactive pauses/replans")
+
+
+def _columns(rows: Sequence[Mapping[str, str]]) -> tuple[str, ...]:
+    return _COLUMNS + _REACTIVE if rows and _REACTIVE[0] in rows[0] else _COLUMNS
+
+
+def _reactive_cells(rec: Mapping[str, Any] | None) -> dict[str, str]:
+    """The reactive column of one cycle, read from the reactive run's stored record."""
+    if rec is None:
+        return dict.fromkeys(_REACTIVE, "-")
+    real = rec["realised"]
+    return {_REACTIVE[0]: f"{real['makespan']:.2f}", _REACTIVE[1]: f"{real['min_separation']:.3f}",
+            _REACTIVE[2]: f"{len(rec['pauses'])}/{len(rec['replans'])}"}
 
 
 def table_rows(world: PaintingWorld, human: str,
-               runs: Mapping[Setting, Sequence[Mapping[str, Any]]]) -> list[dict[str, str]]:
+               runs: Mapping[Setting, Sequence[Mapping[str, Any]]],
+               reactive: Mapping[Setting, Sequence[Mapping[str, Any]]] | None = None
+               ) -> list[dict[str, str]]:
     """One row per setting per cycle; "behaviour" names the paper's behaviours tested on that
-    cycle with yes/no (empty on exploration cycles after the first)."""
+    cycle with yes/no (empty on exploration cycles after the first). ``reactive``: the same
+    settings' runs with ``--execution reactive``, whose cycles fill the reactive columns."""
     rows = []
     for setting, records in runs.items():
+        react = None if reactive is None else {
+            r["cycle"]: r for r in reactive.get(setting, ())}
         tested = setting_behaviours(world, setting, human, records)
         for rec in records:
             s = summarize_record(rec)
@@ -122,21 +145,23 @@ def table_rows(world: PaintingWorld, human: str,
                 "real. spatial": f"{s.realised_spatial:.3f}",
                 "min sep. (m)": f"{s.min_separation:.3f}", "makespan (s)": f"{s.makespan:.2f}",
                 "behaviour": "; ".join(verdicts),
+                **({} if react is None else _reactive_cells(react.get(s.cycle))),
             })
     return rows
 
 
 def table_markdown(rows: Sequence[Mapping[str, str]]) -> str:
     """The rows as a Markdown table (``|`` in cells escaped)."""
-    lines = ["| " + " | ".join(_COLUMNS) + " |", "|" + "---|" * len(_COLUMNS)]
+    cols = _columns(rows)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
-        lines.append("| " + " | ".join(r[c].replace("|", "\\|") for c in _COLUMNS) + " |")
+        lines.append("| " + " | ".join(r[c].replace("|", "\\|") for c in cols) + " |")
     return "\n".join(lines) + "\n"
 
 
 def table_csv(rows: Sequence[Mapping[str, str]]) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=_columns(rows), lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
     return buf.getvalue()

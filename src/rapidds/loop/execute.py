@@ -9,7 +9,7 @@ cycle from its own stream, so the plan's numbers never move), and a robot that f
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -83,11 +83,13 @@ def execute_cycle(
     motions: Mapping[str, MotionPlan], human: Mapping[str, HumanExecution],
     teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
     spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
+    order: Sequence[str] | None = None,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
     do (``human``), under the run's execution settings; the deviation it had, if any.
     beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
-    robot's motions for tasks it was not planned to do (:func:`contingency_motions`)."""
+    robot's motions for tasks it was not planned to do (:func:`contingency_motions`); order: the
+    order a live person took their tasks in (None: the plan's, or the simulated deviation's)."""
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, limits = cell_reactions(world)
@@ -97,7 +99,7 @@ def execute_cycle(
         assert isinstance(teammate, SimulatedTeammate)
         return teammate.at(cycle).perform(task, rng)
 
-    person = SimulatedHuman(world, human, perform, reaction, deviation)
+    person = SimulatedHuman(world, human, perform, reaction, deviation, order)
     replanning = None
     if config.execution == "reactive":
         cost = workspace_cost(world, spatial)

@@ -66,6 +66,7 @@ __all__ = [
     "AdaptiveRun",
     "CyclePlan",
     "CycleResult",
+    "FreeOrderTeammate",
     "LiveTeammate",
     "load_policy",
     "timeline_of",
@@ -131,6 +132,16 @@ class LiveTeammate(Teammate, Protocol):
     def show(self, plan: CyclePlan) -> None:
         """Present ``plan`` (its schedule, the robot's motions); called once per cycle, in the
         thread that then calls :meth:`~rapidds.worlds.base.Teammate.execute`."""
+        ...
+
+
+@runtime_checkable
+class FreeOrderTeammate(Teammate, Protocol):
+    """A live teammate who may do their tasks in another order than the plan's (any that
+    precedence allows: the browser game's player); the executor replays the order they took."""
+
+    def played_order(self, cycle: int) -> list[str] | None:
+        """The person's tasks of cycle ``cycle`` in the order they did them (None: unknown)."""
         ...
 
 
@@ -378,7 +389,9 @@ class AdaptiveRun:
             (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
             beta=self.model.spatial.config.beta,
             spare=contingency_motions(self.world, self.problem, self.config, plan.cycle,
-                                      self.policy, self._spatial(), plan.best.motions))
+                                      self.policy, self._spatial(), plan.best.motions),
+            order=(self.teammate.played_order(plan.cycle)
+                   if isinstance(self.teammate, FreeOrderTeammate) else None))
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 

@@ -9,11 +9,14 @@ evaluated as the cycle unfolds:
   finished and, for a wait token, the waited task has finished. The start is the exact time the
   last of these happened (not the tick that noticed it), so the cycle's live timeline equals the
   timeline :func:`rapidds.loop.deploy.deploy` rebuilds from the observed durations.
-* A human task **starts** when the person's previous task is done and its predecessors (and any
-  wait in the person's sequence) are done; until then its object is shown *locked* and cannot be
-  picked up. It **ends** as in the simulated world: the avatar has come within ``reach_radius``
-  of the object (picking it up) and then within ``reach_radius`` of home. The person may walk
-  anywhere meanwhile, even while waiting; what they do between start and end is their path.
+* The person fetches their tasks in **any order precedence allows**: while they carry nothing,
+  every one of their objects whose precedence predecessors are done is *open* (status
+  ``active``) and the first they come within ``reach_radius`` of is picked up; the others are
+  shown *locked*. The plan's order (and the waits in their sequence) is advice, not a lock. The
+  task **starts** when the person became free and its predecessors were done (the latest of
+  these), as a simulated person's would, and **ends** as in the simulated world: back within
+  ``reach_radius`` of home. What they do between start and end is their path; :attr:`order`
+  is the order they took, which the loop's executor replays (:mod:`rapidds.loop.execute`).
 * A robot task plays its planned, steered trajectory row by row at the world's ``dt`` (linearly
   interpolated between rows for drawing) and finishes after the plan's completion time d_j^r.
   Afterwards the robot stays on that trajectory (which ends at home) until its next task.
@@ -100,6 +103,8 @@ class FetchGame:
         self.start_time: dict[str, float] = {}
         self.finish_time: dict[str, float] = {}  # robot tasks: known when they start
         self._picked: dict[str, float] = {}
+        self.order: list[str] = []  # the person's tasks in the order they picked them up
+        self._human_free = 0.0  # when the person last became free (delivered a task)
         self.too_close: list[float] = []  # game times the person said "too close"
         self.pos = world.home("human").astype(float)
         self._move = np.zeros(2)
@@ -180,15 +185,15 @@ class FetchGame:
 
     # -- what happened ------------------------------------------------------------------------
     def observations(self) -> dict[str, HumanExecution]:
-        """task -> what the person did (duration, path sampled at ``world.dt``); only once
-        :attr:`human_done`."""
+        """task -> what the person did (duration, path sampled at ``world.dt``), in the order
+        they did it; only once :attr:`human_done`."""
         if not self.human_done:
             raise RuntimeError("the person has not finished their tasks yet")
         times = np.asarray(self._times)
         trace = np.asarray(self._trace)
         dt = self.world.dt
         out = {}
-        for task in self.human_tasks:
+        for task in self.order:
             s, f = self.start_time[task], self.finish_time[task]
             d = f - s
             at = s + np.minimum(np.arange(math.ceil(d / dt - 1e-9) + 1) * dt, d)
@@ -209,9 +214,10 @@ class FetchGame:
         return (1 - a) * traj[k] + a * traj[k1]
 
     def status(self, task: str) -> TaskStatus:
-        """Where ``task`` stands: locked (waiting for predecessors or a wait), queued (later in
-        its agent's order, ready as far as precedence goes), active (its agent is on the way),
-        carried (picked up, on the way home) or done."""
+        """Where ``task`` stands: locked (waiting for predecessors or a wait), queued (a robot
+        task later in its order, or one of the person's while they carry another, ready as far
+        as precedence goes), active (the robot is on the way; of the person's: open, they may
+        pick it up now), carried (picked up, on the way home) or done."""
         if task in self.finish_time and self.finish_time[task] <= self.now + _EPS:
             return "done"
         if task in self.start_time:
@@ -220,6 +226,10 @@ class FetchGame:
             return "carried" if picked is not None and picked <= self.now + _EPS else "active"
         preds = self.problem.preceding[task]
         agent = self.schedule.agent_of(task)
+        if agent == "human":
+            if not all(self._done_by(p, self.now) is not None for p in preds):
+                return "locked"
+            return "active" if self._lanes["human"].running is None else "queued"
         seq = self.schedule.sequence(agent)
         k = seq.index(task)
         waits = [x.task for x in seq[:k] if isinstance(x, Wait)]
@@ -230,10 +240,12 @@ class FetchGame:
 
     def current(self, agent: Agent) -> str | None:
         """The task ``agent`` is on now, or the next one it will do (None when it has none
-        left)."""
+        left); for the person, the plan's next of those they have not started."""
         lane = self._lanes[agent]
         if lane.running is not None and self.status(lane.running) != "done":
             return lane.running
+        if agent == "human":
+            return next((t for t in self.human_tasks if t not in self.start_time), None)
         rest = [x for x in lane.items[lane.pos:] if isinstance(x, str)]
         return rest[0] if rest else None
 
@@ -293,12 +305,13 @@ class FetchGame:
         return f if f is not None and f <= t + _EPS else None
 
     def _dispatch(self) -> None:
-        """Start every item that became ready by now, at the exact time it became ready."""
+        """Start every robot item that became ready by now, at the exact time it became ready
+        (the person starts theirs by picking it up: :meth:`_human_progress`)."""
         now = self.now
         progressed = True
         while progressed:
             progressed = False
-            for agent in AGENTS:
+            for agent in ("robot",):
                 lane = self._lanes[agent]
                 if lane.pos >= len(lane.items):
                     continue
@@ -324,15 +337,22 @@ class FetchGame:
                     self.finish_time[item] = t0 + float(self.motions[item].duration)
 
     def _human_progress(self) -> None:
-        task = self._lanes["human"].running
-        if task is None or task in self.finish_time:
-            return
-        r = self.world.reach_radius
-        if task not in self._picked:
-            if np.linalg.norm(self.pos - self.world.object_position(task)) <= r:
+        lane, r = self._lanes["human"], self.world.reach_radius
+        task = lane.running
+        if task is None:
+            near = [t for t in self.human_tasks if self.status(t) == "active"
+                    and np.linalg.norm(self.pos - self.world.object_position(t)) <= r]
+            if near:  # the closest open object within reach is picked up
+                task = min(near, key=lambda t: float(
+                    np.linalg.norm(self.pos - self.world.object_position(t))))
+                gates = [self.finish_time[p] for p in self.problem.preceding[task]]
+                self.start_time[task] = max([self._human_free, *gates])
                 self._picked[task] = self.now
+                lane.running = lane.last = task
+                self.order.append(task)
         elif np.linalg.norm(self.pos - self.world.home("human")) <= r:
-            self.finish_time[task] = self.now
+            self.finish_time[task] = self._human_free = self.now
+            lane.running = None
 
     def _walk(self) -> None:
         step_len = self.speed / self.hz

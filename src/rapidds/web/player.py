@@ -89,6 +89,7 @@ class BrowserPlayer:
         self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
         self._answers: queue.Queue[tuple[int, int, list[float]]] = queue.Queue()
         self._closed = threading.Event()
+        self._orders: dict[int, list[str]] = {}  # cycle -> the order the person fetched in
         self.plan_version = 0  # bumped whenever another plan comes on screen
 
     @property
@@ -134,6 +135,13 @@ class BrowserPlayer:
                 return None
             if c == cycle:
                 return self._checked(cycle, tasks, obs)
+
+    def played_order(self, cycle: int) -> list[str] | None:
+        """The person's tasks of cycle ``cycle`` in the order they fetched them (any order
+        precedence allows); None before they have done them."""
+        with self._lock:
+            order = self._orders.get(cycle)
+            return None if order is None else list(order)
 
     def comfort_report(self, cycle: int) -> tuple[int, list[float]] | None:
         """What the person said about cycle ``cycle``: (their answer 1-7, the game times of
@@ -269,4 +277,5 @@ class BrowserPlayer:
         s = self._shown
         if s is not None and not s.reported and s.game.human_done:
             s.reported = True
+            self._orders[s.game.cycle] = list(s.game.order)
             self._observed.put((s.game.cycle, s.game.observations()))

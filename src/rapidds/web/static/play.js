@@ -369,17 +369,19 @@ function instructions() {
   if (!cur) return st.human_done ? ["Your part is done", "The robot is finishing its tasks."] : ["", ""];
   const d = plan.descriptions[cur] || cur, s = st.tasks[cur];
   if (s === "locked" || s === "queued") {
+    const open = tasksOf(plan.items.human).filter((t) => st.tasks[t] === "active");
+    if (open.length) return [`Fetch ${open.join(" or ")}`, `The plan's next, ${cur}, is locked; any glowing object may be fetched.`];
     const waits = lockedBy(cur);
     return [`Wait: ${cur} is locked`, waits.length ? `It unlocks when ${waits.join(" and ")} ${waits.length > 1 ? "are" : "is"} home.` : "Wait at home."];
   }
-  if (s === "active") return [`Go and ${d} (${cur})`, "Walk up to it to pick it up."];
+  if (s === "active") return [`Go and ${d} (${cur})`, "Walk up to it to pick it up, or to any other glowing object: any order the arrows allow."];
   if (s === "carried") return [`Bring ${cur} home`, "Back into your home circle."];
   return ["", ""];
 }
 function lockedBy(task) {
   const st = R.state, plan = R.plan, out = [];
-  const waits = waitsBefore(plan.items.human, task);
-  for (const p of [...plan.preceding[task], ...waits]) if (st.tasks[p] !== "done") out.push(plan.owner[p] === "robot" ? `the robot's ${p}` : p);
+  // the person's waits are the plan's advice, not a lock: only precedence locks their objects
+  for (const p of plan.preceding[task]) if (st.tasks[p] !== "done") out.push(plan.owner[p] === "robot" ? `the robot's ${p}` : p);
   return out;
 }
 
@@ -393,12 +395,12 @@ function render() {
   $("expected").textContent = plan ? `· planned ${plan.expected_makespan.toFixed(1)} s` : "";
   // plan card
   const mine = plan ? tasksOf(plan.items.human) : [];
-  $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in order` : "Your tasks";
+  $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in the plan's order (any order precedence allows)` : "Your tasks";
   const ol = $("mytasks"); ol.innerHTML = "";
   for (const t of mine) {
     const li = document.createElement("li"), s = st && st.cycle === plan.cycle ? st.tasks[t] : "queued";
     const e = plan.expected[t];
-    li.innerHTML = `${plan.descriptions[t]} <b>(${t})</b> <span class="tag ${s}">${s === "queued" ? "next" : s}</span>` +
+    li.innerHTML = `${plan.descriptions[t]} <b>(${t})</b> <span class="tag ${s}">${s === "queued" ? "next" : s === "active" ? "open" : s}</span>` +
       `<span class="muted small"> ~${(e[1] - e[0]).toFixed(1)} s</span>`;
     ol.appendChild(li);
   }
