@@ -10,6 +10,11 @@ from pathlib import Path
 from typing import Any
 
 
+def cli_cmd(*args: str) -> list[str]:
+    """The command line of ``rapidds ARGS`` in a new process, on this interpreter."""
+    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+
+
 def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:
     """Run ``rapidds ARGS`` in this process: (exit code, stdout, stderr)."""
     from rapidds.cli import main
@@ -48,14 +53,15 @@ def kill_run(cmd: list[str], db: Path, run_id: str, kill_at: int,
         return st.last_cycle(run_id)
 
 
-def resume_and_compare(cmd: list[str], full: Path, resumed: Path, env: dict[str, str]
+def resume_and_compare(cmd: list[str], full: Path, resumed: Path, env: dict[str, str],
+                       timeout: float = 300.0
                        ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], Any, Any]:
     """Run ``cmd`` (``rapidds run ... --resume`` on the store ``resumed``); the records of the
     uninterrupted store ``full`` and of the resumed one, and the last stored model of each."""
     from rapidds.loop import HumanModel
     from rapidds.store import RunStore
 
-    done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
     assert done.returncode == 0, done.stderr
     with RunStore.open_readonly(full) as a, RunStore.open_readonly(resumed) as b:
         ra, rb = a.records(), b.records()

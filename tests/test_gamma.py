@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 import pytest
-from cli_helpers import kill_run, resume_and_compare, run_main
+from cli_helpers import cli_cmd, kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.cli import main
@@ -123,9 +123,6 @@ def test_simulated_person_learns_and_answers_by_their_own_gamma(policy):
     assert calm[0] < nervous[0] and len(calm[1]) <= len(nervous[1]), (calm, nervous)
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
-
 
 @pytest.mark.slow
 def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
@@ -134,14 +131,14 @@ def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
             "--particles", "2", "--candidates", "4", "--json"]
     rid = "fetch-fast-outside-comfort0.4-full-glearn-s4"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    full = subprocess.run(_cli(*args, "--out", str(tmp_path / "a")), capture_output=True,
+    full = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "a")), capture_output=True,
                           text=True, env=env, timeout=300)
     assert full.returncode == 0, full.stderr
     db = tmp_path / "b" / "run.sqlite"
     kill_at = int(np.random.default_rng().integers(1, 4))
-    stored = kill_run(_cli(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
+    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
-    ra, rb, ma, mb = resume_and_compare(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+    ra, rb, ma, mb = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                         tmp_path / "a" / "run.sqlite", db, env)
     assert len(ra) == 5 and [_strip(r) for r in ra] == [_strip(r) for r in rb]
     assert all("gamma_belief" in r for r in ra)

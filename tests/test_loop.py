@@ -5,11 +5,10 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest
-from cli_helpers import kill_run, resume_and_compare
+from cli_helpers import cli_cmd, kill_run, resume_and_compare
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.loop import AdaptiveRun, RunConfig
@@ -70,9 +69,6 @@ def test_same_seed_same_records(policy, tmp_path):
     assert a == b
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
-
 
 @pytest.mark.slow
 def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
@@ -80,7 +76,7 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
             "--population", "12", "--generations", "10", "--samples", "16",
             "--particles", "2", "--candidates", "4", "--json"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    full = subprocess.run(_cli(*args, "--out", str(tmp_path / "a")), capture_output=True,
+    full = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "a")), capture_output=True,
                           text=True, env=env, timeout=300)
     assert full.returncode == 0, full.stderr
     lines = [json.loads(x) for x in full.stdout.splitlines()]
@@ -88,14 +84,14 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
 
     kill_at = int(np.random.default_rng().integers(1, 4))  # after 1, 2 or 3 stored cycles
     db = tmp_path / "b" / "run.sqlite"
-    stored = kill_run(_cli(*args, "--out", str(tmp_path / "b")), db,
+    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db,
                       "fetch-slow-middle-full-s3", kill_at, env)
     assert stored is not None and stored < 4, "the run finished before it could be killed"
 
-    again = subprocess.run(_cli(*args, "--out", str(tmp_path / "b")), capture_output=True,
+    again = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "b")), capture_output=True,
                            text=True, env=env, timeout=60)
     assert again.returncode == 2 and "--resume" in again.stderr  # nothing overwritten silently
-    ra, rb, ma, mb = resume_and_compare(_cli(*args, "--out", str(tmp_path / "b"), "--resume"),
+    ra, rb, ma, mb = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                         tmp_path / "a" / "run.sqlite", db, env)
     assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
     assert ma.temporal.to_dict() == mb.temporal.to_dict()
@@ -160,15 +156,15 @@ def test_a_plan_belongs_to_its_cycle(policy):
 def test_resume_redraws_missing_charts_and_names_changed_settings(tmp_path):
     args = ["run", "--cycles", "2", "--population", "8", "--generations", "3", "--samples", "8",
             "--particles", "2", "--candidates", "2", "--out", str(tmp_path)]
-    first = subprocess.run(_cli(*args), capture_output=True, text=True, timeout=300)
+    first = subprocess.run(cli_cmd(*args), capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stderr
     chart = tmp_path / "gantt" / "fetch-fast-middle-full-s0-cycle-01.png"
     chart.unlink()  # as if the run had been killed between storing cycle 1 and drawing it
-    again = subprocess.run(_cli(*args, "--resume"), capture_output=True, text=True, timeout=300)
+    again = subprocess.run(cli_cmd(*args, "--resume"), capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     assert "already finished (2 cycles)" in again.stderr
     assert chart.is_file()
-    other = subprocess.run(_cli(*args[:-2], "--population", "9", "--out", str(tmp_path),
+    other = subprocess.run(cli_cmd(*args[:-2], "--population", "9", "--out", str(tmp_path),
                                 "--resume"), capture_output=True, text=True, timeout=300)
     assert other.returncode == 2
     assert "population=8 (asked 9)" in other.stderr and "Traceback" not in other.stderr

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import kill_run, run_main
+from cli_helpers import cli_cmd, kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.execution import (
@@ -214,12 +214,6 @@ def _same(rec: dict) -> dict:
 def test_a_killed_reactive_run_resumes_identically(tmp_path):
     import os
     import subprocess
-    import sys
-
-    from rapidds.store import RunStore
-
-    def cli(*args: str) -> list[str]:
-        return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
 
     args = ["run", "--human", "slow-middle", "--cycles", "4", "--seed", "3",
             "--population", "12", "--generations", "10", "--samples", "16",
@@ -227,7 +221,7 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
             "--execution", "reactive", "--reacts", "--deviate", "0.6"]
     rid = "fetch-slow-middle-full-reactive-reacts-dev0.6-s3"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    full = subprocess.run(cli(*args, "--out", str(tmp_path / "a")), capture_output=True,
+    full = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "a")), capture_output=True,
                           text=True, env=env, timeout=400)
     assert full.returncode == 0, full.stderr
     lines = [json.loads(x) for x in full.stdout.splitlines()]
@@ -235,14 +229,11 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
     assert all("pauses" in r and "replans" in r for r in lines)
 
     db = tmp_path / "b" / "run.sqlite"
-    stored = kill_run(cli(*args, "--out", str(tmp_path / "b")), db, rid, 1, env, 300)
+    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, 1, env, 300)
     assert stored is not None and stored < 3, "the run finished before it could be killed"
-    resumed = subprocess.run(cli(*args, "--out", str(tmp_path / "b"), "--resume"),
-                             capture_output=True, text=True, env=env, timeout=400)
-    assert resumed.returncode == 0, resumed.stderr
-    with RunStore.open_readonly(tmp_path / "a" / "run.sqlite") as a, \
-            RunStore.open_readonly(db) as b:
-        assert [_same(r) for r in a.records()] == [_same(r) for r in b.records()]
+    ra, rb, _, _ = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
+                                      tmp_path / "a" / "run.sqlite", db, env, timeout=400)
+    assert [_same(r) for r in ra] == [_same(r) for r in rb]
     assert (tmp_path / "b" / "gantt" / f"{rid}-cycle-03.png").exists()
 
 
