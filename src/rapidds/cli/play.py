@@ -76,7 +76,7 @@ def play_cmd(
                     lam=lam, seed=seed, population=population, generations=generations,
                     samples=samples, particles=particles, candidates=candidates)
 
-    from rapidds.web.server import LOOPBACK, allowed_hosts, listen, serve
+    from rapidds.web.server import allowed_hosts, listen, reach_line, serve, served_url
     from rapidds.web.session import STORE_NAME
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, stream=sys.stderr,
@@ -87,17 +87,15 @@ def play_cmd(
                            ask_comfort or cfg.gamma_learn)
         try:
             session.open()
-            bound = sock.getsockname()
-            shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
-            url = f"http://{shown}:{bound[1]}/"
+            url = served_url(sock)
+            reach = reach_line(host, allowed_hosts(sock.getsockname()[0]))
 
             def ready() -> None:
                 typer.echo(f"rapidds play: open {url} (run {session.run_id}, cycle "
                            f"{session.stored + 1} of {cycles}; Ctrl-C stops, finished cycles "
                            f"are kept in {out / STORE_NAME})")
-                if host not in LOOPBACK:
-                    typer.echo(f"rapidds play: listening on {host}: other machines can reach "
-                               f"it by the names {', '.join(allowed_hosts(bound[0]))}", err=True)
+                if reach:
+                    typer.echo(f"rapidds play: {reach}", err=True)
                 sys.stdout.flush()
 
             # uvicorn re-raises Ctrl-C once it has shut down cleanly: that is the normal stop

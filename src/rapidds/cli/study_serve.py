@@ -23,7 +23,7 @@ def _announce(as_json: bool, url: str, overview: str, store: Path, participants:
               waiting: int, host: str, hosts: Sequence[str]) -> None:
     """Say where the study is served: the experimenter's overview (with its token) and the
     participants' address; a bind beyond loopback also says which names reach it."""
-    from rapidds.web.server import LOOPBACK
+    from rapidds.web.server import reach_line
 
     if as_json:
         typer.echo(json.dumps({"url": url, "overview": overview, "study": str(store),
@@ -33,9 +33,9 @@ def _announce(as_json: bool, url: str, overview: str, store: Path, participants:
                    f"(participants open {url}p/ID, no link leads there; "
                    f"{participants} participants, {waiting} unfinished; Ctrl-C stops, "
                    f"every submit is kept in {store})")
-    if host not in LOOPBACK:
-        typer.echo(f"rapidds study serve: listening on {host}: other machines can "
-                   f"reach it by the names {', '.join(hosts)}", err=True)
+    reach = reach_line(host, hosts)
+    if reach:
+        typer.echo(f"rapidds study serve: {reach}", err=True)
     sys.stdout.flush()
 
 
@@ -62,7 +62,7 @@ def serve_cmd(
     participant stopped."""
     from rapidds.cli.run import set_threads
     from rapidds.experiments.study.store import STORE_NAME, study_path
-    from rapidds.web.server import allowed_hosts, listen
+    from rapidds.web.server import allowed_hosts, listen, served_url
     from rapidds.web.study.app import StudyWorker, create_study_app
     from rapidds.web.study.runner import StudySession
 
@@ -78,16 +78,14 @@ def serve_cmd(
         try:
             import uvicorn
 
-            bound = sock.getsockname()
-            shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
-            url = f"http://{shown}:{bound[1]}/"
+            url = served_url(sock)
             key = secrets.token_urlsafe(18)  # the overview's: new at every start
             overview = f"{url}?token={key}"
             steps = worker.run(lambda s: s.store.progress())
             worker.background(lambda s: s.prior())  # while the experimenter opens the page
             waiting = sum(s.kind != "done" for s in steps.values())
 
-            hosts = allowed_hosts(str(bound[0]))
+            hosts = allowed_hosts(str(sock.getsockname()[0]))
             app = create_study_app(worker, hosts, token=key)
             server = uvicorn.Server(uvicorn.Config(
                 app, log_level="warning", lifespan="on", timeout_graceful_shutdown=3,

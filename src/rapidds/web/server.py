@@ -47,8 +47,8 @@ from rapidds.web.player import BrowserPlayer
 from rapidds.web.protocol import Comfort, Gate, Move, Refused, Start, Target, TooClose
 
 __all__ = ["LOOPBACK", "WILDCARDS", "GameSession", "HostCheck", "Hub", "allowed_hosts",
-           "create_app", "game_page", "listen", "machine_names", "refuse_socket", "same_origin",
-           "serve"]
+           "create_app", "game_page", "listen", "machine_names", "reach_line", "refuse_socket",
+           "same_origin", "serve", "served_url"]
 
 log = logging.getLogger("rapidds.web")
 
@@ -393,6 +393,21 @@ def create_app(session: GameSession, hosts: Sequence[str] = LOOPBACK) -> FastAPI
         await hub.connect(ws)
 
     return app
+
+
+def served_url(sock: socket.socket) -> str:
+    """The address a listening socket serves, as a browser opens it (IPv6 in brackets)."""
+    bound = sock.getsockname()
+    shown = f"[{bound[0]}]" if ":" in bound[0] else bound[0]
+    return f"http://{shown}:{bound[1]}/"
+
+
+def reach_line(host: str, hosts: Sequence[str]) -> str | None:
+    """What a bind beyond loopback exposes, in one line (None on loopback): the names other
+    machines can reach the server by."""
+    if host in LOOPBACK:
+        return None
+    return f"listening on {host}: other machines can reach it by the names {', '.join(hosts)}"
 
 
 def listen(host: str, port: int) -> socket.socket:
