@@ -30,17 +30,19 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.web.game import HUMAN_SPEED, FetchGame
+from rapidds.web.reactive import ReactiveFetchGame
 from rapidds.worlds.base import HumanExecution
 from rapidds.worlds.fetch.world import FetchWorld
 
 if TYPE_CHECKING:
+    from rapidds.execution import CycleExecutor, Deployment, HumanSource
     from rapidds.loop.run import CyclePlan
 
 __all__ = ["BrowserPlayer", "Phase", "PlayerGone"]
@@ -53,12 +55,14 @@ class PlayerGone(RapiddsError):
 
 
 class _Shown:
-    """A plan made playable: its game and what the page draws of it."""
+    """A plan made playable: its game and what the page draws of it. ``build``: the executor
+    that drives a reactive game's robot (None: the planned game)."""
 
-    def __init__(self, player: BrowserPlayer, plan: CyclePlan):
+    def __init__(self, player: BrowserPlayer, plan: CyclePlan,
+                 build: Callable[[HumanSource], CycleExecutor] | None = None):
         best = plan.best
-        self.plan = plan
-        self.game = player.new_game(plan)
+        self.plan, self.build = plan, build
+        self.game = player.new_game(plan, build)
         idx = player.problem.index
         expected = {t: (float(best.expected_start[idx[t]]), float(best.expected_finish[idx[t]]))
                     for t in player.problem.ids} if len(best.expected_start) else {}
@@ -87,6 +91,7 @@ class BrowserPlayer:
         self._shown: _Shown | None = None
         self._next: _Shown | None = None
         self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
+        self._deployed: queue.Queue[tuple[int, ReactiveFetchGame]] = queue.Queue()
         self._answers: queue.Queue[tuple[int, int, list[float]]] = queue.Queue()
         self._closed = threading.Event()
         self._orders: dict[int, list[str]] = {}  # cycle -> the order the person fetched in
@@ -96,14 +101,39 @@ class BrowserPlayer:
     def name(self) -> str:
         return self._name
 
-    def new_game(self, plan: CyclePlan) -> FetchGame:
-        return FetchGame(self.world, self.problem, plan.best.schedule, plan.best.motions,
-                         cycle=plan.cycle, hz=self.hz, speed=self.speed)
+    def new_game(self, plan: CyclePlan,
+                 build: Callable[[HumanSource], CycleExecutor] | None = None) -> FetchGame:
+        """The game of ``plan``: the planned one (the robot follows its plan, the loop replays
+        what the person did), or with ``build`` the reactive one (:mod:`rapidds.web.reactive`)."""
+        if build is None:
+            return FetchGame(self.world, self.problem, plan.best.schedule, plan.best.motions,
+                             cycle=plan.cycle, hz=self.hz, speed=self.speed)
+        return ReactiveFetchGame(self.world, self.problem, plan.best.schedule,
+                                 plan.best.motions, build, cycle=plan.cycle, hz=self.hz,
+                                 speed=self.speed)
 
     # -- the loop's side ----------------------------------------------------------------------
     def show(self, plan: CyclePlan) -> None:
         """Put ``plan`` on screen, or queue it until the cycle on screen is over."""
-        shown = _Shown(self, plan)
+        self._show(_Shown(self, plan))
+
+    def play(self, plan: CyclePlan,
+             executor: Callable[[HumanSource], CycleExecutor]) -> Deployment:
+        """Show ``plan`` with a robot that reacts live (driven by the executor ``executor``
+        builds around the avatar) and block until the cycle is over, robot included; what
+        happened. Raises :class:`PlayerGone` when :meth:`close` is called first."""
+        self._show(_Shown(self, plan, executor))
+        while True:
+            if self._closed.is_set():
+                raise PlayerGone("the game was closed before the cycle was played")
+            try:
+                c, game = self._deployed.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if c == plan.cycle:  # over: nothing moves it any more, so read it here
+                return game.deployment()
+
+    def _show(self, shown: _Shown) -> None:
         with self._lock:
             cur = self._shown
             if cur is None or cur.game.over or not cur.game.started:
@@ -269,13 +299,21 @@ class BrowserPlayer:
             s = self._shown
             if s is None or not s.game.started or s.reported:
                 return False
-            s.game = self.new_game(s.plan)
+            s.game = self.new_game(s.plan, s.build)
             self.plan_version += 1
             return True
 
     def _report(self) -> None:
         s = self._shown
-        if s is not None and not s.reported and s.game.human_done:
+        if s is None or s.reported:
+            return
+        if isinstance(s.game, ReactiveFetchGame):  # the loop takes the whole cycle, robot too
+            if s.game.over:
+                s.reported = True
+                self._orders[s.game.cycle] = list(s.game.order)
+                self._deployed.put((s.game.cycle, s.game))
+            return
+        if s.game.human_done:
             s.reported = True
             self._orders[s.game.cycle] = list(s.game.order)
             self._observed.put((s.game.cycle, s.game.observations()))

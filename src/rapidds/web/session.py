@@ -118,7 +118,8 @@ class PlaySession:
 
     def info(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "cycles": self.cycles, "player": self.player.name,
-                "adapt": self.config.adapt, "hz": self.player.hz, "speed": self.player.speed,
+                "adapt": self.config.adapt, "execution": self.config.execution,
+                "hz": self.player.hz, "speed": self.player.speed,
                 "scene": scene(self.world)}
 
     # -- the worker ---------------------------------------------------------------------------
