@@ -196,9 +196,9 @@ def test_the_loop_stores_a_live_reactive_cycle_with_its_replans(
         assert view is not None and session.info()["execution"] == "reactive"
         # in this job's first plan precedence leaves the person one order (t2 before t0) and
         # the robot starts its tasks the moment they may start: the person deviates by
-        # dawdling with their first object (an overrun)
-        first = human_tasks(view["sequences"]["human"])[0]
-        bot = RouteBot(fetch_world, hold={first: 8.0})
+        # dawdling with their last object (t0: past its learned mean + 1.28 sd, 3.1 s)
+        last_task = human_tasks(view["sequences"]["human"])[-1]
+        bot = RouteBot(fetch_world, hold={last_task: 4.0})
         assert player.start(0)
         last = _finish(player, bot)
         while session.stored < 1:
@@ -212,7 +212,7 @@ def test_the_loop_stores_a_live_reactive_cycle_with_its_replans(
     # the order the person took, what they did, and the re-plan their overrun caused
     assert rec["executed"]["human"] == player.played_order(0)
     assert set(rec["observed"]) == set(rec["executed"]["human"])
-    assert [(r["reason"], r["task"]) for r in rec["replans"]] == [("overran", first)]
+    assert [(r["reason"], r["task"]) for r in rec["replans"]] == [("overran", last_task)]
     assert rec["replans"][0]["latency_s"] < 1.0  # a re-plan of the rest: milliseconds
     robot = [p for p in rec["pauses"] if p["agent"] == "robot"]
     assert all(p["end"] > p["start"] for p in robot)
