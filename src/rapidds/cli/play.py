@@ -158,7 +158,8 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
         for res in played:
             c = res.record["cycle"]
             save_gantt(res.deployment.timeline, gantt_path(out, rid, c),
-                       title=f"{rid} cycle {c} (realised)")
+                       title=f"{rid} cycle {c} (realised)", pauses=res.deployment.pauses,
+                       replans=res.deployment.replans)
         if run.next_cycle:
             write_pictures(run, out)
 

@@ -21,6 +21,10 @@ the person answers once the cycle is over (agreement with "the robot came too cl
 (:meth:`~BrowserPlayer.comfort_report`) waits for it, so the next cycle is planned with a belief
 that has this cycle's whole evidence (the planning no longer overlaps the summary screen then).
 
+Under ``--execution reactive`` the loop calls :meth:`~BrowserPlayer.play` instead: the game's
+robot is driven live by the loop's executor (:mod:`rapidds.web.reactive`), and the loop gets the
+whole cycle, robot included, once it is over.
+
 A plan shown while the previous cycle is still on screen waits until that cycle is over. When
 the person leaves mid-cycle (closes the tab), :meth:`~BrowserPlayer.restart` puts the cycle back
 to its start, so a reconnecting browser plays it again: at most the cycle in progress is lost.
