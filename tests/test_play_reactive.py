@@ -212,6 +212,7 @@ def test_the_loop_stores_a_live_reactive_cycle_with_its_replans(
     # the order the person took, what they did, and the re-plan their overrun caused
     assert rec["executed"]["human"] == player.played_order(0)
     assert set(rec["observed"]) == set(rec["executed"]["human"])
+    assert session.summary is not None and session.summary["human"] == rec["executed"]["human"]
     assert [(r["reason"], r["task"]) for r in rec["replans"]] == [("overran", last_task)]
     assert rec["replans"][0]["latency_s"] < 1.0  # a re-plan of the rest: milliseconds
     robot = [p for p in rec["pauses"] if p["agent"] == "robot"]

@@ -35,7 +35,7 @@ from __future__ import annotations
 import queue
 import threading
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 
@@ -52,6 +52,7 @@ if TYPE_CHECKING:
 __all__ = ["BrowserPlayer", "Phase", "PlayerGone"]
 
 Phase = Literal["waiting", "ready", "playing", "over"]
+_T = TypeVar("_T")
 
 
 class PlayerGone(RapiddsError):
@@ -96,7 +97,7 @@ class BrowserPlayer:
         self._next: _Shown | None = None
         self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
         self._deployed: queue.Queue[tuple[int, ReactiveFetchGame]] = queue.Queue()
-        self._answers: queue.Queue[tuple[int, int, list[float]]] = queue.Queue()
+        self._answers: queue.Queue[tuple[int, tuple[int, list[float]]]] = queue.Queue()
         self._closed = threading.Event()
         self._orders: dict[int, list[str]] = {}  # cycle -> the order the person fetched in
         self.plan_version = 0  # bumped whenever another plan comes on screen
@@ -127,15 +128,22 @@ class BrowserPlayer:
         builds around the avatar) and block until the cycle is over, robot included; what
         happened. Raises :class:`PlayerGone` when :meth:`close` is called first."""
         self._show(_Shown(self, plan, executor))
+        game = self._wait(self._deployed, plan.cycle, "the cycle was played")
+        return game.deployment()  # over: nothing moves it any more, so read it here
+
+    def _wait(self, q: queue.Queue[tuple[int, _T]], cycle: int, what: str) -> _T:
+        """The next item ``q`` gets for ``cycle`` (an item of another cycle is stale: that
+        cycle restarted after it was reported); :class:`PlayerGone` when :meth:`close` is
+        called first."""
         while True:
             if self._closed.is_set():
-                raise PlayerGone("the game was closed before the cycle was played")
+                raise PlayerGone(f"the game was closed before {what}")
             try:
-                c, game = self._deployed.get(timeout=0.05)
+                c, item = q.get(timeout=0.05)
             except queue.Empty:
                 continue
-            if c == plan.cycle:  # over: nothing moves it any more, so read it here
-                return game.deployment()
+            if c == cycle:
+                return item
 
     def _show(self, shown: _Shown) -> None:
         with self._lock:
@@ -149,15 +157,8 @@ class BrowserPlayer:
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         """Block until the person has done ``tasks`` of cycle ``cycle``; what they did.
         Raises :class:`PlayerGone` when :meth:`close` is called first."""
-        while True:
-            if self._closed.is_set():
-                raise PlayerGone("the game was closed before the cycle was played")
-            try:
-                c, obs = self._observed.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            if c == cycle:  # else a cycle restarted after it had been reported: stale
-                return self._checked(cycle, tasks, obs)
+        obs = self._wait(self._observed, cycle, "the cycle was played")
+        return self._checked(cycle, tasks, obs)
 
     def played(self, cycle: int, tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
         """:meth:`execute` without blocking: what the person did in ``cycle`` once they have
@@ -183,15 +184,7 @@ class BrowserPlayer:
         asked. Raises :class:`PlayerGone` when :meth:`close` is called first."""
         if not self.ask_comfort:
             return None
-        while True:
-            if self._closed.is_set():
-                raise PlayerGone("the game was closed before the comfort question was answered")
-            try:
-                c, answer, signals = self._answers.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            if c == cycle:
-                return answer, signals
+        return self._wait(self._answers, cycle, "the comfort question was answered")
 
     @staticmethod
     def _checked(cycle: int, tasks: Sequence[str],
@@ -266,7 +259,7 @@ class BrowserPlayer:
             if not self._asking(s) or s is None or s.game.cycle != cycle:
                 return False
             s.answer = answer
-            self._answers.put((cycle, answer, list(s.game.too_close)))
+            self._answers.put((cycle, (answer, list(s.game.too_close))))
             return True
 
     def _asking(self, s: _Shown | None) -> bool:
