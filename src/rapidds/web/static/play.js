@@ -420,7 +420,11 @@ function render() {
   $("clock").textContent = st && plan && st.cycle === plan.cycle ? st.t.toFixed(1) : "0.0";
   $("expected").textContent = plan ? `· planned ${plan.expected_makespan.toFixed(1)} s` : "";
   // plan card
-  const mine = plan ? tasksOf(plan.items.human) : [];
+  let mine = plan ? tasksOf(plan.items.human) : [];
+  if (plan && st && st.owner && st.cycle === plan.cycle) {  // reactive: who does what now
+    const now = Object.keys(st.owner).filter((t) => st.owner[t] === "human");
+    mine = [...mine.filter((t) => now.includes(t)), ...now.filter((t) => !mine.includes(t))];
+  }
   $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in the plan's order (any order precedence allows)` : "Your tasks";
   const ol = $("mytasks"); ol.innerHTML = "";
   for (const t of mine) {
