@@ -21,7 +21,7 @@ from rapidds.execution import CycleExecutor, Deployment, HumanSource
 from rapidds.loop.config import RunConfig
 from rapidds.loop.execute import cycle_executor
 from rapidds.loop.model import prior_model
-from rapidds.loop.run import CyclePlan, ReactiveTeammate
+from rapidds.loop.run import AdaptiveRun, CyclePlan, ReactiveTeammate
 from rapidds.motion.interface import MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.schedule import Schedule
@@ -178,6 +178,39 @@ def test_another_order_than_the_plans_makes_the_robot_replan(fetch_world: FetchW
     assert dep.timeline.schedule.tasks("human") == ("t3", *replan["after"]["human"])
     assert dep.timeline.schedule.tasks("human") == tuple(player.played_order(0))
     assert dep.makespan == pytest.approx(max(f for _, f in end["times"].values()), abs=2e-3)
+
+
+def test_a_taken_robot_task_is_the_persons_in_the_stored_record(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+    """The loop's own execute, learn and record steps on a hand-made plan that leaves a robot
+    task open to the person: the stored cycle says the person did it, with their duration
+    and path, and the re-plan it caused."""
+    cfg = RunConfig(world="fetch", human="tester", cycles=1, seed=0, execution="reactive",
+                    **SEARCH)
+    player = BrowserPlayer(fetch_world, "tester", hz=HZ)
+    plan, _ = _plan(fetch_world, ("t1",), ("t3", "t2", "t0"))
+    with RunStore(tmp_path / STORE_NAME) as store:
+        run = AdaptiveRun(cfg, fetch_policy, store, fetch_world, teammate=player)
+        out: dict[str, Any] = {}
+        worker = threading.Thread(target=lambda: out.setdefault("dep", run.execute(plan)))
+        worker.start()
+        end = time.monotonic() + 60
+        while player.phase != "ready":
+            assert time.monotonic() < end and worker.is_alive()
+            time.sleep(0.005)
+        assert player.start(0)
+        _finish(player, RouteBot(fetch_world, prefer=("t2",)))
+        worker.join(30)
+        run.learn(plan, out["dep"])
+        rec = run.record(plan, out["dep"])
+        (stored,) = store.records(run.config.run_id)
+        arrays = store.arrays(run.config.run_id, 0)
+    assert stored == {**rec, "run_id": run.config.run_id}
+    assert rec["robot"] == ["t3", "t2", "t0"] and "t2" in rec["executed"]["human"]
+    assert "t2" not in rec["executed"]["robot"] and rec["observed"]["t2"] > 0
+    assert arrays["human/t2"].shape[0] == math.ceil(rec["observed"]["t2"] / fetch_world.dt
+                                                    - 1e-9) + 1
+    assert (rec["replans"][0]["reason"], rec["replans"][0]["task"]) == ("took", "t2")
 
 
 def test_the_loop_stores_a_live_reactive_cycle_with_its_replans(
