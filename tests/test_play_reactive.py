@@ -136,6 +136,29 @@ def test_the_robot_stops_for_a_person_in_its_path_and_resumes(fetch_world: Fetch
     assert dep.makespan == pytest.approx(max(f for _, f in end["times"].values()), abs=2e-3)
 
 
+def test_a_person_who_leaves_a_reactive_cycle_plays_it_again(fetch_world: FetchWorld) -> None:
+    """A restart builds the cycle's executor afresh: nothing of the left cycle remains."""
+    player = BrowserPlayer(fetch_world, hz=HZ)
+    plan, motions = _plan(fetch_world, ("t2", "t3"), ("t0", "t1"))
+    played = _Played(player, plan, _builder(fetch_world, plan, motions))
+    assert player.start(0)
+    bot, state = RouteBot(fetch_world, prefer=("t3",)), player.snapshot()
+    for _ in range(5 * HZ):  # t3 is picked up out of the plan's order: a re-plan
+        player.steer(move=bot.move(state))
+        state = player.tick()
+        if state["replans"]:
+            break
+    assert state["replans"] and state["tasks"]["t3"] == "carried" and player.restart()
+    again = player.snapshot()
+    assert again is not None and again["t"] == 0 and not again["started"]
+    assert again["replans"] == [] and again["robot"] == "idle" and again["h"] == [2.2, 7.0]
+    assert player.start(0)
+    end = _finish(player, RouteBot(fetch_world))  # now in the plan's order
+    dep = played.result()
+    assert dep.replans == () and end["over"]
+    assert dep.timeline.schedule.tasks("human") == ("t2", "t3")
+
+
 def test_a_person_who_takes_a_robot_task_does_it_and_the_robot_replans(
         fetch_world: FetchWorld) -> None:
     """The plan gives the robot t3 then t2; t2 is open to the person while the robot is out for
