@@ -10,6 +10,7 @@ hand-made plans, in tests/test_play_reactive.py).
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +43,11 @@ def test_the_robot_reacts_live_in_the_browser_and_the_cycle_is_stored(
         assert [(r["reason"], r["task"]) for r in end["replans"]] == [("overran", last)]
         line = page.evaluate("document.getElementById('robot-state').textContent")
         assert line.startswith("Robot") and "re-planned at" in line and "ran long" in line
+        # the cycle is stored (and the run finished) before the server is stopped
+        page.wait_for_function("window.rapidds.phase === 'done'", timeout=60_000)
         assert page.errors == []
         page.close()
+        assert server.stop(signal.SIGINT) == 0
     finally:
         if server.proc.poll() is None:
             server.proc.kill()

@@ -388,7 +388,9 @@ class AdaptiveRun:
                 observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
         live person did), and the cycle is realised with the robot's planned motions by the
-        clock-driven executor, under the run's execution settings (:mod:`.execute`)."""
+        clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
+        reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
+        (the robot reacts to them as they move) and hands back the whole of it."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
