@@ -43,11 +43,16 @@ class RouteBot:
     """modes: task -> route mode the bot takes ("middle" or "outside" for t2 and t3).
     tol: metres per axis within which the bot stops pressing that axis; reach: metres at which a
     waypoint counts as passed. prefer: tasks the bot fetches first whenever the page shows them
-    open (any order precedence allows), before the plan's next."""
+    open (any order precedence allows), before the plan's next; with a reactive robot, also the
+    robot's tasks the page offers the person (``takeable``). hold: task -> seconds the bot
+    stands still with its object once picked up (a person who dawdles: an overrun)."""
 
     def __init__(self, world: FetchWorld, modes: dict[str, str] | None = None,
-                 tol: float = 0.08, reach: float = 0.3, prefer: tuple[str, ...] = ()):
+                 tol: float = 0.08, reach: float = 0.3, prefer: tuple[str, ...] = (),
+                 hold: dict[str, float] | None = None):
         self.world, self.modes, self.prefer = world, dict(modes or {}), prefer
+        self.hold = dict(hold or {})
+        self._held: dict[tuple[int, str], float] = {}  # when the bot picked a held task up
         self.tol, self.reach = tol, reach
         self._leg: tuple[int, str, str] | None = None
         self._waypoints: list[np.ndarray] = []
@@ -66,11 +71,19 @@ class RouteBot:
             return (0, 0)
         status = state["tasks"][cur]
         if status != "carried":  # free: a preferred open object first, whatever the plan says
-            cur = next((t for t in self.prefer if state["tasks"].get(t) == "active"), cur)
-            status = state["tasks"][cur]
+            # (with a reactive robot, one of the robot's that the page offers counts as open)
+            takeable = state.get("takeable", [])
+            mine = state.get("owner", {})
+            cur = next((t for t in self.prefer if t in takeable or (
+                state["tasks"].get(t) == "active" and mine.get(t, "human") == "human")), cur)
+            status = "active" if cur in takeable else state["tasks"][cur]
         if status not in ("active", "carried"):
             return (0, 0)  # locked or not started yet: wait where we are (at home)
         leg = "out" if status == "active" else "back"
+        if leg == "back" and cur in self.hold:
+            since = self._held.setdefault((state["cycle"], cur), state["t"])
+            if state["t"] - since < self.hold[cur]:
+                return (0, 0)
         key = (state["cycle"], cur, leg)
         if key != self._leg:
             self._leg, self._waypoints = key, self._route(cur, leg)

@@ -35,6 +35,7 @@ def test_play_help_imports_no_heavy_library() -> None:
     (["play", "--cycles", "0"], "--cycles"),
     (["play", "--gamma", "lots"], "--gamma"),
     (["play", "--gamma", "learn", "--gamma-prior", "0:4"], "gamma"),
+    (["play", "--execution", "sideways"], "--execution"),
 ])
 def test_bad_options_are_one_line(argv: list[str], message: str) -> None:
     out = _rapidds(*argv)

@@ -50,6 +50,10 @@ def play_cmd(
                                            show_default="the world's gamma, spread 4"),
     gamma_plan: str = typer.Option(_D["gamma_plan"].default, help="With --gamma learn: plan "
                                    "with the posterior's mean or its upper quantile (cautious)."),
+    execution: str = typer.Option(_D["execution"].default, help="The robot inside the cycle: "
+                                  "planned (the paper: it follows its plan) or reactive (it "
+                                  "slows and stops near you and re-plans when you deviate; you "
+                                  "may take its tasks)."),
     ask_comfort: bool = typer.Option(False, help="Ask after every cycle how close the robot came "
                                      "(1-7); always with --gamma learn."),
     lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
@@ -74,7 +78,8 @@ def play_cmd(
     cfg = RunConfig(world=world, human=player, adapt=adapt, cycles=cycles,
                     **gamma_settings(gamma), gamma_prior=gamma_prior, gamma_plan=gamma_plan,
                     lam=lam, seed=seed, population=population, generations=generations,
-                    samples=samples, particles=particles, candidates=candidates)
+                    samples=samples, particles=particles, candidates=candidates,
+                    execution=execution)
 
     from rapidds.web.server import allowed_hosts, listen, reach_line, serve, served_url
     from rapidds.web.session import STORE_NAME
@@ -153,7 +158,8 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
         for res in played:
             c = res.record["cycle"]
             save_gantt(res.deployment.timeline, gantt_path(out, rid, c),
-                       title=f"{rid} cycle {c} (realised)")
+                       title=f"{rid} cycle {c} (realised)", pauses=res.deployment.pauses,
+                       replans=res.deployment.replans)
         if run.next_cycle:
             write_pictures(run, out)
 

@@ -87,6 +87,9 @@ class CycleExecutor:
         self._claimed: frozenset[str] = frozenset()  # robot tasks the person took
         self._last: tuple[float, np.ndarray] | None = None
         self._vh = 0.0
+        self.now = 0.0  # the executor's clock: every instant before it has been run
+        self.rate = 1.0  # the robot's rate from the last instant run (what a live page shows)
+        self._stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
         reacts = getattr(human, "reaction", None) is not None
         self.watching = reacts or not isinstance(self.policy, OpenLoop)
 
@@ -239,23 +242,32 @@ class CycleExecutor:
             self._replan(now, "overran", task)
 
     # -- the cycle --------------------------------------------------------------------------------
-    def run(self) -> Deployment:
-        """Run the cycle to its end; what happened."""
-        now, dt, n = 0.0, self.world.dt, len(self.problem.ids)
-        stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
-        while len(self.finish) < n:
+    @property
+    def over(self) -> bool:
+        """Whether every task has finished."""
+        return len(self.finish) == len(self.problem.ids)
+
+    def advance_to(self, limit: float) -> bool:
+        """Run the cycle up to time ``limit`` (s), or to its end if that comes first; True when
+        it is over. :meth:`run` is this with no limit; a live source (the browser game) calls
+        it once per tick with the tick's time, its sources holding what happened until then.
+        An instant at ``limit`` itself is left to the next call, whose sources know more."""
+        dt = self.world.dt
+        while not self.over and self.now < limit:
+            now = self.now
             for reason, task in self._dispatch(now):
                 self._replan(now, reason, task)
                 self._dispatch(now)
             rate, view = self._rate(now)
             self._log_robot(now, rate)
-            until = min(self.human.next_event(now, view), self.robot.next_event(now, rate))
+            self.rate = rate
+            until = min(self.human.next_event(now, view), self.robot.next_event(now, rate), limit)
             if self.watching:
                 until = min(until, (math.floor(now / dt + 1e-9) + 1) * dt)
             if not math.isfinite(until) and self._unstick(now):
                 continue
-            stalled = stalled + 1 if until <= now else 0
-            if not math.isfinite(until) or until > self.max_time or stalled > 1000:
+            self._stalled = self._stalled + 1 if until <= now else 0
+            if not math.isfinite(until) or until > self.max_time or self._stalled > 1000:
                 raise RapiddsError(f"the cycle is stuck at t = {now:.2f} s (running "
                                    f"{self.running}, waiting {self.queue})")
             for agent, ended in (("human", self.human.advance(now, until, view)),
@@ -263,9 +275,20 @@ class CycleExecutor:
                 if ended is not None:
                     self.finish[ended] = until
                     self.running[agent] = None
-            now = until
-            self._check_overrun(now)
-        self._log_robot(now, 1.0)
+            self.now = until
+            self._check_overrun(until)
+        return self.over
+
+    def run(self) -> Deployment:
+        """Run the cycle to its end; what happened."""
+        self.advance_to(math.inf)
+        return self.result()
+
+    def result(self) -> Deployment:
+        """What happened, once the cycle is over."""
+        if not self.over:
+            raise RapiddsError(f"the cycle is not over at t = {self.now:.2f} s")
+        self._log_robot(self.now, 1.0)
         return self._result()
 
     def _result(self) -> Deployment:

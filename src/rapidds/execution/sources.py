@@ -175,6 +175,12 @@ class PlannedRobot:
         self._run = None
         return run.task
 
+    def progress(self) -> tuple[str, float] | None:
+        """The running task and how far along its nominal timing it is (s) as of the last
+        instant run; None when idle. What a live page draws the robot from, between rows."""
+        run = self._run
+        return None if run is None else (run.task, max(run.at(run.knots[-1][0]), 0.0))
+
     def _row(self) -> tuple[str, int] | None:
         run = self._run
         if run is None or run.task not in self._points:

@@ -18,6 +18,7 @@ from rapidds.errors import RapiddsError
 from rapidds.execution import (
     CycleExecutor,
     Deployment,
+    HumanSource,
     PlannedRobot,
     Replanning,
     SimulatedHuman,
@@ -34,7 +35,7 @@ from rapidds.schedule import Schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.reactions import Deviation, Reaction, cell_reactions, draw_deviation
 
-__all__ = ["check_cell", "contingency_motions", "cycle_record", "execute_cycle",
+__all__ = ["check_cell", "contingency_motions", "cycle_executor", "cycle_record", "execute_cycle",
            "person_reaction"]
 
 _REACTION_STREAM = 24_023  # the person's reaction: drawn once per run
@@ -92,7 +93,7 @@ def execute_cycle(
     order a live person took their tasks in (None: the plan's, or the simulated deviation's)."""
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
-    population, limits = cell_reactions(world)
+    population, _ = cell_reactions(world)
     deviation = draw_deviation(config.deviate, rng, population) if config.deviate else None
 
     def perform(task: str) -> tuple[float, np.ndarray]:
@@ -100,6 +101,22 @@ def execute_cycle(
         return teammate.at(cycle).perform(task, rng)
 
     person = SimulatedHuman(world, human, perform, reaction, deviation, order)
+    executor = cycle_executor(world, problem, config, schedule, motions, person, beliefs,
+                              spatial, beta)
+    return executor.run(), deviation
+
+
+def cycle_executor(
+    world: World, problem: Problem, config: RunConfig, schedule: Schedule,
+    motions: Mapping[str, MotionPlan], person: HumanSource,
+    beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel, beta: float,
+    max_time: float = 600.0,
+) -> CycleExecutor:
+    """The executor of one cycle of ``schedule`` with the person ``person`` (a simulated one,
+    or the browser game's avatar), under the run's execution settings: the robot follows its
+    ``motions`` (planned and spare) open loop, or monitors speed and separation and re-plans
+    with the learned models as they stand (``beliefs``, ``spatial``)."""
+    _, limits = cell_reactions(world)
     replanning = None
     if config.execution == "reactive":
         cost = workspace_cost(world, spatial)
@@ -115,11 +132,10 @@ def execute_cycle(
             std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
             robot={j: m.duration for j, m in motions.items() if m.trajectory is not None},
             spatial=spatial_cost, gamma=problem.objective.gamma)
-    executor = CycleExecutor(
+    return CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
         SpeedSeparation(limits) if config.execution == "reactive" else None,
-        beta=beta, replanning=replanning, limits=limits)
-    return executor.run(), deviation
+        beta=beta, replanning=replanning, limits=limits, max_time=max_time)
 
 
 def cycle_record(config: RunConfig, dep: Deployment,

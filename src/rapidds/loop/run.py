@@ -22,6 +22,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from rapidds.errors import CheckpointError, RapiddsError, StateError
+from rapidds.execution import CycleExecutor, HumanSource
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
 from rapidds.loop.changes import detect_changes
@@ -31,6 +32,7 @@ from rapidds.loop.deploy import Deployment
 from rapidds.loop.execute import (
     check_cell,
     contingency_motions,
+    cycle_executor,
     cycle_record,
     execute_cycle,
     person_reaction,
@@ -68,6 +70,7 @@ __all__ = [
     "CycleResult",
     "FreeOrderTeammate",
     "LiveTeammate",
+    "ReactiveTeammate",
     "load_policy",
     "timeline_of",
 ]
@@ -142,6 +145,19 @@ class FreeOrderTeammate(Teammate, Protocol):
 
     def played_order(self, cycle: int) -> list[str] | None:
         """The person's tasks of cycle ``cycle`` in the order they did them (None: unknown)."""
+        ...
+
+
+@runtime_checkable
+class ReactiveTeammate(LiveTeammate, Protocol):
+    """A live teammate the robot reacts to while the cycle runs (the browser game's player
+    under ``--execution reactive``): the cycle runs live on the loop's executor, built around
+    the person's own :class:`~rapidds.execution.HumanSource`."""
+
+    def play(self, plan: CyclePlan,
+             executor: Callable[[HumanSource], CycleExecutor]) -> Deployment:
+        """Show ``plan`` and run it live with the executor ``executor`` builds around the
+        person; block until the cycle is over; what happened."""
         ...
 
 
@@ -372,10 +388,18 @@ class AdaptiveRun:
                 observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
         live person did), and the cycle is realised with the robot's planned motions by the
-        clock-driven executor, under the run's execution settings (:mod:`.execute`)."""
+        clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
+        reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
+        (the robot reacts to them as they move) and hands back the whole of it."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
+        if (observed is None and self.config.execution == "reactive"
+                and isinstance(self.teammate, ReactiveTeammate)):
+            dep = self.teammate.play(plan, self._live_executor(plan))
+            self._deviations[plan.cycle] = None  # what a live person did is in the record
+            self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
+            return dep
         if observed is None and isinstance(self.teammate, LiveTeammate):
             self.teammate.show(plan)
         human = (dict(observed) if observed is not None
@@ -394,6 +418,22 @@ class AdaptiveRun:
                    if isinstance(self.teammate, FreeOrderTeammate) else None))
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
+
+    def _live_executor(self, plan: CyclePlan) -> Callable[[HumanSource], CycleExecutor]:
+        """What builds the executor of ``plan`` around a live person (every restart of the
+        cycle builds a fresh one): the robot's spare motions are steered once, here, before
+        the cycle is shown; a live cycle has no time limit but the person's patience."""
+        motions = {**contingency_motions(self.world, self.problem, self.config, plan.cycle,
+                                         self.policy, self._spatial(), plan.best.motions),
+                   **plan.best.motions}
+        beliefs = (self.model.temporal.mean(), self.model.temporal.std())
+        spatial, beta = self._spatial(), self.model.spatial.config.beta
+
+        def build(person: HumanSource) -> CycleExecutor:
+            return cycle_executor(self.world, self.problem, self.config, plan.best.schedule,
+                                  motions, person, beliefs, spatial, beta, max_time=math.inf)
+
+        return build
 
     # -- learn --------------------------------------------------------------------------------
     def learn(self, plan: CyclePlan, deployment: Deployment) -> None:

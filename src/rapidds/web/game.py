@@ -1,4 +1,5 @@
-"""One cycle of the fetch world played live: a person steers an avatar, the robot follows its plan.
+"""One cycle of the fetch world played live: a person steers an avatar, the robot follows its plan
+(``--execution planned``; :mod:`rapidds.web.reactive` is the game whose robot reacts live).
 
 The simulation is the server's; the browser only draws it and sends inputs. It advances in fixed
 ticks of ``1 / hz`` seconds (game time is ``tick / hz``, so it does not depend on how late a

@@ -21,6 +21,10 @@ the person answers once the cycle is over (agreement with "the robot came too cl
 (:meth:`~BrowserPlayer.comfort_report`) waits for it, so the next cycle is planned with a belief
 that has this cycle's whole evidence (the planning no longer overlaps the summary screen then).
 
+Under ``--execution reactive`` the loop calls :meth:`~BrowserPlayer.play` instead: the game's
+robot is driven live by the loop's executor (:mod:`rapidds.web.reactive`), and the loop gets the
+whole cycle, robot included, once it is over.
+
 A plan shown while the previous cycle is still on screen waits until that cycle is over. When
 the person leaves mid-cycle (closes the tab), :meth:`~BrowserPlayer.restart` puts the cycle back
 to its start, so a reconnecting browser plays it again: at most the cycle in progress is lost.
@@ -30,22 +34,25 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.web.game import HUMAN_SPEED, FetchGame
+from rapidds.web.reactive import ReactiveFetchGame
 from rapidds.worlds.base import HumanExecution
 from rapidds.worlds.fetch.world import FetchWorld
 
 if TYPE_CHECKING:
+    from rapidds.execution import CycleExecutor, Deployment, HumanSource
     from rapidds.loop.run import CyclePlan
 
 __all__ = ["BrowserPlayer", "Phase", "PlayerGone"]
 
 Phase = Literal["waiting", "ready", "playing", "over"]
+_T = TypeVar("_T")
 
 
 class PlayerGone(RapiddsError):
@@ -53,12 +60,14 @@ class PlayerGone(RapiddsError):
 
 
 class _Shown:
-    """A plan made playable: its game and what the page draws of it."""
+    """A plan made playable: its game and what the page draws of it. ``build``: the executor
+    that drives a reactive game's robot (None: the planned game)."""
 
-    def __init__(self, player: BrowserPlayer, plan: CyclePlan):
+    def __init__(self, player: BrowserPlayer, plan: CyclePlan,
+                 build: Callable[[HumanSource], CycleExecutor] | None = None):
         best = plan.best
-        self.plan = plan
-        self.game = player.new_game(plan)
+        self.plan, self.build = plan, build
+        self.game = player.new_game(plan, build)
         idx = player.problem.index
         expected = {t: (float(best.expected_start[idx[t]]), float(best.expected_finish[idx[t]]))
                     for t in player.problem.ids} if len(best.expected_start) else {}
@@ -87,7 +96,8 @@ class BrowserPlayer:
         self._shown: _Shown | None = None
         self._next: _Shown | None = None
         self._observed: queue.Queue[tuple[int, dict[str, HumanExecution]]] = queue.Queue()
-        self._answers: queue.Queue[tuple[int, int, list[float]]] = queue.Queue()
+        self._deployed: queue.Queue[tuple[int, ReactiveFetchGame]] = queue.Queue()
+        self._answers: queue.Queue[tuple[int, tuple[int, list[float]]]] = queue.Queue()
         self._closed = threading.Event()
         self._orders: dict[int, list[str]] = {}  # cycle -> the order the person fetched in
         self.plan_version = 0  # bumped whenever another plan comes on screen
@@ -96,14 +106,46 @@ class BrowserPlayer:
     def name(self) -> str:
         return self._name
 
-    def new_game(self, plan: CyclePlan) -> FetchGame:
-        return FetchGame(self.world, self.problem, plan.best.schedule, plan.best.motions,
-                         cycle=plan.cycle, hz=self.hz, speed=self.speed)
+    def new_game(self, plan: CyclePlan,
+                 build: Callable[[HumanSource], CycleExecutor] | None = None) -> FetchGame:
+        """The game of ``plan``: the planned one (the robot follows its plan, the loop replays
+        what the person did), or with ``build`` the reactive one (:mod:`rapidds.web.reactive`)."""
+        if build is None:
+            return FetchGame(self.world, self.problem, plan.best.schedule, plan.best.motions,
+                             cycle=plan.cycle, hz=self.hz, speed=self.speed)
+        return ReactiveFetchGame(self.world, self.problem, plan.best.schedule,
+                                 plan.best.motions, build, cycle=plan.cycle, hz=self.hz,
+                                 speed=self.speed)
 
     # -- the loop's side ----------------------------------------------------------------------
     def show(self, plan: CyclePlan) -> None:
         """Put ``plan`` on screen, or queue it until the cycle on screen is over."""
-        shown = _Shown(self, plan)
+        self._show(_Shown(self, plan))
+
+    def play(self, plan: CyclePlan,
+             executor: Callable[[HumanSource], CycleExecutor]) -> Deployment:
+        """Show ``plan`` with a robot that reacts live (driven by the executor ``executor``
+        builds around the avatar) and block until the cycle is over, robot included; what
+        happened. Raises :class:`PlayerGone` when :meth:`close` is called first."""
+        self._show(_Shown(self, plan, executor))
+        game = self._wait(self._deployed, plan.cycle, "the cycle was played")
+        return game.deployment()  # over: nothing moves it any more, so read it here
+
+    def _wait(self, q: queue.Queue[tuple[int, _T]], cycle: int, what: str) -> _T:
+        """The next item ``q`` gets for ``cycle`` (an item of another cycle is stale: that
+        cycle restarted after it was reported); :class:`PlayerGone` when :meth:`close` is
+        called first."""
+        while True:
+            if self._closed.is_set():
+                raise PlayerGone(f"the game was closed before {what}")
+            try:
+                c, item = q.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if c == cycle:
+                return item
+
+    def _show(self, shown: _Shown) -> None:
         with self._lock:
             cur = self._shown
             if cur is None or cur.game.over or not cur.game.started:
@@ -115,15 +157,8 @@ class BrowserPlayer:
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         """Block until the person has done ``tasks`` of cycle ``cycle``; what they did.
         Raises :class:`PlayerGone` when :meth:`close` is called first."""
-        while True:
-            if self._closed.is_set():
-                raise PlayerGone("the game was closed before the cycle was played")
-            try:
-                c, obs = self._observed.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            if c == cycle:  # else a cycle restarted after it had been reported: stale
-                return self._checked(cycle, tasks, obs)
+        obs = self._wait(self._observed, cycle, "the cycle was played")
+        return self._checked(cycle, tasks, obs)
 
     def played(self, cycle: int, tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
         """:meth:`execute` without blocking: what the person did in ``cycle`` once they have
@@ -149,15 +184,7 @@ class BrowserPlayer:
         asked. Raises :class:`PlayerGone` when :meth:`close` is called first."""
         if not self.ask_comfort:
             return None
-        while True:
-            if self._closed.is_set():
-                raise PlayerGone("the game was closed before the comfort question was answered")
-            try:
-                c, answer, signals = self._answers.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            if c == cycle:
-                return answer, signals
+        return self._wait(self._answers, cycle, "the comfort question was answered")
 
     @staticmethod
     def _checked(cycle: int, tasks: Sequence[str],
@@ -232,7 +259,7 @@ class BrowserPlayer:
             if not self._asking(s) or s is None or s.game.cycle != cycle:
                 return False
             s.answer = answer
-            self._answers.put((cycle, answer, list(s.game.too_close)))
+            self._answers.put((cycle, (answer, list(s.game.too_close))))
             return True
 
     def _asking(self, s: _Shown | None) -> bool:
@@ -269,13 +296,21 @@ class BrowserPlayer:
             s = self._shown
             if s is None or not s.game.started or s.reported:
                 return False
-            s.game = self.new_game(s.plan)
+            s.game = self.new_game(s.plan, s.build)
             self.plan_version += 1
             return True
 
     def _report(self) -> None:
         s = self._shown
-        if s is not None and not s.reported and s.game.human_done:
+        if s is None or s.reported:
+            return
+        if isinstance(s.game, ReactiveFetchGame):  # the loop takes the whole cycle, robot too
+            if s.game.over:
+                s.reported = True
+                self._orders[s.game.cycle] = list(s.game.order)
+                self._deployed.put((s.game.cycle, s.game))
+            return
+        if s.game.human_done:
             s.reported = True
             self._orders[s.game.cycle] = list(s.game.order)
             self._observed.put((s.game.cycle, s.game.observations()))

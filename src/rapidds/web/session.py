@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
-from rapidds.schedule import task_items
+from rapidds.record import CycleRecord
 from rapidds.store import RunStore
 from rapidds.web.player import BrowserPlayer, PlayerGone
 from rapidds.worlds.fetch.world import FetchWorld
@@ -118,7 +118,8 @@ class PlaySession:
 
     def info(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "cycles": self.cycles, "player": self.player.name,
-                "adapt": self.config.adapt, "hz": self.player.hz, "speed": self.player.speed,
+                "adapt": self.config.adapt, "execution": self.config.execution,
+                "hz": self.player.hz, "speed": self.player.speed,
                 "scene": scene(self.world)}
 
     # -- the worker ---------------------------------------------------------------------------
@@ -184,7 +185,8 @@ class PlaySession:
         assert run.store is not None
         records = run.store.records(self.run_id)
         real, exp = record["realised"], record["expected"]
-        human = task_items(record["human"])
+        done = CycleRecord.from_json(record)  # who did what: a reactive cycle may differ
+        human = done.tasks("human")
         timeline = real["timeline"]
         spatial = run.model.spatial
         n = spatial.config.shape
@@ -201,7 +203,7 @@ class PlaySession:
             "spatial": _r(real["spatial"]),
             "cost": _r(real["cost"]),
             "human": human,
-            "robot": task_items(record["robot"]),
+            "robot": done.tasks("robot"),
             "routes": record["routes"],
             "observed": {t: _r(d) for t, d in record["observed"].items()},
             "timeline": {t: [_r(s), _r(f)] for t, (s, f) in timeline.items()},

@@ -159,18 +159,40 @@ function drawMap() {
   for (const [task, p] of Object.entries(sc.objects)) drawObject(task, p);
   // agents
   const rp = st ? st.r : sc.homes.robot, hp = st ? st.h : sc.homes.human;
-  drawAgent(rp, COLORS.robot, "R", true);
-  const why = st && st.started && !st.over ? robotWaits() : null;
+  drawAgent(rp, ROBOT_STATE[st && st.robot] ? ROBOT_STATE[st.robot].color : COLORS.robot, "R", true);
+  const why = st && st.started && !st.over ? (reacting(st) || robotWaits()) : null;
   if (why) { const [x, y] = toPx(...rp); label(why, x, y - 20, COLORS.robot, 11); }
   drawAgent(hp, COLORS.human, "you", false);
   if (st) {
     for (const [task, status] of Object.entries(st.tasks)) {
       if (status !== "carried" || !plan) continue;
-      const at = plan.owner[task] === "human" ? st.h : st.r;
+      const at = ownerOf(task) === "human" ? st.h : st.r;
       const [x, y] = toPx(...at);
-      objectGlyph(x + 11, y - 13, task, plan.owner[task], "carried", 0);
+      objectGlyph(x + 11, y - 13, task, ownerOf(task), "carried", 0);
     }
   }
+}
+
+// ---------------------------------------------------------------------------- the reactive robot
+// With --execution reactive the state says how the robot moves (speed and separation
+// monitoring), who does what now (a re-plan or a task the person took) and what they may take.
+const ROBOT_STATE = {
+  stopped: { color: "#dc2626", text: "stopped: you are within its protective distance" },
+  slowed: { color: "#d97706", text: "slowed: you are close" },
+};
+function ownerOf(task) {
+  const st = R.state;
+  return (st && st.owner && st.owner[task]) || (R.plan ? R.plan.owner[task] : null);
+}
+function reacting(st) { return ROBOT_STATE[st.robot] ? ROBOT_STATE[st.robot].text : null; }
+function robotLine() {
+  const st = R.state;
+  if (!st || st.execution !== "reactive" || !st.started) return "";
+  const moving = { idle: "idle", moving: "moving" }[st.robot] || reacting(st);
+  const last = st.replans.length ? st.replans[st.replans.length - 1] : null;
+  const why = last && { order: `you took ${last.task} first`, took: `you took its ${last.task}`, overran: `${last.task} ran long` }[last.reason];
+  const next = st.robot_next.length ? ` · next: ${st.robot_next.join(" → ")}` : "";
+  return `Robot ${moving}${next}` + (last ? ` · re-planned at ${last.t.toFixed(1)} s (${why})` : "");
 }
 
 // plan.items: per agent, [{task: id} | {wait: id}], structured by the server (the text of a wait
@@ -239,14 +261,15 @@ function orderOf(task) {
 function drawObject(task, p) {
   const st = R.state, plan = R.plan;
   const status = st ? st.tasks[task] : "queued";
-  const owner = plan ? plan.owner[task] : null;
+  const owner = ownerOf(task);
   if (status === "carried") return;  // drawn on its carrier
   const [x, y] = toPx(...p);
   if (status === "done") {
     objectGlyph(x, y, task, owner, "done", 0);
     return;
   }
-  const pulse = status === "active" && owner === "human" ? 0.5 + 0.5 * Math.sin(performance.now() / 180) : 0;
+  const open = (status === "active" && owner === "human") || (st && st.takeable && st.takeable.includes(task));
+  const pulse = open ? 0.5 + 0.5 * Math.sin(performance.now() / 180) : 0;
   objectGlyph(x, y, task, owner, status, pulse);
 }
 
@@ -369,12 +392,12 @@ function instructions() {
   if (!cur) return st.human_done ? ["Your part is done", "The robot is finishing its tasks."] : ["", ""];
   const d = plan.descriptions[cur] || cur, s = st.tasks[cur];
   if (s === "locked" || s === "queued") {
-    const open = tasksOf(plan.items.human).filter((t) => st.tasks[t] === "active");
+    const open = tasksOf(plan.items.human).filter((t) => st.tasks[t] === "active").concat(st.takeable || []);
     if (open.length) return [`Fetch ${open.join(" or ")}`, `The plan's next, ${cur}, is locked; any glowing object may be fetched.`];
     const waits = lockedBy(cur);
     return [`Wait: ${cur} is locked`, waits.length ? `It unlocks when ${waits.join(" and ")} ${waits.length > 1 ? "are" : "is"} home.` : "Wait at home."];
   }
-  if (s === "active") return [`Go and ${d} (${cur})`, "Walk up to it to pick it up, or to any other glowing object: any order the arrows allow."];
+  if (s === "active") return [`Go and ${d} (${cur})`, "Walk up to it to pick it up, or to any other glowing object: any order the arrows allow" + (st.takeable && st.takeable.length ? `, the robot's ${st.takeable.join(", ")} too.` : ".")];
   if (s === "carried") return [`Bring ${cur} home`, "Back into your home circle."];
   return ["", ""];
 }
@@ -391,10 +414,17 @@ function render() {
   const [big, small] = instructions();
   $("instruction").textContent = big; $("detail").textContent = small || "";
   const playing = R.phase === "playing";
+  const line = robotLine();
+  $("robot-state").textContent = line; $("robot-state").classList.toggle("hidden", !line);
+  $("robot-state").style.color = ROBOT_STATE[st && st.robot] ? ROBOT_STATE[st.robot].color : "";
   $("clock").textContent = st && plan && st.cycle === plan.cycle ? st.t.toFixed(1) : "0.0";
   $("expected").textContent = plan ? `· planned ${plan.expected_makespan.toFixed(1)} s` : "";
   // plan card
-  const mine = plan ? tasksOf(plan.items.human) : [];
+  let mine = plan ? tasksOf(plan.items.human) : [];
+  if (plan && st && st.owner && st.cycle === plan.cycle) {  // reactive: who does what now
+    const now = Object.keys(st.owner).filter((t) => st.owner[t] === "human");
+    mine = [...mine.filter((t) => now.includes(t)), ...now.filter((t) => !mine.includes(t))];
+  }
   $("plan-title").textContent = plan ? `${Unit} ${plan.cycle + 1}: your tasks, in the plan's order (any order precedence allows)` : "Your tasks";
   const ol = $("mytasks"); ol.innerHTML = "";
   for (const t of mine) {
