@@ -237,6 +237,14 @@ class CycleRecord:
             **({"run_id": self.run_id} if self.run_id is not None else {}),
         }
 
+    def __getitem__(self, key: str) -> Any:
+        """The stored dict's part ``key``. Only for the browser game's session summary, which
+        reads the record a cycle hands it as the stored dict; remove once it reads the fields
+        (every other reader does: tests/test_owners.py)."""
+        return self.to_json()[key]
+
+    __iter__ = None  # not a sequence: ``in`` and ``list()`` fail loudly, not through __getitem__
+
     @property
     def done(self) -> Schedule:
         """Who did what, in order: as executed where the cycle ran in-cycle execution (the

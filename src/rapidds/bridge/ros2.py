@@ -15,9 +15,12 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from rapidds.schedule import Item
 
 __all__ = [
     "EVENTS_TOPIC",
@@ -273,25 +276,22 @@ def zenoh_key(topic: str) -> str:
     return topic.strip("/")
 
 
-def plan_payload(record: Mapping[str, Any]) -> dict[str, Any]:
-    """The JSON of ``/rapidds/plan`` from a cycle record: tasks, agents, order, waits, expected
-    start and end times (the realised timeline's keys when no expected one is stored)."""
-    from rapidds.schedule import parse_item
+def plan_payload(cycle: int, human: Sequence[Item], robot: Sequence[Item],
+                 times: Mapping[str, tuple[float, float]]) -> dict[str, Any]:
+    """The JSON of ``/rapidds/plan``: the cycle, each agent's tasks in order, its waits, and
+    the tasks' start and end times (expected for a live plan, realised for a stored cycle)."""
+    from rapidds.schedule import Wait
 
-    out: dict[str, Any] = {"cycle": record.get("cycle"), "agents": {}, "order": {},
-                           "waits": []}
-    for agent in ("human", "robot"):
+    out: dict[str, Any] = {"cycle": cycle, "agents": {}, "order": {}, "waits": []}
+    for agent, items in (("human", human), ("robot", robot)):
         order = []
-        for item in record.get(agent, []):
-            parsed = parse_item(item)
-            if isinstance(parsed, str):
-                order.append(parsed)
-                out["agents"][parsed] = agent
+        for item in items:
+            if isinstance(item, Wait):
+                out["waits"].append({"agent": agent, "for": item.task, "before": len(order)})
             else:
-                out["waits"].append({"agent": agent, "for": parsed.task, "before": len(order)})
+                order.append(item)
+                out["agents"][item] = agent
         out["order"][agent] = order
     out["tasks"] = sorted(out["agents"])
-    timeline = record.get("expected", {}).get("timeline") or \
-        record.get("realised", {}).get("timeline", {})
-    out["times"] = {t: {"start": se[0], "end": se[1]} for t, se in timeline.items()}
+    out["times"] = {t: {"start": se[0], "end": se[1]} for t, se in times.items()}
     return out
