@@ -82,6 +82,17 @@ def test_the_record_pattern_catches_dict_reads_and_spares_others() -> None:
         assert not RECORD_KEY.search(line), line
 
 
+# YAML parsed anywhere but the one reader (rapidds.settings.read_yaml / parse_yaml)
+YAML_READ = re.compile(r"\byaml\.(?:safe_|full_|unsafe_)?load(?:_all)?\(")
+
+
+def test_only_the_settings_read_yaml() -> None:
+    hits = _offenders(YAML_READ, "settings.py", (".py",))
+    assert not hits, "use rapidds.settings.read_yaml (or parse_yaml) instead:\n" + "\n".join(hits)
+    for line in ("yaml.safe_load(text)", "raw = yaml.load(text, Loader=L)"):
+        assert YAML_READ.search(line), line
+
+
 def test_the_patterns_catch_what_they_are_for() -> None:
     """The greps above would see the hand parsers this replaced (or they prove nothing)."""
     for line in ('if t.startswith("wait:")', "x.startsWith('wait:')", "w = item.slice(5)",

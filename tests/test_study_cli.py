@@ -62,7 +62,7 @@ def test_design_writes_csv_and_store_and_never_mixes_designs(tmp_path, capsys):
     (["--world", "nowhere"], "unknown world 'nowhere'"),
     (["--variant", "sideways"], "no variant 'sideways'"),
     (["--rounds", "0"], "rounds"),
-    (["--items", "missing.yaml"], "cannot read"),
+    (["--items", "missing.yaml"], "missing.yaml: no such file"),
     (["--gamma", "-1"], "--gamma"),
     (["--learn-gamma"], "--learn-gamma needs --comfort-item"),
 ])

@@ -15,9 +15,12 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from rapidds.settings import error_line
 
 if TYPE_CHECKING:
     from rapidds.schedule import Item
@@ -170,6 +173,16 @@ class Event:
     stamp_ns: int | None = None
 
 
+class _EventJson(BaseModel):
+    """The JSON of an :class:`Event` as it travels (strict: a stamp of 1.5 or true is refused)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    task: str
+    agent: Agent
+    event: Literal["start", "end"]
+    stamp_ns: Annotated[int, Field(ge=0)] | None = None
+
+
 def event_message(event: Event) -> Any:
     stamp = {} if event.stamp_ns is None else {"stamp_ns": int(event.stamp_ns)}
     return string_message({"task": event.task, "agent": event.agent, "event": event.event,
@@ -182,17 +195,13 @@ def parse_event(text: str) -> Event:
         raw = json.loads(text)
     except (ValueError, RecursionError) as exc:
         raise MessageError(f"event is not JSON: {exc}") from exc
-    if not isinstance(raw, dict) or not {"task", "agent", "event"} <= set(raw) \
-            or not set(raw) <= {"task", "agent", "event", "stamp_ns"}:
-        raise MessageError(f"an event has the keys task, agent, event (and stamp_ns); got "
-                           f"{text[:80]!r}")
-    task, agent, kind, stamp = raw["task"], raw["agent"], raw["event"], raw.get("stamp_ns")
-    if not isinstance(task, str) or agent not in ("human", "robot") \
-            or kind not in ("start", "end") or (stamp is not None and (
-                type(stamp) is not int or stamp < 0)):
-        raise MessageError(f"bad event {text[:80]!r}: agent human|robot, event start|end, "
-                           "stamp_ns whole ns >= 0")
-    return Event(task, agent, kind, stamp)
+    try:
+        e = _EventJson.model_validate(raw)
+    except ValidationError as exc:
+        raise MessageError(f"bad event {text[:80]!r}: {error_line(exc, with_input=True)} "
+                           "(keys task, agent human|robot, event start|end, stamp_ns whole ns "
+                           ">= 0)") from None
+    return Event(e.task, e.agent, e.event, e.stamp_ns)
 
 
 def point_cloud(points: np.ndarray, values: np.ndarray | None = None, value_name: str = "cost",
