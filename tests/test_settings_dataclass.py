@@ -112,6 +112,10 @@ def test_the_one_yaml_reader_says_what_is_wrong_in_one_line(tmp_path):
         read_yaml(tmp_path / "nowhere.yaml", error=ProblemError)
     path.write_text("- 1\n")
     assert read_yaml(path, mapping=False) == [1]  # a problem file's own check names it
+    path.write_text('{\n\t"steps": 6,\n\t"lr": 1e-4\n}\n')  # JSON indented with tabs
+    assert read_yaml(path) == {"steps": 6, "lr": 1e-4}
+    path.write_text("{steps: 6, lr: 1e-4}\n")  # flow-style YAML, not JSON
+    assert read_yaml(path) == {"steps": 6, "lr": 1e-4}
 
 
 def test_a_duration_belief_declares_its_bounds_and_still_learns_in_place():

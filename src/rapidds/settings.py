@@ -203,8 +203,15 @@ def _yaml_loader() -> type:
 def parse_yaml(text: str, where: str, error: type[RapiddsError] = ConfigError) -> Any:
     """The document in ``text`` (YAML, or JSON, which is YAML); ``error`` in one line
     ``where: not valid YAML (line N: what)`` if it is not."""
+    import json
+
     import yaml
 
+    if text.lstrip()[:1] in ("{", "["):  # JSON read as JSON: YAML refuses its tab indents
+        try:
+            return json.loads(text)
+        except (ValueError, RecursionError):
+            pass  # flow-style YAML ({a: 1}) is not JSON
     try:
         return yaml.load(text, Loader=_yaml_loader())  # a SafeLoader: no object construction
     except yaml.YAMLError as exc:
