@@ -83,20 +83,20 @@ def one(job: tuple[str, str, int, int, int]) -> dict[str, Any]:
     run = AdaptiveRun(RunConfig(**_config(kind, model, seed, cycles, at)),
                       load_policy(make_world("fetch")))
     recs = run.run()
-    done = sorted({t for r in recs[at:] for t in r["observed"]})
+    done = sorted({t for r in recs[at:] for t in r.observed})
     err = []
     for r in recs:
-        truth = run.teammate.at(r["cycle"] + 1).true_mean_durations()  # what the next plan needs
-        belief = r["belief"]["mean_durations"]
+        truth = run.teammate.at(r.cycle + 1).true_mean_durations()  # what the next plan needs
+        belief = r.belief["mean_durations"]
         err.append(float(np.mean([abs(belief[t] - truth[t]) / truth[t] for t in done]))
                    if done and belief else float("nan"))
-    alarms = [(r["cycle"], a) for r in recs for a in r.get("changes", []) if "task" in a]
+    alarms = [(r.cycle, a) for r in recs for a in r.changes or [] if "task" in a]
     return {"kind": kind, "model": model, "seed": seed, "cycles": cycles, "at": at, "error": err,
-            "cost": [r["realised"]["cost"] for r in recs],
-            "plan_cost": [r["plan_cost"]["cost"] for r in recs],
+            "cost": [r.realised.cost for r in recs],
+            "plan_cost": [r.plan_cost.cost if r.plan_cost else float("nan") for r in recs],
             "false_alarms": sum(1 for c, a in alarms if kind == "none" or a["since_cycle"] < at),
             "alarms": len(alarms),
-            "seconds": float(sum(r["seconds"]["total"] for r in recs))}
+            "seconds": float(sum((r.seconds or {}).get("total", 0.0) for r in recs))}
 
 
 def _learned_after(err: list[float], at: int) -> int:

@@ -39,8 +39,8 @@ def main() -> None:
             for adapt in ("full", "none"):
                 cfg = RunConfig(human=human, adapt=adapt, cycles=args.cycles, seed=seed)
                 recs = AdaptiveRun(cfg, policy).run()
-                times += [r["seconds"]["total"] for r in recs]
-                tails[adapt].append(float(np.median([r["realised"]["cost"] for r in recs[-4:]])))
+                times += [(r.seconds or {}).get("total", 0.0) for r in recs]
+                tails[adapt].append(float(np.median([r.realised.cost for r in recs[-4:]])))
         full, none = float(np.median(tails["full"])), float(np.median(tails["none"]))
         per_seed = sum(f < n for f, n in zip(tails["full"], tails["none"], strict=True))
         wins += full < none

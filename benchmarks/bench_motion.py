@@ -163,9 +163,9 @@ def cycle_table(policy: DiffusionPolicy, cycles: int, seeds: int) -> list[str]:
             for name, fast, steps in variants:
                 policy.fast_inference = fast
                 recs = AdaptiveRun(RunConfig(cycles=cycles, seed=seed, steps=steps), policy).run()
-                times[name] += [r["seconds"]["total"] for r in recs]
-                costs[name] += [r["realised"]["cost"] for r in recs]
-                plans[name] += [(r["human"], r["robot"], r["routes"]) for r in recs]
+                times[name] += [(r.seconds or {}).get("total", 0.0) for r in recs]
+                costs[name] += [r.realised.cost for r in recs]
+                plans[name] += [(r.plan.human, r.plan.robot, r.plan.routes) for r in recs]
     finally:
         policy.fast_inference = True
     rows = ["| variant | median s | p90 s | mean realised cost |", "|---|---|---|---|"]

@@ -51,8 +51,8 @@ for seed in range(seeds):
                         generations=40, samples=32, patience=8, particles=2, candidates=4)
         recs = AdaptiveRun(cfg, policy).run()
         out.append({"human": human, "seed": seed,
-                    "cost": [r["realised"]["cost"] for r in recs],
-                    "seconds": [r["seconds"]["total"] for r in recs]})
+                    "cost": [r.realised.cost for r in recs],
+                    "seconds": [(r.seconds or {}).get("total", 0.0) for r in recs]})
 print(json.dumps({"trials": out,
                   "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """

@@ -97,7 +97,8 @@ def test_export_reads_back_with_mcap_ros2(painting_run: Path, tmp_path: Path,
         epoch += _ns(rec["realised"]["makespan"] + CYCLE_GAP_S)
     assert len(trajs) == expected_count
     plans = [json.loads(p.data) for p in by_topic[ros2.PLAN_TOPIC]]
-    assert plans == [ros2.plan_payload(r) for r in records]
+    assert plans == [ros2.plan_payload(r.cycle, r.plan.human, r.plan.robot, r.realised.timeline)
+                     for r in store.cycle_records(rid)]
     # the Foxglove layout in docs/ shows only topics a painting export has
     layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove-layout.json").read_text())
     shown = {t for c in layout["configById"].values() for t in c.get("topics", {})}

@@ -23,6 +23,7 @@ from rapidds.bridge.live import (
     live_plan_payload,
     tracking_topic,
 )
+from rapidds.schedule import Wait
 from rapidds.worlds.base import body_point_names, joint_names
 from rapidds.worlds.registry import make_world
 
@@ -92,7 +93,7 @@ def test_bad_endpoints_are_refused_in_one_line() -> None:
 
 def _plan(problem, **kw):
     payload = live_plan_payload(problem, 3, ["prep_vise", "secure_piece", "brush"],
-                                ["mix_l", "wait:secure_piece", "mix_r"],
+                                ["mix_l", Wait("secure_piece"), "mix_r"],
                                 {"prep_vise": (0.0, 6.0)}, start_ns=10**18, time_scale=4.0,
                                 dt=0.15, **kw)
     return payload, LivePlan.parse(ros2.string_message(payload).data)

@@ -41,7 +41,7 @@ def test_a_bag_round_is_learned_as_the_bag_says(tmp_path: Path, fetch_world: Fet
         rec = session.submit_round(pid, token, "bag", {"bag": "round0.mcap"})
     finally:
         session.close()
-    assert rec["observed"] == pytest.approx({t: done[t].duration for t in tasks}, abs=1e-8)
+    assert rec.observed == pytest.approx({t: done[t].duration for t in tasks}, abs=1e-8)
     with StudyStore.open_readonly(study_path(folder)) as s:
         rid = s.run_id(pid, s.participant(pid).systems[0])
         assert len(s.records(rid)) == 1

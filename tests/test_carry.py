@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from record_helpers import stored
 
 from rapidds.loop import AdaptiveRun, HumanModel, RunConfig
 from rapidds.loop.carry import CarriedMotions, spatial_stamps
@@ -47,12 +48,12 @@ def test_runs_without_spatial_learning_steer_only_new_requests_after_cycle_0(fet
     run = AdaptiveRun(RunConfig(human="slow-middle", adapt="none", cycles=4, seed=2, **small),
                       fetch_policy)
     recs = run.run()
-    assert recs[0]["search"]["motions_reused"] == 0
-    assert sum(r["search"]["motions_reused"] for r in recs[1:]) > 0
+    assert recs[0].search["motions_reused"] == 0
+    assert sum(r.search["motions_reused"] for r in recs[1:]) > 0
     fresh = AdaptiveRun(RunConfig(human="slow-middle", adapt="none", cycles=4, seed=2,
                                   reuse_motions=False, **small), fetch_policy).run()
-    assert all(r["search"]["motions_reused"] == 0 for r in fresh)
-    assert recs[0] == {**fresh[0], "seconds": recs[0]["seconds"]}  # cycle 0 is the same
+    assert all(r.search["motions_reused"] == 0 for r in fresh)
+    assert stored(recs[0]) == stored(fresh[0])  # cycle 0 is the same
 
 
 def test_carried_motions_survive_a_round_trip_of_the_state(fetch_policy, small):
@@ -78,8 +79,8 @@ def test_carried_trajectories_use_the_model_codec_and_old_lists_still_read() -> 
     items = encode_plans(carried)
     assert set(items[0]["trajectory"]) == {"dtype", "shape", "data"}
     old = [{**items[0], "trajectory": traj.tolist()}]
-    for stored in (items, old):
-        (plan, stamps), = decode_plans(stored).values()
+    for kept in (items, old):
+        (plan, stamps), = decode_plans(kept).values()
         assert stamps == {"t2": "abc"} and plan.duration == 4.25
         assert plan.trajectory.dtype == np.float64
         np.testing.assert_array_equal(plan.trajectory, traj)

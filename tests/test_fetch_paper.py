@@ -158,5 +158,5 @@ def test_diversity_makes_the_early_rounds_explore(fetch_world, fetch_policy):
         run = AdaptiveRun(RunConfig(human="fast-outside", seed=seed, cycles=16, **STUDY_SEARCH),
                           fetch_policy, world=fetch_world)
         first, second = run.step().record, run.step().record
-        assert second["lambda"] == 15.0
-        assert set(first["human"]) != set(second["human"]), (seed, first["human"])
+        assert second.plan.lam == 15.0
+        assert set(first.plan.human) != set(second.plan.human), (seed, first.plan.human)

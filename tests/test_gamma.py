@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from cli_helpers import cli_cmd, kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
+from record_helpers import stored
 
 from rapidds.cli import main
 from rapidds.experiments.report import gamma_markdown, gamma_rows
@@ -81,10 +82,6 @@ def policy(fetch_policy):
     return fetch_policy
 
 
-def _strip(rec: dict, *drop: str) -> dict:
-    return {k: v for k, v in rec.items() if k not in ("seconds", *drop)}
-
-
 def test_no_evidence_keeps_the_prior_and_plans_as_the_fixed_prior_gamma(policy):
     world = make_world("fetch")
     person = world.teammate("slow-middle")  # injected, with no comfort_report: says nothing
@@ -92,18 +89,20 @@ def test_no_evidence_keeps_the_prior_and_plans_as_the_fixed_prior_gamma(policy):
                                   gamma_prior="3.5:2", **SMALL), policy, teammate=person)
     records = learn.run()
     assert learn.model.gamma is not None and learn.model.gamma.evidence == 0
-    assert [r["gamma"] for r in records] == [3.5] * 3
-    assert all(r["gamma_belief"]["mean"] == 3.5 and r["comfort"] is None for r in records)
+    assert [r.plan.gamma for r in records] == [3.5] * 3
+    assert all(r.gamma_belief is not None and r.gamma_belief["mean"] == 3.5
+               and r.has_comfort and r.comfort is None for r in records)
     fixed = AdaptiveRun(RunConfig(human="slow-middle", cycles=3, gamma=3.5, **SMALL), policy,
                         teammate=person).run()
-    assert "gamma_belief" not in fixed[0] and "comfort" not in fixed[0]
-    assert [_strip(r, "gamma_belief", "comfort") for r in records] == [_strip(r) for r in fixed]
+    assert fixed[0].gamma_belief is None and not fixed[0].has_comfort
+    assert "gamma_belief" not in fixed[0].to_json() and "comfort" not in fixed[0].to_json()
+    assert [stored(r, "gamma_belief", "comfort") for r in records] == [stored(r) for r in fixed]
 
 
 def test_simulated_person_learns_and_answers_by_their_own_gamma(policy):
     run = AdaptiveRun(RunConfig(human="fast-middle", cycles=5, gamma_learn=True, comfort=8.0,
                                 **SMALL), policy)
-    records = run.run()
+    records = [r.to_json() for r in run.run()]
     assert records[0]["gamma"] == pytest.approx(1.75)  # the first plan is the prior's
     assert all(r["comfort"]["simulated"] and r["comfort"]["true_gamma"] == 8.0 for r in records)
     assert [r["gamma"] for r in records[1:]] == [
@@ -136,11 +135,11 @@ def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
     assert full.returncode == 0, full.stderr
     db = tmp_path / "b" / "run.sqlite"
     kill_at = int(np.random.default_rng().integers(1, 4))
-    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
-    assert stored is not None and stored < 4, "the run finished before it could be killed"
+    kept = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, kill_at, env)
+    assert kept is not None and kept < 4, "the run finished before it could be killed"
     ra, rb, ma, mb = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                         tmp_path / "a" / "run.sqlite", db, env)
-    assert len(ra) == 5 and [_strip(r) for r in ra] == [_strip(r) for r in rb]
+    assert len(ra) == 5 and [stored(r) for r in ra] == [stored(r) for r in rb]
     assert all("gamma_belief" in r for r in ra)
     assert ma.gamma is not None and mb.gamma is not None
     assert ma.gamma.to_dict() == mb.gamma.to_dict()

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 from cli_helpers import cli_cmd, kill_run, resume_and_compare
 from conftest import SMALL_SEARCH as SMALL
+from record_helpers import stored
 
 from rapidds.loop import AdaptiveRun, RunConfig
+from rapidds.schedule import Wait
 
 
 @pytest.fixture(scope="module")
@@ -19,17 +21,13 @@ def policy(fetch_policy):
     return fetch_policy
 
 
-def _strip(rec: dict) -> dict:
-    return {k: v for k, v in rec.items() if k != "seconds"}
-
-
 def test_full_adaptation_learns_a_slow_teammate(policy):
     run = AdaptiveRun(RunConfig(human="slow-middle", adapt="full", cycles=16, **SMALL), policy)
     records = run.run()
-    assert [r["cycle"] for r in records] == list(range(16))
+    assert [r.cycle for r in records] == list(range(16))
     truth = run.teammate.true_mean_durations()
     temporal = run.model.temporal
-    counts = {t: sum(t in r["observed"] for r in records) for t in truth}
+    counts = {t: sum(t in r.observed for r in records) for t in truth}
     learned = [t for t, n in counts.items() if n >= 3]
     assert len(learned) >= 2, counts  # exploration made the person do several tasks
     mean = dict(zip(run.problem.ids, temporal.mean(), strict=True))
@@ -57,15 +55,15 @@ def test_oracle_is_the_floor(policy, human):
         vals = []
         for seed in (0, 1):
             cfg = RunConfig(human=human, adapt=adapt, cycles=4, lam=0.0, seed=seed, **SMALL)
-            vals += [r["realised"]["cost"] for r in AdaptiveRun(cfg, policy).run()]
+            vals += [r.realised.cost for r in AdaptiveRun(cfg, policy).run()]
         costs[adapt] = float(np.mean(vals))
     assert costs["oracle"] < costs["none"], costs
 
 
 def test_same_seed_same_records(policy, tmp_path):
     cfg = RunConfig(human="fast-outside", cycles=2, **SMALL)
-    a = [_strip(r) for r in AdaptiveRun(cfg, policy).run()]
-    b = [_strip(r) for r in AdaptiveRun(cfg, policy).run()]
+    a = [stored(r) for r in AdaptiveRun(cfg, policy).run()]
+    b = [stored(r) for r in AdaptiveRun(cfg, policy).run()]
     assert a == b
 
 
@@ -84,16 +82,16 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
 
     kill_at = int(np.random.default_rng().integers(1, 4))  # after 1, 2 or 3 stored cycles
     db = tmp_path / "b" / "run.sqlite"
-    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db,
-                      "fetch-slow-middle-full-s3", kill_at, env)
-    assert stored is not None and stored < 4, "the run finished before it could be killed"
+    kept = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db,
+                    "fetch-slow-middle-full-s3", kill_at, env)
+    assert kept is not None and kept < 4, "the run finished before it could be killed"
 
     again = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "b")), capture_output=True,
                            text=True, env=env, timeout=60)
     assert again.returncode == 2 and "--resume" in again.stderr  # nothing overwritten silently
     ra, rb, ma, mb = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                         tmp_path / "a" / "run.sqlite", db, env)
-    assert [_strip(r) for r in ra] == [_strip(r) for r in rb]
+    assert [stored(r) for r in ra] == [stored(r) for r in rb]
     assert ma.temporal.to_dict() == mb.temporal.to_dict()
     assert ma.spatial.to_dict() == mb.spatial.to_dict()
 
@@ -102,9 +100,9 @@ def test_exact_baseline_plans_with_cp_sat_and_learns_nothing(policy):
     run = AdaptiveRun(RunConfig(human="slow-middle", adapt="exact", cycles=2, **SMALL), policy)
     prior = run.model.temporal.to_dict()
     records = run.run()
-    assert all(r["search"]["solver"] == "cp-sat" and r["search"]["optimal"] for r in records)
-    assert all(r["lambda"] == 0.0 for r in records)
-    assert not any(str(x).startswith("wait:") for r in records for x in r["human"] + r["robot"])
+    assert all(r.search["solver"] == "cp-sat" and r.search["optimal"] for r in records)
+    assert all(r.plan.lam == 0.0 for r in records)
+    assert not any(isinstance(x, Wait) for r in records for x in r.plan.human + r.plan.robot)
     assert run.model.temporal.to_dict() == prior  # nothing learned
 
 
@@ -125,7 +123,7 @@ def test_each_level_updates_exactly_the_models_it_names(policy, adapt, learns_ti
 def test_a_cycle_in_steps_equals_a_whole_step(policy):
     cfg = RunConfig(human="fast-middle", cycles=2, seed=5, **SMALL)
     whole = AdaptiveRun(cfg, policy)
-    want = [_strip(r) for r in whole.run()]
+    want = [stored(r) for r in whole.run()]
 
     # a caller that shows the plan, waits for the person, then learns: here the "person" is
     # the same simulated teammate, observed outside the run and handed in
@@ -136,7 +134,7 @@ def test_a_cycle_in_steps_equals_a_whole_step(policy):
         seen = stepped.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"), plan.rng)
         dep = stepped.execute(plan, observed=seen)
         stepped.learn(plan, dep)
-        got.append(_strip(stepped.record(plan, dep)))
+        got.append(stored(stepped.record(plan, dep)))
     assert got == want
 
     stale = stepped.plan if not stepped.finished else None
@@ -181,12 +179,13 @@ def test_plan_cost_scores_the_executed_plan_under_the_truth(policy):
         run = AdaptiveRun(RunConfig(human="slow-middle", adapt=adapt, cycles=2, lam=0.0,
                                     **SMALL), policy)
         for rec in run.run():
-            pc, exp = rec["plan_cost"], rec["expected"]
-            assert pc["cost"] == pytest.approx(pc["makespan"] + rec["gamma"] * pc["spatial"])
+            pc, exp = rec.plan_cost, rec.expected
+            assert pc is not None
+            assert pc.cost == pytest.approx(pc.makespan + rec.plan.gamma * pc.spatial)
             if adapt == "oracle":
-                assert pc["spatial"] == pytest.approx(exp["spatial"], abs=1e-9)
-                assert pc["makespan"] == pytest.approx(exp["makespan"], abs=0.5)
-            elif rec["routes"].get("t3") == "middle" and "t2" in rec["human"]:
+                assert pc.spatial == pytest.approx(exp.spatial, abs=1e-9)
+                assert pc.makespan == pytest.approx(exp.makespan, abs=0.5)
+            elif rec.plan.routes.get("t3") == "middle" and "t2" in rec.plan.human:
                 risky += 1
-                assert pc["spatial"] > exp["spatial"] + 0.2, (pc, exp)
+                assert pc.spatial > exp.spatial + 0.2, (pc, exp)
     assert risky >= 1  # the prior sent the robot down the corridor beside the person

@@ -1,6 +1,7 @@
 """Each format that crosses a boundary has one owner that writes and reads it: a schedule item's
 text (``wait:TASK``) belongs to :mod:`rapidds.schedule` (the browser gets structured items), a
-stored path array's name (``human/TASK``, ``robot/TASK``) to :mod:`rapidds.store`. These tests
+stored path array's name (``human/TASK``, ``robot/TASK``) to :mod:`rapidds.store`, a stored
+cycle record's keys to :mod:`rapidds.record` (readers take a ``CycleRecord``). These tests
 read every source file (Python and the page's JavaScript) for a second reader or writer."""
 
 from __future__ import annotations
@@ -23,10 +24,28 @@ ARRAY_NAME = re.compile(r"""["'`](?:human|robot)/|\}/\{(?:task|t|j)\}"""
                         r"""|(?:split|partition)\(\s*["']/["']""")
 
 
-def _offenders(pattern: re.Pattern[str], owner: str) -> list[str]:
+# a cycle record read as the stored dict: a key only a record has, on any mapping (not assigned),
+# or any stored key on a variable named as a record is
+_ONLY_A_RECORDS = "realised|plan_cost|gamma_belief|executed|replans|pauses"
+_STORED_KEYS = ("cycle|human|robot|routes|gamma|lambda|expected|realised|observed|belief|"
+                "plan_cost|search|changes|comfort|gamma_belief|executed|deviation|pauses|replans|"
+                "protective|live|seconds|run_id")
+RECORD_KEY = re.compile(
+    rf"""(?:\[\s*["'](?:{_ONLY_A_RECORDS})["']\s*\](?!\s*=[^=])"""
+    rf"""|\.get\(\s*["'](?:{_ONLY_A_RECORDS})["'])"""
+    rf"""|\b(?:rec|record|r|recs?\[-?\d+\]|records\[-?\d+\])"""
+    rf"""(?:\[|\.get\()\s*["'](?:{_STORED_KEYS})["']""")
+# the browser game's session summary still reads the record it is handed as the stored dict:
+# its module is being changed on another line of work and reads the fields once that is merged
+RECORD_KEY_PENDING = ("web/session.py",)
+
+
+def _offenders(pattern: re.Pattern[str], owner: str | tuple[str, ...],
+               suffixes: tuple[str, ...] = (".py", ".js", ".html")) -> list[str]:
+    owners = (owner,) if isinstance(owner, str) else owner
     hits = []
     for path in sorted(SRC.rglob("*")):
-        if path.suffix not in (".py", ".js", ".html") or path.relative_to(SRC).as_posix() == owner:
+        if path.suffix not in suffixes or path.relative_to(SRC).as_posix() in owners:
             continue
         for n, line in enumerate(path.read_text().splitlines(), 1):
             if pattern.search(line):
@@ -42,6 +61,36 @@ def test_only_the_schedule_reads_or_writes_a_wait_items_text() -> None:
 def test_only_the_store_names_or_parses_path_arrays() -> None:
     assert not _offenders(ARRAY_NAME, "store.py"), "use rapidds.store (path_arrays, "\
         "cycle_paths) instead:\n" + "\n".join(_offenders(ARRAY_NAME, "store.py"))
+
+
+def test_only_the_record_reads_a_stored_records_keys() -> None:
+    """Readers go through rapidds.record (the store hands its dicts over as they are)."""
+    hits = _offenders(RECORD_KEY, ("record.py", "store.py", *RECORD_KEY_PENDING), (".py",))
+    assert not hits, "read a CycleRecord (RunStore.cycle_records, CycleRecord.from_json) " \
+        "instead:\n" + "\n".join(hits)
+
+
+def test_the_record_pattern_catches_dict_reads_and_spares_others() -> None:
+    for line in ('real = rec["realised"]', "x = record['plan_cost']['cost']",
+                 'said = r.get("comfort") or {}', 'b = x.get("gamma_belief")',
+                 'c = records[-1]["cycle"]', "n = len(rec['pauses'])", 'm = last["realised"]',
+                 'rid = r["run_id"]'):
+        assert RECORD_KEY.search(line), line
+    for line in ('out["plan_cost"] = summarise(data)', 'dur["human"]', 'doc["gamma"]',
+                 'plan.order["robot"]', 'result["run_id"]', "rec.realised.makespan",
+                 'row["cycle"]'):
+        assert not RECORD_KEY.search(line), line
+
+
+# YAML parsed anywhere but the one reader (rapidds.settings.read_yaml / parse_yaml)
+YAML_READ = re.compile(r"\byaml\.(?:safe_|full_|unsafe_)?load(?:_all)?\(")
+
+
+def test_only_the_settings_read_yaml() -> None:
+    hits = _offenders(YAML_READ, "settings.py", (".py",))
+    assert not hits, "use rapidds.settings.read_yaml (or parse_yaml) instead:\n" + "\n".join(hits)
+    for line in ("yaml.safe_load(text)", "raw = yaml.load(text, Loader=L)"):
+        assert YAML_READ.search(line), line
 
 
 def test_the_patterns_catch_what_they_are_for() -> None:

@@ -7,10 +7,10 @@ from __future__ import annotations
 import json
 import shutil
 import sys
-from typing import Any
 
 import numpy as np
 import pytest
+from record_helpers import typed_record
 from safetensors.torch import load_file
 
 from rapidds.cli import main
@@ -23,22 +23,23 @@ from rapidds.experiments.painting import (
     table_markdown,
     table_rows,
 )
+from rapidds.record import CycleRecord
+from rapidds.schedule import task_items
 from rapidds.store import RunStore
 from rapidds.worlds.painting import PaintingWorld
 from rapidds.worlds.painting.cycles import loop_behaviours, summarize_record
 
 
 def _record(robot: list[str], human: list[str], timeline: dict[str, list[float]],
-            expected: dict[str, list[str]], lam: float = 0.0, cycle: int = 0) -> dict[str, Any]:
-    routes = {t: "avoidant" if t == "mix_l" else "direct" for t in robot if not
-              t.startswith("wait:")}
+            expected: dict[str, list[str]], lam: float = 0.0, cycle: int = 0) -> CycleRecord:
+    routes = {t: "avoidant" if t == "mix_l" else "direct" for t in task_items(robot)}
     realised = {j: [h for h in ("prep_vise", "secure_piece")
                     if timeline[j][0] < timeline[h][1] and timeline[h][0] < timeline[j][1]]
                 for j in routes}
-    return {"cycle": cycle, "lambda": lam, "robot": robot, "human": human, "routes": routes,
-            "expected": {"overlaps": expected, "spatial": 0.1},
-            "realised": {"timeline": timeline, "overlaps": realised, "spatial": 0.2,
-                         "min_separation": 0.25, "makespan": 20.0}}
+    return typed_record(cycle=cycle, lam=lam, robot=robot, human=human, routes=routes,
+                        expected_overlaps=expected, expected_spatial=0.1, timeline=timeline,
+                        realised_overlaps=realised, spatial=0.2, min_separation=0.25,
+                        makespan=20.0)
 
 
 def test_a_record_reads_as_the_paper_speaks_of_it() -> None:

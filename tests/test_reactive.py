@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import cli_cmd, kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
+from record_helpers import stored
 
 from rapidds.execution import (
     CycleExecutor,
@@ -24,10 +25,6 @@ from rapidds.loop.deploy import deploy
 from rapidds.worlds.reactions import Deviation, Reaction, cell_reactions
 
 DATA = Path(__file__).parent / "data"
-
-
-def _strip(rec: dict) -> dict:
-    return {k: v for k, v in rec.items() if k != "seconds"}
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +80,7 @@ def test_planned_execution_keeps_the_base_commits_records(fetch_policy):
     # records of 3412e09 (before the executor existed), same settings and seed
     want = json.loads((DATA / "records-3412e09-fetch.json").read_text())
     cfg = RunConfig(human="slow-middle", cycles=2, seed=7, **SMALL)
-    got = json.loads(json.dumps([_strip(r) for r in AdaptiveRun(cfg, fetch_policy).run()]))
+    got = json.loads(json.dumps([stored(r) for r in AdaptiveRun(cfg, fetch_policy).run()]))
     assert got == want
 
 
@@ -205,7 +202,7 @@ def test_bad_execution_settings_are_one_line_errors(capsys, tmp_path, command, f
 
 def _same(rec: dict) -> dict:
     """A record without what a clock measures (seconds, re-plan latencies)."""
-    out = _strip(rec)
+    out = stored(rec)
     out["replans"] = [{k: v for k, v in r.items() if k != "latency_s"} for r in rec["replans"]]
     return out
 
@@ -229,8 +226,8 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
     assert all("pauses" in r and "replans" in r for r in lines)
 
     db = tmp_path / "b" / "run.sqlite"
-    stored = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, 1, env, 300)
-    assert stored is not None and stored < 3, "the run finished before it could be killed"
+    kept = kill_run(cli_cmd(*args, "--out", str(tmp_path / "b")), db, rid, 1, env, 300)
+    assert kept is not None and kept < 3, "the run finished before it could be killed"
     ra, rb, _, _ = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                       tmp_path / "a" / "run.sqlite", db, env, timeout=400)
     assert [_same(r) for r in ra] == [_same(r) for r in rb]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
+import re
 from typing import Annotated
 
 import pytest
@@ -91,3 +92,47 @@ def test_declared_classes_travel_to_workers() -> None:
     assert again.prior_people == 3 and again.problem() == world.problem()
     prior = NIGPrior(1.0, 2.0, 3.0, 4.0)
     assert pickle.loads(pickle.dumps(prior)) == prior
+
+
+def test_the_one_yaml_reader_says_what_is_wrong_in_one_line(tmp_path):
+    from rapidds.errors import ProblemError
+    from rapidds.settings import read_yaml
+
+    path = tmp_path / "run.yaml"
+    path.write_text("cycles: 4\nlam: 1e1\nratio: 1.5E-3\n")
+    assert read_yaml(path) == {"cycles": 4, "lam": 10.0, "ratio": 0.0015}  # YAML 1.2 floats
+    for text, says in [("cycles: [4\n", "not valid YAML (line 2: "), ("- 4\n", "not a mapping"),
+                       ("x: !!python/object:os.system {}\n", "not valid YAML")]:
+        path.write_text(text)
+        with pytest.raises(ConfigError) as err:
+            read_yaml(path, "--config")
+        assert str(err.value).startswith(f"--config {path}: ") and says in str(err.value)
+        assert "\n" not in str(err.value)
+    with pytest.raises(ProblemError, match=r"nowhere\.yaml: no such file$"):
+        read_yaml(tmp_path / "nowhere.yaml", error=ProblemError)
+    path.write_text("- 1\n")
+    assert read_yaml(path, mapping=False) == [1]  # a problem file's own check names it
+    path.write_text('{\n\t"steps": 6,\n\t"lr": 1e-4\n}\n')  # JSON indented with tabs
+    assert read_yaml(path) == {"steps": 6, "lr": 1e-4}
+    path.write_text("{steps: 6, lr: 1e-4}\n")  # flow-style YAML, not JSON
+    assert read_yaml(path) == {"steps": 6, "lr": 1e-4}
+
+
+def test_a_duration_belief_declares_its_bounds_and_still_learns_in_place():
+    from rapidds.errors import StateError
+    from rapidds.human.temporal import DurationModel, TemporalModel
+
+    prior = NIGPrior.from_moments(5.0, 1.0)
+    for bad, says in [({"forgetting": 0.0}, "DurationModel.forgetting"),
+                      ({"forgetting": 1.5}, "DurationModel.forgetting"),
+                      ({"start": -1}, "DurationModel.start"),
+                      ({"observations": [2.0, "x"]}, "DurationModel.observations[1]"),
+                      ({"observations": [2.0], "start": 2}, "start 2 outside 0..1")]:
+        with pytest.raises(ConfigError, match=re.escape(says)):
+            DurationModel(prior, **bad)
+    m = DurationModel(prior, [4.0], 0.9)
+    m.observe(6.0)  # not frozen: a belief learns
+    assert m.observations == [4.0, 6.0] and m == DurationModel.from_dict(m.to_dict())
+    with pytest.raises(StateError, match="corrupt temporal model: tasks"):
+        TemporalModel.from_dict({"format": "rapidds.temporal", "version": 1,
+                                 "sampling": "predictive", "tasks": [1], "models": {}})

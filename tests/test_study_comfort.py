@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from record_helpers import typed_record
 
 from rapidds.experiments.study.analyze import analyze_study
 from rapidds.experiments.study.design import StudyDesign
@@ -36,13 +37,13 @@ def _planted(out: Path, *, related: bool, learn: bool = True, seed: int = 0,
                     said: dict[str, object] = {"answer": answer, "too_close": []}
                     if simulated_run and k == 0:  # the response model answered, not a person
                         said = {**said, "answer": 1, "simulated": True}
-                    rec = {"cycle": c, "realised": {"spatial": 0.3, "makespan": 20.0},
-                           "comfort": said}
+                    belief = None
                     if learn:
                         g = 12.0 * np.exp((0.6 * (level - 4) if related else 0.0)
                                           + rng.normal(0, 0.3)) * (1 + c)
-                        rec["gamma_belief"] = {"mean": g, "q10": g / 2, "q90": g * 2}
-                    recs.append(rec)
+                        belief = {"mean": g, "q10": g / 2, "q90": g * 2}
+                    recs.append(typed_record(cycle=c, spatial=0.3, makespan=20.0,
+                                             comfort=said, gamma_belief=belief).to_json())
                 st.record_trial(st.run_id(p.id, system),
                                 st.config_for(p.id, system).model_dump(), recs)
 

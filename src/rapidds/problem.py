@@ -8,17 +8,15 @@ wrong and where.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import ProblemError
-from rapidds.settings import error_line
+from rapidds.settings import error_line, read_yaml
 
 Agent = Literal["human", "robot"]
 AGENTS: tuple[Agent, Agent] = ("human", "robot")
@@ -26,18 +24,6 @@ AGENTS: tuple[Agent, Agent] = ("human", "robot")
 MAX_DURATION = 1e7
 """Longest duration a problem may state, seconds (115 days): sums, squares and Monte-Carlo
 samples of durations stay far from overflow, and no real task cycle comes near it."""
-
-
-class _Loader(yaml.SafeLoader):
-    """YAML with the 1.2 spelling of floats: ``1e308`` and ``1.5E3`` are numbers, not strings
-    (PyYAML follows YAML 1.1, which needs a dot and a signed exponent)."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
 
 
 def _finite(value: float, what: str) -> float:
@@ -304,17 +290,4 @@ def problem_from_dict(raw: Any, source: str = "problem") -> Problem:
 
 def load_problem(path: str | Path) -> Problem:
     """Read and validate a YAML problem file."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ProblemError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProblemError(f"{path}: cannot read: {exc}") from None
-    try:
-        raw = yaml.load(text, Loader=_Loader)  # a SafeLoader: no object construction
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1})" if mark is not None else ""
-        raise ProblemError(f"{path}: not valid YAML{where}") from None
-    return problem_from_dict(raw, str(path))
+    return problem_from_dict(read_yaml(path, error=ProblemError, mapping=False), str(path))

@@ -24,10 +24,10 @@ from typing import Annotated, Any, ClassVar, TypeVar
 import pydantic.dataclasses
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
-from rapidds.errors import ConfigError
+from rapidds.errors import ConfigError, RapiddsError
 
 __all__ = ["Flag", "Int", "NonNegative", "Positive", "Real", "Settings", "error_line",
-           "memory_bytes", "read_yaml", "require_memory", "settings_dataclass"]
+           "memory_bytes", "parse_yaml", "read_yaml", "require_memory", "settings_dataclass"]
 
 C = TypeVar("C", bound=type)
 
@@ -142,7 +142,7 @@ class Settings(BaseModel):
         return type(self)(**{**self.model_dump(), **changes})
 
 
-def settings_dataclass(label: str, *, eq: bool = True) -> Callable[[C], C]:
+def settings_dataclass(label: str, *, eq: bool = True, frozen: bool = True) -> Callable[[C], C]:
     """A frozen pydantic dataclass checked like :class:`Settings`: bounds declared on the fields
     (``Annotated[Real, Field(gt=0)]``), no unknown fields, NaN and infinity refused, and any
     error, a field's or one its ``__post_init__`` raises as ValueError (a check across
@@ -150,12 +150,13 @@ def settings_dataclass(label: str, *, eq: bool = True) -> Callable[[C], C]:
 
     For classes that are more than their settings (worlds, priors, teammates: methods, cached
     properties, fields computed in ``__post_init__``), which a ``BaseModel`` would not fit.
-    ``eq=False``: compared by identity (a world holding arrays).
+    ``eq=False``: compared by identity (a world holding arrays). ``frozen=False``: a belief
+    that learns in place (checked when built, not on each later assignment).
     """
     config = ConfigDict(extra="forbid", allow_inf_nan=False, arbitrary_types_allowed=True)
 
     def wrap(cls: C) -> C:
-        made: Any = pydantic.dataclasses.dataclass(cls, frozen=True, eq=eq, config=config)
+        made: Any = pydantic.dataclasses.dataclass(cls, frozen=frozen, eq=eq, config=config)
         init = made.__init__
         names = [f.name for f in dataclasses.fields(made) if f.init]
 
@@ -180,19 +181,63 @@ def settings_dataclass(label: str, *, eq: bool = True) -> Callable[[C], C]:
     return wrap
 
 
-def read_yaml(path: Path, what: str) -> dict[str, Any]:
-    """The mapping in the YAML (or JSON) file ``path``; ConfigError naming ``what`` in one line
-    for a missing file, bad YAML or a document that is not a mapping."""
+@functools.cache
+def _yaml_loader() -> type:
+    """A safe loader (no object construction) with YAML 1.2's floats: ``1e308`` and ``1.5E3``
+    are numbers, not strings (PyYAML follows YAML 1.1, which needs a dot and a signed
+    exponent). Built on first use: yaml stays out of ``rapidds --help``."""
+    import re
+
     import yaml
 
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."))
+    return Loader
+
+
+def parse_yaml(text: str, where: str, error: type[RapiddsError] = ConfigError) -> Any:
+    """The document in ``text`` (YAML, or JSON, which is YAML); ``error`` in one line
+    ``where: not valid YAML (line N: what)`` if it is not."""
+    import json
+
+    import yaml
+
+    if text.lstrip()[:1] in ("{", "["):  # JSON read as JSON: YAML refuses its tab indents
+        try:
+            return json.loads(text)
+        except (ValueError, RecursionError):
+            pass  # flow-style YAML ({a: 1}) is not JSON
     try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{what} {path}: {exc.strerror or exc}") from None
+        return yaml.load(text, Loader=_yaml_loader())  # a SafeLoader: no object construction
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{what} {path}: not YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{what} {path}: not a mapping of settings")
+        mark = getattr(exc, "problem_mark", None)
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        at = f"line {mark.line + 1}: " if mark is not None else ""
+        raise error(f"{where}: not valid YAML ({at}{what})") from None
+
+
+def read_yaml(path: str | Path, what: str = "", *, error: type[RapiddsError] = ConfigError,
+              mapping: bool = True) -> Any:
+    """The document in the YAML (or JSON) file ``path``, the one reader of the files a user
+    writes (run settings, problems, tracker mappings, survey items). ``error`` in one line
+    naming ``what`` and the file for a missing or unreadable file, bad YAML, or (``mapping``)
+    a document that is not a mapping."""
+    path = Path(path)
+    where = f"{what} {path}" if what else str(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise error(f"{where}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{where}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    raw = parse_yaml(text, where, error)
+    if mapping and not isinstance(raw, dict):
+        raise error(f"{where}: not a mapping of settings")
     return raw
 
 

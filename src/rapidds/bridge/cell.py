@@ -141,8 +141,7 @@ class LiveCell:
         expected = {t: (float(best.expected_start[idx[t]]), float(best.expected_finish[idx[t]]))
                     for t in run.problem.ids if t in idx and len(best.expected_start)}
         payload = live_plan_payload(
-            run.problem, plan.cycle, [str(x) for x in best.schedule.human],
-            [str(x) for x in best.schedule.robot], expected,
+            run.problem, plan.cycle, best.schedule.human, best.schedule.robot, expected,
             start_ns=time.time_ns() + round(self.options.lead * 1e9),
             time_scale=self.options.time_scale, dt=run.world.dt)
         self.link.publish(PLAN_TOPIC, string_message(payload))

@@ -22,8 +22,8 @@ cycle on one clock starting at 0, with :data:`CYCLE_GAP_S` between cycles):
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Mapping
-from typing import Any
+from collections.abc import Collection, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage
 from rapidds.store import cycle_paths
 from rapidds.worlds.base import World, body_point_names, body_points, joint_names
+
+if TYPE_CHECKING:
+    from rapidds.record import CycleRecord
 
 __all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "human_task_messages", "path_topic",
            "run_messages", "tf_message"]
@@ -109,7 +112,7 @@ def human_task_messages(world: World, task: str, path: np.ndarray, duration: flo
     return sorted(out, key=lambda m: m.time_ns)
 
 
-def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str, np.ndarray],
+def cycle_messages(world: World, record: CycleRecord, arrays: Mapping[str, np.ndarray],
                    spatial: Any, epoch_ns: int,
                    expected: Mapping[str, np.ndarray] | None = None) -> Iterator[BagMessage]:
     """The messages of one stored cycle (module docstring), its time 0 at ``epoch_ns``.
@@ -119,10 +122,11 @@ def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str,
     expected: task -> the path the person is expected to take (their latest earlier one).
     """
     dt, joints, names = world.dt, joint_names(world), body_point_names(world)
-    times = record["realised"]["timeline"]
-    agent_of = {t: a for a in ("human", "robot") for t in ros2.plan_payload(record)["order"][a]}
+    times = record.realised.timeline
+    plan = ros2.plan_payload(record.cycle, record.plan.human, record.plan.robot, times)
+    agent_of = {t: a for a in ("human", "robot") for t in plan["order"][a]}
     out = [BagMessage(ros2.PLAN_TOPIC, "std_msgs/msg/String", epoch_ns,
-                      ros2.string_message(ros2.plan_payload(record)))]
+                      ros2.string_message(plan))]
     for task, (start, end) in times.items():
         if task in agent_of:
             out += [_event(task, agent_of[task], "start", epoch_ns + _ns(start)),
@@ -152,7 +156,7 @@ def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str,
                 out.append(BagMessage(path_topic("expected", name), "nav_msgs/msg/Path", begin,
                                       _path_msg(exp[:, k], begin, np.arange(len(exp)) * dt)))
     if spatial is not None:
-        at = epoch_ns + _ns(record["realised"]["makespan"])
+        at = epoch_ns + _ns(record.realised.makespan)
         for task in spatial.tasks:
             m = spatial[task]
             out.append(BagMessage(cost_topic(task), "sensor_msgs/msg/PointCloud2", at,
@@ -161,20 +165,21 @@ def cycle_messages(world: World, record: Mapping[str, Any], arrays: Mapping[str,
     yield from sorted(out, key=lambda m: m.time_ns)
 
 
-def run_messages(world: World, records: list[dict[str, Any]],
-                 arrays_of: Any, spatial_of: Any) -> Iterator[BagMessage]:
+def run_messages(world: World, records: Sequence[CycleRecord], arrays_of: Any,
+                 spatial_of: Any, exported: Collection[int] | None = None
+                 ) -> Iterator[BagMessage]:
     """The messages of several stored cycles, one after the other on the bag's clock.
     arrays_of(cycle) and spatial_of(cycle): a cycle's stored arrays and learned spatial model.
-    A task's expected path is the person's latest earlier path of it in the run (cycles the
-    store holds before the first exported one count: pass them in ``records`` with
-    ``"export": False``)."""
+    exported: the cycles written (default: all). A task's expected path is the person's latest
+    earlier path of it in the run, so cycles before the first exported one count: pass them in
+    ``records`` and leave them out of ``exported``."""
     epoch, last_paths = 0, {}
     for rec in records:
-        arrays = arrays_of(rec["cycle"])
-        if rec.get("export", True):
-            yield from cycle_messages(world, rec, arrays, spatial_of(rec["cycle"]), epoch,
+        arrays = arrays_of(rec.cycle)
+        if exported is None or rec.cycle in exported:
+            yield from cycle_messages(world, rec, arrays, spatial_of(rec.cycle), epoch,
                                       dict(last_paths))
-            epoch += _ns(rec["realised"]["makespan"] + CYCLE_GAP_S)
+            epoch += _ns(rec.realised.makespan + CYCLE_GAP_S)
         last_paths.update(cycle_paths(arrays)["human"])
 
 
@@ -186,8 +191,8 @@ def export_run(store: Any, run_id: str, world: World, out: Any,
     from rapidds.errors import RapiddsError
     from rapidds.loop.model import HumanModel
 
-    records = store.records(run_id)
-    have = [r["cycle"] for r in records]
+    records = store.cycle_records(run_id)
+    have = [r.cycle for r in records]
     if not records:
         raise RapiddsError(f"run '{run_id}' in {store.path} has no stored cycle")
     wanted = set(have if cycles is None else cycles)
@@ -195,7 +200,7 @@ def export_run(store: Any, run_id: str, world: World, out: Any,
         raise RapiddsError(f"run '{run_id}' has no cycle {missing[0]} (stored: "
                            f"{have[0]}..{have[-1]})")
     last = max(wanted)
-    chosen = [{**r, "export": r["cycle"] in wanted} for r in records if r["cycle"] <= last]
+    chosen = [r for r in records if r.cycle <= last]
 
     def spatial_of(cycle: int) -> Any:
         state = store.state(run_id, cycle)
@@ -205,7 +210,8 @@ def export_run(store: Any, run_id: str, world: World, out: Any,
 
     def counted() -> Iterator[BagMessage]:
         nonlocal count
-        for m in run_messages(world, chosen, lambda c: store.arrays(run_id, c), spatial_of):
+        for m in run_messages(world, chosen, lambda c: store.arrays(run_id, c), spatial_of,
+                              wanted):
             count += 1
             yield m
 

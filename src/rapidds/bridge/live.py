@@ -26,6 +26,7 @@ from rapidds.bridge.ros2 import EVENTS_TOPIC, MessageError, parse_event, plan_pa
 
 if TYPE_CHECKING:
     from rapidds.problem import Problem
+    from rapidds.schedule import Item
     from rapidds.worlds.base import HumanExecution
 
 __all__ = [
@@ -50,15 +51,14 @@ def tracking_topic(point: str) -> str:
     return TRACKING_PREFIX + point
 
 
-def live_plan_payload(problem: Problem, cycle: int, human: Sequence[str], robot: Sequence[str],
+def live_plan_payload(problem: Problem, cycle: int, human: Sequence[Item], robot: Sequence[Item],
                       expected: Mapping[str, tuple[float, float]], *, start_ns: int,
                       time_scale: float, dt: float) -> dict[str, Any]:
     """``/rapidds/plan`` for a live cycle: :func:`~rapidds.bridge.ros2.plan_payload` plus what a
     node needs to act on its own: ``after`` (task -> every task that must end before it
     starts: precedence, the agent's previous task, its waits), ``stamp_ns``, ``time_scale``
     and ``dt`` (seconds per trajectory and path row)."""
-    payload = plan_payload({"cycle": cycle, "human": list(human), "robot": list(robot),
-                            "expected": {"timeline": {t: list(se) for t, se in expected.items()}}})
+    payload = plan_payload(cycle, human, robot, expected)
     after: dict[str, list[str]] = {}
     for agent, order in payload["order"].items():
         for i, task in enumerate(order):

@@ -15,9 +15,15 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from rapidds.settings import error_line
+
+if TYPE_CHECKING:
+    from rapidds.schedule import Item
 
 __all__ = [
     "EVENTS_TOPIC",
@@ -167,6 +173,16 @@ class Event:
     stamp_ns: int | None = None
 
 
+class _EventJson(BaseModel):
+    """The JSON of an :class:`Event` as it travels (strict: a stamp of 1.5 or true is refused)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    task: str
+    agent: Agent
+    event: Literal["start", "end"]
+    stamp_ns: Annotated[int, Field(ge=0)] | None = None
+
+
 def event_message(event: Event) -> Any:
     stamp = {} if event.stamp_ns is None else {"stamp_ns": int(event.stamp_ns)}
     return string_message({"task": event.task, "agent": event.agent, "event": event.event,
@@ -179,17 +195,13 @@ def parse_event(text: str) -> Event:
         raw = json.loads(text)
     except (ValueError, RecursionError) as exc:
         raise MessageError(f"event is not JSON: {exc}") from exc
-    if not isinstance(raw, dict) or not {"task", "agent", "event"} <= set(raw) \
-            or not set(raw) <= {"task", "agent", "event", "stamp_ns"}:
-        raise MessageError(f"an event has the keys task, agent, event (and stamp_ns); got "
-                           f"{text[:80]!r}")
-    task, agent, kind, stamp = raw["task"], raw["agent"], raw["event"], raw.get("stamp_ns")
-    if not isinstance(task, str) or agent not in ("human", "robot") \
-            or kind not in ("start", "end") or (stamp is not None and (
-                type(stamp) is not int or stamp < 0)):
-        raise MessageError(f"bad event {text[:80]!r}: agent human|robot, event start|end, "
-                           "stamp_ns whole ns >= 0")
-    return Event(task, agent, kind, stamp)
+    try:
+        e = _EventJson.model_validate(raw)
+    except ValidationError as exc:
+        raise MessageError(f"bad event {text[:80]!r}: {error_line(exc, with_input=True)} "
+                           "(keys task, agent human|robot, event start|end, stamp_ns whole ns "
+                           ">= 0)") from None
+    return Event(e.task, e.agent, e.event, e.stamp_ns)
 
 
 def point_cloud(points: np.ndarray, values: np.ndarray | None = None, value_name: str = "cost",
@@ -273,25 +285,22 @@ def zenoh_key(topic: str) -> str:
     return topic.strip("/")
 
 
-def plan_payload(record: Mapping[str, Any]) -> dict[str, Any]:
-    """The JSON of ``/rapidds/plan`` from a cycle record: tasks, agents, order, waits, expected
-    start and end times (the realised timeline's keys when no expected one is stored)."""
-    from rapidds.schedule import parse_item
+def plan_payload(cycle: int, human: Sequence[Item], robot: Sequence[Item],
+                 times: Mapping[str, tuple[float, float]]) -> dict[str, Any]:
+    """The JSON of ``/rapidds/plan``: the cycle, each agent's tasks in order, its waits, and
+    the tasks' start and end times (expected for a live plan, realised for a stored cycle)."""
+    from rapidds.schedule import Wait
 
-    out: dict[str, Any] = {"cycle": record.get("cycle"), "agents": {}, "order": {},
-                           "waits": []}
-    for agent in ("human", "robot"):
+    out: dict[str, Any] = {"cycle": cycle, "agents": {}, "order": {}, "waits": []}
+    for agent, items in (("human", human), ("robot", robot)):
         order = []
-        for item in record.get(agent, []):
-            parsed = parse_item(item)
-            if isinstance(parsed, str):
-                order.append(parsed)
-                out["agents"][parsed] = agent
+        for item in items:
+            if isinstance(item, Wait):
+                out["waits"].append({"agent": agent, "for": item.task, "before": len(order)})
             else:
-                out["waits"].append({"agent": agent, "for": parsed.task, "before": len(order)})
+                order.append(item)
+                out["agents"][item] = agent
         out["order"][agent] = order
     out["tasks"] = sorted(out["agents"])
-    timeline = record.get("expected", {}).get("timeline") or \
-        record.get("realised", {}).get("timeline", {})
-    out["times"] = {t: {"start": se[0], "end": se[1]} for t, se in timeline.items()}
+    out["times"] = {t: {"start": se[0], "end": se[1]} for t, se in times.items()}
     return out

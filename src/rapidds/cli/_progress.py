@@ -87,7 +87,9 @@ class TrialProgress:
         self._update(skipped, "")
 
     def on_trial(self, result: dict[str, Any], stored: int, total: int) -> None:
+        from rapidds.record import CycleRecord  # numpy: not at help time
+
         last = result["records"][-min(4, len(result["records"])):]
-        cost = sum(r["realised"]["cost"] for r in last) / len(last)
+        cost = sum(CycleRecord.from_json(r).realised.cost for r in last) / len(last)
         self._update(stored, f"{result['run_id']} {result['seconds']:.0f} s, "
                              f"last-4 cost {cost:.2f}")

@@ -10,12 +10,15 @@ import json
 import logging
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from rapidds.cli import app, fail
 from rapidds.errors import RapiddsError
+
+if TYPE_CHECKING:
+    from rapidds.record import CycleRecord
 
 STORE = "run.sqlite"
 
@@ -88,7 +91,7 @@ def _new_config(config: Path) -> Any:
 
 def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
                   run_id: str | None, policy: Path | None,
-                  comfort: int | None = None) -> dict[str, Any]:
+                  comfort: int | None = None) -> CycleRecord:
     """Plan the run's next cycle, realise it with what the bag recorded (and the person's
     ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
@@ -173,8 +176,8 @@ def observe_cmd(
         fail(str(exc))
         return
     if as_json:
-        typer.echo(json.dumps(rec, allow_nan=False))
+        typer.echo(json.dumps(rec.to_json(), allow_nan=False))
     else:
-        observed = ", ".join(f"{t} {d:.2f} s" for t, d in rec["observed"].items())
-        typer.echo(f"cycle {rec['cycle']} recorded in {run_dir / STORE}: makespan "
-                   f"{rec['realised']['makespan']:.2f} s, observed {observed}")
+        observed = ", ".join(f"{t} {d:.2f} s" for t, d in rec.observed.items())
+        typer.echo(f"cycle {rec.cycle} recorded in {run_dir / STORE}: makespan "
+                   f"{rec.realised.makespan:.2f} s, observed {observed}")

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 
     from rapidds.experiments.painting import Setting
     from rapidds.motion.policy import DiffusionPolicy
+    from rapidds.record import CycleRecord
 
 _STUDIES = ("painting",)
 _SETTINGS = "unconstrained-g12,constrained-g12,unconstrained-g25,unconstrained-g85"
@@ -93,7 +94,7 @@ def case_study_cmd(
 
 def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: int, sub: Path,
                  policy: DiffusionPolicy, gif: bool, con: Console, execution: str = "planned"
-                 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+                 ) -> tuple[list[CycleRecord], list[dict[str, Any]]]:
     """Run (or resume) one setting under ``execution`` in its folder ``sub`` and draw its last
     cycle; its records and the paper's behaviours tested on them."""
     from rapidds.cli.run import execute
@@ -111,13 +112,13 @@ def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: in
                   title=f"{setting.name}{', reactive' * (execution == 'reactive')}, "
                         f"teammate {human}, seed {seed}")
     assert run.store is not None
-    records = run.store.records(rid)
+    records = run.store.cycle_records(rid)
     behaviours = [{"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),
                    "shown": list(b.shown), "holds": b.holds}
                   for b in setting_behaviours(run.world, setting, human, records)]
     last = records[-1]
-    arrays = run.store.arrays(rid, last["cycle"])
+    arrays = run.store.arrays(rid, last.cycle)
     save_frames(run.world, last, arrays, sub / rid)
     if gif:
-        save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last['cycle']:02d}.gif")
+        save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last.cycle:02d}.gif")
     return records, behaviours

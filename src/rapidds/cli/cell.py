@@ -97,11 +97,11 @@ def deploy_cmd(
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record
         if as_json:
-            print(json.dumps(rec, allow_nan=False), flush=True)  # its "live" included
+            print(json.dumps(rec.to_json(), allow_nan=False), flush=True)  # its "live" included
         else:
             robot = ", ".join(f"{t} {d:.2f} s" for t, d in live["robot_durations"].items())
-            human = ", ".join(f"{t} {d:.2f} s" for t, d in rec["observed"].items())
-            typer.echo(f"cycle {rec['cycle']}: makespan {rec['realised']['makespan']:.2f} s; "
+            human = ", ".join(f"{t} {d:.2f} s" for t, d in rec.observed.items())
+            typer.echo(f"cycle {rec.cycle}: makespan {rec.realised.makespan:.2f} s; "
                        f"person {human}; robot {robot}; contacts {len(live['contacts'])}")
 
     with Link(hub_topics(body_point_names(w)), listen=listen) as link:

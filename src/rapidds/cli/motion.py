@@ -24,20 +24,6 @@ if TYPE_CHECKING:  # imported where used: `rapidds --help` does not pay for nump
     from rapidds.motion.policy import DiffusionPolicy
 
 
-def _read_config_file(path: Path) -> dict[str, Any]:
-    from rapidds.motion.config import ConfigError
-
-    try:
-        data = json.loads(path.read_text("utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{path}: not a readable JSON file ({exc})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a JSON object of DiffusionConfig fields")
-    return data
-
-
 def _world_demos(name: str, per_mode: int, seed: int) -> tuple[Any, dict[str, Any]]:
     """A registered world's demonstrations (every motion mode of every robot task) and its
     network defaults."""
@@ -103,6 +89,7 @@ def train_policy_cmd(
     from rapidds.motion.config import ConfigError, DiffusionConfig
     from rapidds.motion.demos import Demonstrations
     from rapidds.motion.train import total_steps, train_policy
+    from rapidds.settings import read_yaml
 
     try:
         if demos is None and world is None:
@@ -120,7 +107,7 @@ def train_policy_cmd(
             assert demos is not None
             data = Demonstrations.load(demos, horizon=horizon)
         if config is not None:
-            fields.update(_read_config_file(config))
+            fields.update(read_yaml(config, "config file"))  # JSON is YAML
         fields.update(horizon=data.horizon, state_dim=data.state_dim,
                       task_names=list(data.task_names))
         fields.setdefault("start_conditioned", data.start is not None)

@@ -146,9 +146,9 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
 
     def on_cycle(run: AdaptiveRun, res: CycleResult) -> None:
         played.append(res)  # drawn when the game stops: matplotlib would delay the next plan
-        rec = res.record["realised"]
-        typer.echo(f"cycle {res.record['cycle']}: makespan {rec['makespan']:.2f} s, closest "
-                   f"approach {rec['min_separation']:.2f} m, cost {rec['cost']:.2f}")
+        real = res.record.realised
+        typer.echo(f"cycle {res.record.cycle}: makespan {real.makespan:.2f} s, closest "
+                   f"approach {real.min_separation:.2f} m, cost {real.cost:.2f}")
 
     def on_stop(run: AdaptiveRun) -> None:
         from rapidds.plots.gantt import save_gantt
@@ -156,7 +156,7 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
 
         rid = run.config.run_id
         for res in played:
-            c = res.record["cycle"]
+            c = res.record.cycle
             save_gantt(res.deployment.timeline, gantt_path(out, rid, c),
                        title=f"{rid} cycle {c} (realised)", pauses=res.deployment.pauses,
                        replans=res.deployment.replans)

@@ -102,7 +102,6 @@ def execute(
     from rapidds.loop.run import AdaptiveRun
     from rapidds.plots.gantt import save_gantt
     from rapidds.plots.run import gantt_path
-    from rapidds.record import CycleRecord
     from rapidds.store import RunStore
 
     store = RunStore(out / "run.sqlite", lock_as="rapidds run") if out is not None else None
@@ -126,14 +125,14 @@ def execute(
         def on_cycle(res: CycleResult) -> None:
             rec = res.record
             if as_json:
-                print(json.dumps(rec, allow_nan=False), flush=True)
+                print(json.dumps(rec.to_json(), allow_nan=False), flush=True)
             else:
-                con.print(_line(_cycle_row(CycleRecord.from_json(rec))), highlight=False)
+                con.print(_line(_cycle_row(rec)), highlight=False)
             if out is not None:
-                save_gantt(res.deployment.timeline, gantt_path(out, rid, rec["cycle"]),
-                           title=f"{rid} cycle {rec['cycle']} (realised)",
+                save_gantt(res.deployment.timeline, gantt_path(out, rid, rec.cycle),
+                           title=f"{rid} cycle {rec.cycle} (realised)",
                            pauses=res.deployment.pauses, replans=res.deployment.replans)
-            bar.update(task, advance=1, info=f"cost {rec['realised']['cost']:.2f}")
+            bar.update(task, advance=1, info=f"cost {rec.realised.cost:.2f}")
 
         try:
             run.run(on_cycle)
@@ -332,11 +331,11 @@ def demo_cmd(
     t = Table("task", "prior (population)", "learned", "true", "times observed",
               title=f"what full adaptation learned about {name}: mean duration [s]")
     assert full.store is not None
-    recs = full.store.records(full.config.run_id)
+    recs = full.store.cycle_records(full.config.run_id)
     for k, task in enumerate(full.problem.ids):
         if task not in truth:
             continue
-        seen = sum(task in r["observed"] for r in recs)
+        seen = sum(task in r.observed for r in recs)
         t.add_row(task, f"{prior[k]:.2f}", f"{learned[k]:.2f}", f"{truth[task]:.2f}", str(seen))
     con.print(t)
 
@@ -345,13 +344,13 @@ def demo_cmd(
               title=f"teammate {name}: realised cost (makespan + gamma x spatial)")
     for level, run in runs.items():
         assert run.store is not None
-        recs = run.store.records(run.config.run_id)
-        tail = recs[-min(4, len(recs)):]
-        med = [float(np.median([r["realised"][k] for r in tail]))
+        recs = run.store.cycle_records(run.config.run_id)
+        tail = [r.realised for r in recs[-min(4, len(recs)):]]
+        med = [float(np.median([getattr(r, k) for r in tail]))
                for k in ("cost", "makespan", "spatial", "min_separation")]
-        motions = sorted({f"{j}:{m}" for r in tail for j, m in r["routes"].items()
+        motions = sorted({f"{j}:{m}" for r in recs[-len(tail):] for j, m in r.plan.routes.items()
                           if m != "direct"})
-        t.add_row(level, f"{recs[0]['realised']['cost']:.2f}", *(f"{m:.2f}" for m in med),
+        t.add_row(level, f"{recs[0].realised.cost:.2f}", *(f"{m:.2f}" for m in med),
                   " ".join(motions))
     con.print(t)
     con.print(f"pictures and runs in {out.resolve()}: " + ", ".join(

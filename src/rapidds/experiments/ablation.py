@@ -200,7 +200,7 @@ def run_trial(config: dict[str, Any]) -> dict[str, Any]:
     world = _worker_world(cfg.world, cfg.variant)
     cfg = cfg.resolved(world)
     run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, prior=worker_prior(cfg))
-    records = run.run()
+    records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
             "seconds": time.perf_counter() - t0, "pid": os.getpid()}
 

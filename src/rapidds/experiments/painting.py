@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
+from rapidds.record import CycleRecord
 from rapidds.worlds.painting.cycles import (
     LoopBehaviour,
     faster_brusher,
@@ -78,7 +79,7 @@ def expectations(world: PaintingWorld, human: str) -> tuple[str, str]:
 
 
 def setting_behaviours(world: PaintingWorld, setting: Setting, human: str,
-                       records: Sequence[Mapping[str, Any]]) -> list[LoopBehaviour]:
+                       records: Sequence[CycleRecord]) -> list[LoopBehaviour]:
     """The paper's behaviours of ``setting`` tested on a run's records, with Brush going to
     the faster agent in the unconstrained gamma 12 setting (the paper's temporal claim)."""
     near, brusher = expectations(world, human)
@@ -87,7 +88,7 @@ def setting_behaviours(world: PaintingWorld, setting: Setting, human: str,
 
 
 def run_setting(setting: Setting, human: str, seed: int, cycles: int = 7,
-                policy: DiffusionPolicy | None = None, **search: Any) -> list[dict[str, Any]]:
+                policy: DiffusionPolicy | None = None, **search: Any) -> list[CycleRecord]:
     """The records of one run of ``setting`` in memory (no store)."""
     from rapidds.loop.run import AdaptiveRun
 
@@ -106,18 +107,19 @@ def _columns(rows: Sequence[Mapping[str, str]]) -> tuple[str, ...]:
     return _COLUMNS + _REACTIVE if rows and _REACTIVE[0] in rows[0] else _COLUMNS
 
 
-def _reactive_cells(rec: Mapping[str, Any] | None) -> dict[str, str]:
+def _reactive_cells(rec: CycleRecord | None) -> dict[str, str]:
     """The reactive column of one cycle, read from the reactive run's stored record."""
     if rec is None:
         return dict.fromkeys(_REACTIVE, "-")
-    real = rec["realised"]
-    return {_REACTIVE[0]: f"{real['makespan']:.2f}", _REACTIVE[1]: f"{real['min_separation']:.3f}",
-            _REACTIVE[2]: f"{len(rec['pauses'])}/{len(rec['replans'])}"}
+    real, ic = rec.realised, rec.execution.in_cycle
+    acts = f"{len(ic.pauses)}/{len(ic.replans)}" if ic is not None else "-"
+    return {_REACTIVE[0]: f"{real.makespan:.2f}", _REACTIVE[1]: f"{real.min_separation:.3f}",
+            _REACTIVE[2]: acts}
 
 
 def table_rows(world: PaintingWorld, human: str,
-               runs: Mapping[Setting, Sequence[Mapping[str, Any]]],
-               reactive: Mapping[Setting, Sequence[Mapping[str, Any]]] | None = None
+               runs: Mapping[Setting, Sequence[CycleRecord]],
+               reactive: Mapping[Setting, Sequence[CycleRecord]] | None = None
                ) -> list[dict[str, str]]:
     """One row per setting per cycle; "behaviour" names the paper's behaviours tested on that
     cycle with yes/no (empty on exploration cycles after the first). ``reactive``: the same
@@ -125,7 +127,7 @@ def table_rows(world: PaintingWorld, human: str,
     rows = []
     for setting, records in runs.items():
         react = None if reactive is None else {
-            r["cycle"]: r for r in reactive.get(setting, ())}
+            r.cycle: r for r in reactive.get(setting, ())}
         tested = setting_behaviours(world, setting, human, records)
         for rec in records:
             s = summarize_record(rec)
@@ -189,7 +191,7 @@ def write_tables(out: Path, rows: Sequence[Mapping[str, str]]) -> tuple[Path, Pa
 
 # -- pictures ---------------------------------------------------------------------------------
 
-def cell_state(world: PaintingWorld, record: Mapping[str, Any],
+def cell_state(world: PaintingWorld, record: CycleRecord,
                arrays: Mapping[str, Any], t: float) -> tuple[Any, Any]:
     """((7,) arm joints, (4, 3) body points) at time ``t`` of a stored cycle: the row of the
     robot motion / human task running then (a motion's rows are ``world.dt`` apart, a finished
@@ -198,7 +200,7 @@ def cell_state(world: PaintingWorld, record: Mapping[str, Any],
 
     from rapidds.store import cycle_paths
 
-    times = record["realised"]["timeline"]
+    times = record.realised.timeline
     q, body = world.robot_rest(), world.human_rest()
     for kind, paths in cycle_paths(arrays).items():
         for task, arr in sorted(paths.items()):
@@ -214,13 +216,13 @@ def cell_state(world: PaintingWorld, record: Mapping[str, Any],
     return q, body
 
 
-def secure_piece_moment(world: PaintingWorld, record: Mapping[str, Any],
+def secure_piece_moment(world: PaintingWorld, record: CycleRecord,
                         arrays: Mapping[str, Any]) -> float:
     """The time in Secure Piece when the arm comes closest to the person's hands (its middle
     when no arm motion runs then): the moment the paper's behaviours are about."""
     import numpy as np
 
-    start, finish = record["realised"]["timeline"]["secure_piece"]
+    start, finish = record.realised.timeline["secure_piece"]
     best_t, best_d = (start + finish) / 2, np.inf
     for t in np.arange(start, finish, world.dt):
         q, body = cell_state(world, record, arrays, float(t))
@@ -233,7 +235,7 @@ def secure_piece_moment(world: PaintingWorld, record: Mapping[str, Any],
     return best_t
 
 
-def save_frames(world: PaintingWorld, record: Mapping[str, Any], arrays: Mapping[str, Any],
+def save_frames(world: PaintingWorld, record: CycleRecord, arrays: Mapping[str, Any],
                 prefix: Path) -> list[Path]:
     """MuJoCo renderings (overview and top cameras) of the cell at :func:`secure_piece_moment`;
     none where no offscreen OpenGL backend works (the matplotlib maps stand in for them)."""
@@ -251,13 +253,13 @@ def save_frames(world: PaintingWorld, record: Mapping[str, Any], arrays: Mapping
         fig, ax = plt.subplots(figsize=(4.8, 3.6))
         ax.imshow(img)
         ax.set_axis_off()
-        ax.set_title(f"cycle {record['cycle']}, t = {t:.1f} s (Secure Piece)", fontsize=9)
+        ax.set_title(f"cycle {record.cycle}, t = {t:.1f} s (Secure Piece)", fontsize=9)
         fig.tight_layout()
         out.append(save(fig, prefix.with_name(f"{prefix.name}-frame-{camera}.png")))
     return out
 
 
-def save_cycle_gif(world: PaintingWorld, record: Mapping[str, Any], arrays: Mapping[str, Any],
+def save_cycle_gif(world: PaintingWorld, record: CycleRecord, arrays: Mapping[str, Any],
                    path: Path, view: str = "top", step: float = 0.3) -> Path:
     """A matplotlib animation of one stored cycle seen from ``view``: the arm's points and the
     person's hands and elbows every ``step`` seconds, with the task running at each moment."""
@@ -268,7 +270,7 @@ def save_cycle_gif(world: PaintingWorld, record: Mapping[str, Any], arrays: Mapp
     from rapidds.plots._mpl import plt
 
     h, v = world.views[view]
-    times = record["realised"]["timeline"]
+    times = record.realised.timeline
     end = max(f for _, f in times.values())
     fig, ax = plt.subplots(figsize=(4.2, 3.8))
     world.draw(ax, view)
@@ -288,7 +290,7 @@ def save_cycle_gif(world: PaintingWorld, record: Mapping[str, Any], arrays: Mapp
         seg = np.array([body[2], body[0], [np.nan] * 3, body[3], body[1]])
         forearms.set_data(seg[:, h], seg[:, v])
         running = [task for task, (s, f) in times.items() if s <= t < f]
-        label.set_text(f"cycle {record['cycle']}  t = {t:4.1f} s  {' '.join(running)}")
+        label.set_text(f"cycle {record.cycle}  t = {t:4.1f} s  {' '.join(running)}")
         return arm, hands, forearms, label
 
     anim = FuncAnimation(fig, frame, frames=list(np.arange(0.0, end + step, step)), blit=False)

@@ -2,7 +2,7 @@
 
 Two costs per cycle, each analysed the same way: the realised cost (what the deployed cycle
 cost: realised makespan + gamma x realised spatial cost) and the plan cost (the paper's Figure 5
-measure: the executed plan scored under the teammate's true model, ``record["plan_cost"]``;
+measure: the executed plan scored under the teammate's true model, ``CycleRecord.plan_cost``;
 studies stored before it existed have only the first). Statistics (also in
 docs/reproduction.md):
 
@@ -451,9 +451,9 @@ def gamma_markdown(rows: list[dict[str, Any]]) -> str:
     """The gamma posterior per cycle as a Markdown table (true gamma: simulated people only)."""
     lines = ["| cycle | planned with | answer (1-7) | too close | peak closeness "
              "| posterior mean | 10-90 % | true (simulated) |", "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['cycle']} | {r['planned']:.3g} | {r['answer'] or '-'} | "
-                     f"{r['too_close']} | {_f(r['peak'])} | {r['mean']:.3g} | "
-                     f"{r['q10']:.3g}-{r['q90']:.3g} | "
-                     f"{'-' if r['true'] is None else format(r['true'], '.3g')} |")
+    for row in rows:
+        lines.append(f"| {row['cycle']} | {row['planned']:.3g} | {row['answer'] or '-'} | "
+                     f"{row['too_close']} | {_f(row['peak'])} | {row['mean']:.3g} | "
+                     f"{row['q10']:.3g}-{row['q90']:.3g} | "
+                     f"{'-' if row['true'] is None else format(row['true'], '.3g')} |")
     return "\n".join(lines)

@@ -37,16 +37,17 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, Field, StrictStr, ValidationError
 
 from rapidds.errors import StateError
 from rapidds.fileio import atomic_write_text
 from rapidds.problem import Problem
-from rapidds.settings import NonNegative, Positive, Real, settings_dataclass
+from rapidds.settings import Int, NonNegative, Positive, Real, error_line, settings_dataclass
 
 Sampling = Literal["predictive", "plugin"]
 SAMPLING_METHODS: tuple[Sampling, Sampling] = ("predictive", "plugin")
@@ -204,7 +205,7 @@ def _draw(
     return np.where(scale > 0, np.maximum(out, MIN_DURATION), mu)
 
 
-@dataclass
+@settings_dataclass("DurationModel", frozen=False)
 class DurationModel:
     """Belief about one task's duration for one person: the prior, the observations and the
     current posterior (kept in step by :meth:`observe`).
@@ -216,17 +217,14 @@ class DurationModel:
     """
 
     prior: NIGPrior
-    observations: list[float] = field(default_factory=list)
-    forgetting: float = 1.0
-    start: int = 0
+    observations: list[Positive] = field(default_factory=list)
+    forgetting: Annotated[Real, Field(gt=0, le=1)] = 1.0
+    start: Annotated[Int, Field(ge=0)] = 0
     base: NIGPrior | None = None
     posterior: NIGPrior = field(init=False)
 
     def __post_init__(self) -> None:
-        if not 0 < self.forgetting <= 1:
-            raise ValueError(f"forgetting factor must be in (0, 1], got {self.forgetting}")
-        self.observations = [float(x) for x in self.observations]
-        if not 0 <= self.start <= len(self.observations):
+        if self.start > len(self.observations):
             raise ValueError(f"start {self.start} outside 0..{len(self.observations)}")
         self.posterior = self.fold(self.observations[self.start:], self.origin)
 
@@ -292,6 +290,17 @@ class DurationModel:
                 if not math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12):
                     raise ValueError(f"stored posterior {name}={a} does not match replay ({b})")
         return model
+
+
+class _TemporalFile(BaseModel):
+    """The stored form of a :class:`TemporalModel` (:meth:`TemporalModel.to_dict`); each
+    task's belief is checked by :meth:`DurationModel.from_dict`."""
+
+    format: Literal["rapidds.temporal"]
+    version: Literal[1]
+    sampling: Sampling
+    tasks: list[StrictStr]
+    models: dict[StrictStr, dict[str, Any]]
 
 
 class TemporalModel:
@@ -422,15 +431,13 @@ class TemporalModel:
     def from_dict(cls, d: Any) -> TemporalModel:
         """Inverse of :meth:`to_dict`; raises StateError on anything malformed."""
         try:
-            if not isinstance(d, dict) or d.get("format") != _FORMAT:
-                raise ValueError("not a rapidds temporal model")
-            if d.get("version") != _VERSION:
-                raise ValueError(f"unsupported version {d.get('version')!r}")
-            tasks = d["tasks"]
-            if not isinstance(tasks, list) or not all(isinstance(t, str) for t in tasks):
-                raise ValueError("'tasks' must be a list of task ids")
-            models = {str(t): DurationModel.from_dict(m) for t, m in d["models"].items()}
-            return cls(tasks, models, d["sampling"])
+            f = _TemporalFile.model_validate(d)
+        except ValidationError as exc:
+            raise StateError(f"corrupt temporal model: {error_line(exc, with_input=True)}"
+                             ) from None
+        try:
+            models = {t: DurationModel.from_dict(m) for t, m in f.models.items()}
+            return cls(f.tasks, models, f.sampling)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise StateError(f"corrupt temporal model: {exc}") from None
 

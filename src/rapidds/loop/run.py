@@ -185,9 +185,10 @@ class _PlannedMotions:
 
 @dataclass
 class CycleResult:
-    """A finished cycle: its record (as stored), the plan and what happened."""
+    """A finished cycle: its record (typed; its ``to_json`` is what was stored), the plan and
+    what happened."""
 
-    record: dict[str, Any]
+    record: CycleRecord
     plan: CyclePlan
     deployment: Deployment
 
@@ -472,7 +473,7 @@ class AdaptiveRun:
 
     # -- record -------------------------------------------------------------------------------
     def record(self, plan: CyclePlan, deployment: Deployment,
-               live: dict[str, Any] | None = None) -> dict[str, Any]:
+               live: dict[str, Any] | None = None) -> CycleRecord:
         """The cycle's record; stored (with the model after learning) in one transaction when a
         store is attached. Advances the run to the next cycle. ``live``: what a live cell saw
         beyond the deployment (the robot's realised durations, touches), kept under ``live``
@@ -515,12 +516,12 @@ class AdaptiveRun:
             seconds={"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                      "total": plan.seconds + deploy_s + update_s},
         )
-        record = typed.to_json()
         if self.store is not None:
             arrays = path_arrays(dep.robot, {t: ex.trajectory for t, ex in dep.human.items()})
-            self.store.record_cycle(cfg.run_id, plan.cycle, record, arrays, self.model.to_bytes())
+            self.store.record_cycle(cfg.run_id, plan.cycle, typed.to_json(), arrays,
+                                    self.model.to_bytes())
         self.next_cycle += 1
-        return record
+        return typed
 
     def _check_current(self, plan: CyclePlan) -> None:
         if plan.cycle != self.next_cycle:
@@ -535,7 +536,7 @@ class AdaptiveRun:
         self.learn(plan, dep)
         return CycleResult(self.record(plan, dep), plan, dep)
 
-    def run(self, on_cycle: Callable[[CycleResult], None] | None = None) -> list[dict[str, Any]]:
+    def run(self, on_cycle: Callable[[CycleResult], None] | None = None) -> list[CycleRecord]:
         """Run the remaining cycles; returns their records."""
         out = []
         while not self.finished:

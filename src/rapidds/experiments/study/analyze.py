@@ -73,15 +73,15 @@ def round_table(store: StudyStore) -> pd.DataFrame:
     people = {p.id: p for p in store.participants()}
     factors = list(store.design.factors)
     rows = []
-    for r in store.records():
-        if r["run_id"] not in runs.index:
+    for r in store.cycle_records():
+        if r.run_id not in runs.index:
             continue
-        who, system, block = runs.loc[r["run_id"], ["participant", "system", "block"]]
+        who, system, block = runs.loc[r.run_id, ["participant", "system", "block"]]
         p = people[who]
         rows.append({"participant": who, "group": p.group, **p.factors, "system": system,
-                     "block": int(block), "round": int(r["cycle"]),
-                     "spatial_cost": float(r["realised"]["spatial"]),
-                     "temporal_cost": float(r["realised"]["makespan"])})
+                     "block": int(block), "round": int(r.cycle),
+                     "spatial_cost": float(r.realised.spatial),
+                     "temporal_cost": float(r.realised.makespan)})
     cols = ["participant", "group", *factors, "system", "block", "round", "spatial_cost",
             "temporal_cost"]
     return pd.DataFrame.from_records(rows, columns=cols)

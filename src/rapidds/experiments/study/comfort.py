@@ -37,16 +37,16 @@ def comfort_table(store: StudyStore) -> pd.DataFrame:
     runs = store.study_runs().set_index("run_id")
     answers: dict[str, list[int]] = {}
     last: dict[str, tuple[int, dict[str, Any]]] = {}
-    for r in store.records():
-        rid = r["run_id"]
+    for r in store.cycle_records():
+        rid = r.run_id
         if rid not in runs.index:
             continue
-        said = r.get("comfort") or {}
+        said = r.comfort or {}
         if said.get("answer") is not None and not said.get("simulated"):
             answers.setdefault(rid, []).append(int(said["answer"]))
-        belief = r.get("gamma_belief")
-        if belief is not None and int(r["cycle"]) >= last.get(rid, (-1, {}))[0]:
-            last[rid] = (int(r["cycle"]), belief)
+        belief = r.gamma_belief
+        if belief is not None and int(r.cycle) >= last.get(rid, (-1, {}))[0]:
+            last[rid] = (int(r.cycle), belief)
     rows = []
     for rid, said in answers.items():
         who, system = runs.loc[rid, ["participant", "system"]]
@@ -102,8 +102,8 @@ def comfort_section(table: pd.DataFrame, learns: bool, seed: int
           "its last round (geometric mean, 10-90 % interval).", "",
           "| participant | system | rounds | mean answer | gamma | q10-q90 |",
           "|---|---|---|---|---|---|"]
-    md += [f"| {r['participant']} | {r['system']} | {r['rounds']} | {r['comfort']:.2f} | "
-           f"{r['gamma']:.3g} | {r['gamma_q10']:.3g}-{r['gamma_q90']:.3g} |" for r in runs]
+    md += [f"| {row['participant']} | {row['system']} | {row['rounds']} | {row['comfort']:.2f} | "
+           f"{row['gamma']:.3g} | {row['gamma_q10']:.3g}-{row['gamma_q90']:.3g} |" for row in runs]
     md.append("")
     if not learns or table["gamma"].isna().any():
         why = "the study's runs do not learn gamma (design it with --learn-gamma)"

@@ -18,12 +18,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import StudyDataError, StudyDesignError
 from rapidds.experiments.study.design import MAX_TASK_S_LIMIT
-from rapidds.settings import error_line
+from rapidds.settings import error_line, parse_yaml, read_yaml
 
 __all__ = [
     "LIKERT",
@@ -84,20 +83,13 @@ class SurveyItems(BaseModel):
     @classmethod
     def load(cls, path: str | Path) -> SurveyItems:
         """A YAML (or JSON, which is YAML) file ``{items: [{id, text, scale?, reverse?}, ...]}``."""
-        path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise StudyDesignError(f"{path}: cannot read: {exc.strerror or exc}") from None
-        except yaml.YAMLError as exc:
-            raise StudyDesignError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-        return cls.parse(data, str(path))
+        return cls.parse(read_yaml(path, error=StudyDesignError, mapping=False), str(path))
 
 
 def default_items() -> SurveyItems:
     """The packaged survey: Hoffman's fluency measures and the paper's interference item."""
     text = resources.files("rapidds.experiments.study").joinpath("items.yaml").read_text()
-    return SurveyItems.parse(yaml.safe_load(text), "items.yaml")
+    return SurveyItems.parse(parse_yaml(text, "items.yaml", StudyDesignError), "items.yaml")
 
 
 # -- submissions -------------------------------------------------------------------------------

@@ -126,7 +126,7 @@ def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
     person = simulated_participant(world, t.participant, t.levels, t.study_seed, t.position)
     prior = worker_prior(cfg)
     run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, teammate=person, prior=prior)
-    records = run.run()
+    records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
             "seconds": time.perf_counter() - t0}
 

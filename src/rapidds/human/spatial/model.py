@@ -6,22 +6,34 @@ import hashlib
 import json
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
 from numpy.typing import ArrayLike
+from pydantic import BaseModel, StrictStr, ValidationError
 
 from rapidds.errors import StateError
 from rapidds.fileio import atomic_write_text
 from rapidds.human.spatial.config import SpatialConfig
 from rapidds.human.spatial.grid import Points, SpatialCostModel
 from rapidds.human.spatial.surrogate import FitReport
+from rapidds.settings import error_line
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SpatialModel"]
 
 FORMAT = "rapidds.spatial-model"
 FORMAT_VERSION = 1
+
+
+class _SpatialFile(BaseModel):
+    """The stored form of a :class:`SpatialModel` (:meth:`SpatialModel.to_dict`); the config
+    and each task's belief are checked by their own ``from_dict``."""
+
+    format: Literal["rapidds.spatial-model"]
+    version: Literal[1]
+    config: dict[str, Any]
+    tasks: dict[StrictStr, Any]
 
 
 class SpatialModel:
@@ -102,18 +114,17 @@ class SpatialModel:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> SpatialModel:
         """Inverse of :meth:`to_dict`; StateError on a wrong format, version or content."""
-        if not isinstance(data, Mapping) or data.get("format") != FORMAT:
-            raise StateError(f"not a {FORMAT} document")
-        if data.get("version") != FORMAT_VERSION:
-            raise StateError(f"spatial model format version {data.get('version')!r} is not "
-                             f"supported (expected {FORMAT_VERSION})")
         try:
-            config = SpatialConfig.from_dict(data["config"])
-            tasks = dict(data["tasks"])
+            doc = _SpatialFile.model_validate(data)
+        except ValidationError as exc:
+            raise StateError(f"spatial model: {error_line(exc, with_input=True)} (a "
+                             f"{FORMAT} document of version {FORMAT_VERSION})") from None
+        try:
+            config = SpatialConfig.from_dict(doc.config)
         except (KeyError, TypeError, ValueError) as e:
-            raise StateError(f"spatial model: bad config or task table ({e})") from None
+            raise StateError(f"spatial model: bad config ({e})") from None
         models = {}
-        for tid, entry in tasks.items():
+        for tid, entry in doc.tasks.items():
             m = SpatialCostModel.from_dict(entry)
             if m.config != config:
                 raise StateError(f"spatial model: task '{tid}' was stored with another config")

@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     from rapidds.loop.model import HumanModel
     from rapidds.loop.run import AdaptiveRun, CyclePlan
     from rapidds.motion.policy import DiffusionPolicy
+    from rapidds.record import CycleRecord
 
 __all__ = ["InputError", "OutOfTurn", "StudySession", "View", "parse_presses",
            "step_token"]
@@ -336,9 +337,9 @@ class StudySession:
 
     def submit_round(self, pid: str, token: str, source: str, fields: Mapping[str, str],
                      tracker: str | None = None,
-                     played: Mapping[str, HumanExecution] | None = None) -> dict[str, Any]:
+                     played: Mapping[str, HumanExecution] | None = None) -> CycleRecord:
         """Record what the person did in their current round (one transaction) and return the
-        cycle's record. played: what they did in the game (source "game"), as the
+        cycle's (typed) record. played: what they did in the game (source "game"), as the
         :class:`~rapidds.web.player.BrowserPlayer` observed it."""
         step = self._turn(pid, token, "round")
         assert step.system is not None

@@ -17,10 +17,10 @@ mixes. A wait token that costs nothing (its task had already ended) is no wait.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
+from rapidds.record import CycleRecord
 from rapidds.worlds.painting.calibration import BehaviourSpec, PlanSummary, behaviours
 
 __all__ = [
@@ -63,11 +63,12 @@ class CycleSummary:
         return self.lam > 0.0
 
 
-def summarize_record(record: Mapping[str, Any]) -> CycleSummary:
+def summarize_record(record: CycleRecord) -> CycleSummary:
     """The :class:`CycleSummary` of one stored cycle record of the painting world."""
-    robot = tuple(str(x) for x in record["robot"])
-    human = tuple(str(x) for x in record["human"])
-    times = {t: (float(a), float(b)) for t, (a, b) in record["realised"]["timeline"].items()}
+    robot = tuple(str(x) for x in record.plan.robot)
+    human = tuple(str(x) for x in record.plan.human)
+    real = record.realised
+    times = {t: (float(a), float(b)) for t, (a, b) in real.timeline.items()}
     order = [x for x in robot if x in _MIXES]
     first, second = order[0], order[1]
     waits = []
@@ -81,21 +82,19 @@ def summarize_record(record: Mapping[str, Any]) -> CycleSummary:
     gap = times[second][0] - times[first][1]
     if gap > _WAIT_TOL:
         waits.append(f"robot {gap:.1f} s before {second}")
-    modes = {str(j): str(m) for j, m in record["routes"].items()}
-    expected = record["expected"]["overlaps"]
+    modes = {str(j): str(m) for j, m in record.plan.routes.items()}
+    expected = record.expected.overlaps
     during = {j: modes[j] for j in order if "secure_piece" in expected.get(j, ())}
     plan = PlanSummary(robot, human, first, during, bool(waits))
-    realised = record["realised"]
     return CycleSummary(
-        cycle=int(record["cycle"]), lam=float(record["lambda"]), plan=plan, modes=modes,
+        cycle=int(record.cycle), lam=float(record.plan.lam), plan=plan, modes=modes,
         durations={j: times[j][1] - times[j][0] for j in modes if j in times},
-        during_realised=tuple(j for j in order
-                              if "secure_piece" in realised["overlaps"].get(j, ())),
+        during_realised=tuple(j for j in order if "secure_piece" in real.overlaps.get(j, ())),
         waits=tuple(waits), brusher="human" if "brush" in human else "robot",
-        expected_spatial=float(record["expected"]["spatial"]),
-        realised_spatial=float(realised["spatial"]),
-        min_separation=float(realised["min_separation"]),
-        makespan=float(realised["makespan"]),
+        expected_spatial=float(record.expected.spatial),
+        realised_spatial=float(real.spatial),
+        min_separation=float(real.min_separation),
+        makespan=float(real.makespan),
     )
 
 
@@ -119,7 +118,7 @@ class LoopBehaviour:
         return bool(self.cycles) and self.shown == self.cycles
 
 
-def loop_behaviours(records: Sequence[Mapping[str, Any]], variant: str, gamma: float,
+def loop_behaviours(records: Sequence[CycleRecord], variant: str, gamma: float,
                     near: str, brusher: str | None = None) -> list[LoopBehaviour]:
     """The paper's behaviours of the setting (``variant``, ``gamma``) tested on a run's records
     (cycle 0 for the prior's, every cycle after exploration for the learned ones), for a person
