@@ -228,12 +228,14 @@ def test_a_taken_robot_task_is_the_persons_in_the_stored_record(
         rec = run.record(plan, out["dep"])
         (stored,) = store.records(run.config.run_id)
         arrays = store.arrays(run.config.run_id, 0)
-    assert stored == {**rec, "run_id": run.config.run_id}
-    assert rec["robot"] == ["t3", "t2", "t0"] and "t2" in rec["executed"]["human"]
-    assert "t2" not in rec["executed"]["robot"] and rec["observed"]["t2"] > 0
-    assert arrays["human/t2"].shape[0] == math.ceil(rec["observed"]["t2"] / fetch_world.dt
+    assert stored == {**rec.to_json(), "run_id": run.config.run_id}
+    ran = rec.execution.in_cycle
+    assert ran is not None
+    assert list(rec.plan.robot) == ["t3", "t2", "t0"] and "t2" in ran.executed["human"]
+    assert "t2" not in ran.executed["robot"] and rec.observed["t2"] > 0
+    assert arrays["human/t2"].shape[0] == math.ceil(rec.observed["t2"] / fetch_world.dt
                                                     - 1e-9) + 1
-    assert (rec["replans"][0]["reason"], rec["replans"][0]["task"]) == ("took", "t2")
+    assert (ran.replans[0]["reason"], ran.replans[0]["task"]) == ("took", "t2")
 
 
 def test_the_loop_stores_a_live_reactive_cycle_with_its_replans(

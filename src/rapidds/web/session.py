@@ -150,7 +150,7 @@ class PlaySession:
             return
         self.stored = run.next_cycle
         if run.next_cycle:
-            self._publish(self._summary(run, store.records(self.run_id)[-1]))
+            self._publish(self._summary(run, store.cycle_records(self.run_id)[-1]))
         self._opened.set()
         try:
             while not run.finished:
@@ -180,39 +180,37 @@ class PlaySession:
             self.summary = summary
             self.summary_version += 1
 
-    def _summary(self, run: AdaptiveRun, record: dict[str, Any]) -> dict[str, Any]:
+    def _summary(self, run: AdaptiveRun, record: CycleRecord) -> dict[str, Any]:
         """What the page shows after a cycle (see the module docstring)."""
         assert run.store is not None
-        records = run.store.records(self.run_id)
-        real, exp = record["realised"], record["expected"]
-        done = CycleRecord.from_json(record)  # who did what: a reactive cycle may differ
-        human = done.tasks("human")
-        timeline = real["timeline"]
+        records = run.store.cycle_records(self.run_id)
+        real, exp = record.realised, record.expected
+        human = record.tasks("human")  # who did what: a reactive cycle may differ from the plan
         spatial = run.model.spatial
         n = spatial.config.shape
         heat = {t: [_r(v) for v in spatial[t].mean] for t in human if t in spatial}
         prior = {t: [_r(v) for v in spatial[t].prior_mean] for t in human if t in spatial}
-        belief = record["belief"]["mean_durations"]
+        belief = record.belief["mean_durations"]
         return {
             "type": "summary",
-            "cycle": record["cycle"],
+            "cycle": record.cycle,
             "cycles": self.cycles,
-            "makespan": _r(real["makespan"]),
-            "expected_makespan": _r(exp["makespan"]),
-            "closest": _r(real["min_separation"]),
-            "spatial": _r(real["spatial"]),
-            "cost": _r(real["cost"]),
+            "makespan": _r(real.makespan),
+            "expected_makespan": _r(exp.makespan),
+            "closest": _r(real.min_separation),
+            "spatial": _r(real.spatial),
+            "cost": _r(real.cost),
             "human": human,
-            "robot": done.tasks("robot"),
-            "routes": record["routes"],
-            "observed": {t: _r(d) for t, d in record["observed"].items()},
-            "timeline": {t: [_r(s), _r(f)] for t, (s, f) in timeline.items()},
+            "robot": record.tasks("robot"),
+            "routes": record.plan.routes,
+            "observed": {t: _r(d) for t, d in record.observed.items()},
+            "timeline": {t: [_r(s), _r(f)] for t, (s, f) in real.timeline.items()},
             "belief": {t: _r(belief[t]) for t in human if t in belief},
-            "curve": [{"cycle": r["cycle"], "cost": _r(r["realised"]["cost"]),
-                       "makespan": _r(r["realised"]["makespan"]),
-                       "closest": _r(r["realised"]["min_separation"])} for r in records],
+            "curve": [{"cycle": r.cycle, "cost": _r(r.realised.cost),
+                       "makespan": _r(r.realised.makespan),
+                       "closest": _r(r.realised.min_separation)} for r in records],
             "heat": {"shape": list(n), "bounds": [list(b) for b in spatial.config.bounds],
                      "learned": heat, "prior": prior,
                      "max": _r(max((max(v) for v in heat.values()), default=1.0))},
-            "finished": record["cycle"] + 1 >= self.cycles,
+            "finished": record.cycle + 1 >= self.cycles,
         }
