@@ -277,3 +277,41 @@ def test_a_replan_can_hand_the_robot_a_task_of_the_person(plans):
             assert any(r["changed"] for r in dep.replans)
             assert (robot_did & mine) <= set(dep.robot)  # it followed a trajectory for it
     assert handed >= 1
+
+
+def test_deviation_kinds_are_those_the_plan_leaves_room_for(plans):
+    from rapidds.schedule import Schedule
+    from rapidds.worlds.reactions import deviation_kinds
+
+    problem = plans[0][0].problem  # fetch: t2 and t3 precede t0 and t1
+    assert deviation_kinds(problem, Schedule(("t2", "t3"), ("t0", "t1"))) == (
+        "order", "pause", "take")
+    # a chain of the person's tasks leaves no other order
+    assert deviation_kinds(problem, Schedule(("t2", "t0"), ("t3", "t1"))) == ("pause", "take")
+    # the robot's only task starts at once: nothing is left to take
+    assert deviation_kinds(problem, Schedule(("t3", "t0", "t1"), ("t2",))) == ("order", "pause")
+
+
+def test_a_deviation_without_room_is_redrawn_and_the_rest_stay_as_drawn():
+    from rapidds.worlds.reactions import ReactionPopulation, draw_deviation
+
+    pop = ReactionPopulation((1.0, 0.1), (0.5, 0.1))
+    kinds_seen, redrawn, deviated = set(), 0, 0
+    for s in range(300):
+        every = draw_deviation(0.6, np.random.default_rng(s), pop)
+        some = draw_deviation(0.6, np.random.default_rng(s), pop, ("pause", "take"))
+        assert (every is None) == (some is None)  # the rate does not depend on the kinds
+        if every is None:
+            continue
+        deviated += 1
+        kinds_seen.add(some.kind)
+        assert some.kind in ("pause", "take")
+        if every.kind == "order":
+            redrawn += 1
+            assert some.instead_of == "order" and some.to_json()["instead_of"] == "order"
+            assert (some.pick, some.task, some.at, some.seconds) == (
+                every.pick, every.task, every.at, every.seconds)
+        else:
+            assert some == every  # a kind with room is drawn as all kinds would draw it
+    assert kinds_seen == {"pause", "take"} and redrawn > 30 and 120 < deviated < 240
+    assert draw_deviation(1.0, np.random.default_rng(0), pop, ()) is None

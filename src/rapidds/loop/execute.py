@@ -32,7 +32,13 @@ from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
-from rapidds.worlds.reactions import Deviation, Reaction, cell_reactions, draw_deviation
+from rapidds.worlds.reactions import (
+    Deviation,
+    Reaction,
+    cell_reactions,
+    deviation_kinds,
+    draw_deviation,
+)
 
 __all__ = ["check_cell", "contingency_motions", "cycle_record", "execute_cycle",
            "person_reaction"]
@@ -93,7 +99,9 @@ def execute_cycle(
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, limits = cell_reactions(world)
-    deviation = draw_deviation(config.deviate, rng, population) if config.deviate else None
+    deviation = (draw_deviation(config.deviate, rng, population,
+                                deviation_kinds(problem, schedule))
+                 if config.deviate else None)
 
     def perform(task: str) -> tuple[float, np.ndarray]:
         assert isinstance(teammate, SimulatedTeammate)
