@@ -204,9 +204,10 @@ def test_bad_execution_settings_are_one_line_errors(capsys, tmp_path, command, f
 
 
 def _same(rec: dict) -> dict:
-    """A record without what a clock measures (seconds, re-plan latencies)."""
+    """A record without what a clock measures (seconds, re-plan latencies and steering times)."""
     out = _strip(rec)
-    out["replans"] = [{k: v for k, v in r.items() if k != "latency_s"} for r in rec["replans"]]
+    out["replans"] = [{k: v for k, v in r.items() if k not in ("latency_s", "steer_s")}
+                      for r in rec["replans"]]
     return out
 
 
@@ -315,3 +316,61 @@ def test_a_deviation_without_room_is_redrawn_and_the_rest_stay_as_drawn():
             assert some == every  # a kind with room is drawn as all kinds would draw it
     assert kinds_seen == {"pause", "take"} and redrawn > 30 and 120 < deviated < 240
     assert draw_deviation(1.0, np.random.default_rng(0), pop, ()) is None
+
+
+def _steering_cycle(run, plan, deviation, steer_max):
+    """A reactive cycle whose re-plans steer with an empty memory (every changed pair is new)."""
+    from rapidds.loop.execute import CycleMotions, contingency_motions, replan_steering
+    from rapidds.loop.model import workspace_cost
+
+    cfg = run.config.replace(execution="reactive")
+    motions = {**contingency_motions(run.world, run.problem, cfg, 0, run.policy,
+                                     run.model.spatial, plan.best.motions), **plan.best.motions}
+    supply = CycleMotions(motions, {}, replan_steering(run.world, run.problem, cfg, 0,
+                                                       run.policy, run.model.spatial),
+                          workspace_cost(run.world, run.model.spatial))
+    rp = _replanning(run, plan)
+    rp = Replanning(rp.mean, rp.std, {j: m.duration for j, m in motions.items()},
+                    lambda j, c: supply.cost(c, motions[j].trajectory), rp.gamma,
+                    motions=supply, steer_max=steer_max)
+    _, person = _person(run, plan, 0, deviation=deviation)
+    dep = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
+                        PlannedRobot(run.world, motions), beta=1.0, replanning=rp).run()
+    return motions, supply, dep
+
+
+def test_a_replan_steers_a_motion_only_where_the_concurrency_changed(plans):
+    steered = used = 0
+    for run, plan in plans:
+        for dev in (Deviation("take", pick=0.0), Deviation("order", pick=0.0)):
+            motions, supply, dep = _steering_cycle(run, plan, dev, steer_max=4)
+            resteered = {}
+            for q in dep.replans:
+                assert q["steer_s"] >= 0.0 and q["latency_s"] >= q["steer_s"]
+                for m in q["motions"]:
+                    assert m["now"] != m["was"]
+                    assert m["by"] in ("steered", "recalled")  # none over the budget of 4
+                    new = supply.recall((m["task"], frozenset(m["now"])))
+                    assert new is not None and new.concurrent == frozenset(m["now"])
+                    assert m["used"] == (m["value"][1] < m["value"][0] - 1e-9)
+                    steered += m["by"] == "steered"
+                    if m["used"]:
+                        resteered[m["task"]] = new
+            for j, traj in dep.robot.items():  # no monitoring: every motion ran undisturbed
+                want = resteered[j] if j in resteered else motions[j]
+                assert np.array_equal(traj, np.asarray(want.trajectory, float)), j
+            used += len(resteered)
+    assert steered >= 2 and used >= 1, (steered, used)
+
+
+def test_over_the_steering_budget_a_replan_keeps_the_plans_motion(plans):
+    kept = 0
+    for run, plan in plans:
+        motions, _, dep = _steering_cycle(run, plan, Deviation("take", pick=0.0), steer_max=0)
+        for q in dep.replans:
+            assert all(m["by"] == "kept (steering budget)" and "used" not in m
+                       for m in q["motions"])
+            kept += len(q["motions"])
+        for j, traj in dep.robot.items():
+            assert np.array_equal(traj, np.asarray(motions[j].trajectory, float))
+    assert kept >= 1

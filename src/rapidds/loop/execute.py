@@ -9,7 +9,7 @@ cycle from its own stream, so the plan's numbers never move), and a robot that f
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,7 @@ from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
 from rapidds.loop.model import workspace_cost
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
-from rapidds.motion.interface import MotionPlan
+from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
@@ -40,12 +40,13 @@ from rapidds.worlds.reactions import (
     draw_deviation,
 )
 
-__all__ = ["check_cell", "contingency_motions", "cycle_record", "execute_cycle",
-           "person_reaction"]
+__all__ = ["CycleMotions", "check_cell", "contingency_motions", "cycle_record",
+           "execute_cycle", "person_reaction", "replan_steering"]
 
 _REACTION_STREAM = 24_023  # the person's reaction: drawn once per run
 _DEVIATION_STREAM = 24_024  # this cycle's deviation and any task the person takes on
 _CONTINGENCY_STREAM = 24_025  # the robot's motions for tasks it was not planned to do
+_RESTEER_STREAM = 24_026  # motions a re-plan steers inside the cycle
 
 
 def person_reaction(world: World, config: RunConfig) -> Reaction | None:
@@ -63,25 +64,70 @@ def check_cell(config: RunConfig, teammate: Teammate) -> None:
                            "what they do")
 
 
+def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
+                  policy: DiffusionPolicy, spatial: SpatialModel, stream: int) -> DiffusionMotion:
+    """A steering model with the run's settings, seeded by (seed, cycle, stream), so a resumed
+    run steers the same."""
+    seed = int(np.random.default_rng([config.seed, cycle, stream]).integers(2**31))
+    return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                           problem.objective.gamma,
+                           SteeringConfig(particles=config.particles,
+                                          candidates=config.candidates, seed=seed,
+                                          steps=config.steps))
+
+
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
                         policy: DiffusionPolicy, spatial: SpatialModel,
                         planned: Mapping[str, MotionPlan]) -> dict[str, MotionPlan]:
     """For reactive execution: a steered motion (beside nothing) for every task the robot may
     do but was not planned to, steered before the cycle starts, so that re-planning inside it
     may hand the robot one of the person's tasks without steering (which costs far more than
-    its latency budget). Seeded by (seed, cycle), so a resumed run steers the same."""
+    its latency budget)."""
     if config.execution != "reactive":
         return {}
     todo = [t for t in problem.ids if problem.task(t).can("robot") and t not in planned]
     if not todo:
         return {}
-    seed = int(np.random.default_rng([config.seed, cycle, _CONTINGENCY_STREAM]).integers(2**31))
-    motion = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
-                             problem.objective.gamma,
-                             SteeringConfig(particles=config.particles,
-                                            candidates=config.candidates, seed=seed,
-                                            steps=config.steps))
+    motion = _cycle_motion(world, problem, config, cycle, policy, spatial, _CONTINGENCY_STREAM)
     return {m.task: m for m in motion.plan([(t, frozenset()) for t in todo])}
+
+
+class CycleMotions:
+    """What re-plans inside one cycle draw robot motions from (a
+    :class:`~rapidds.execution.MotionSupply`): the motions the cycle starts with (the plan's and
+    the spares), the motions already steered for (task, concurrent set) pairs against the
+    spatial models as they stand (the plan's search and earlier cycles: ``memory``), and a
+    steering model for the rest, whose motions join the memory."""
+
+    def __init__(self, planned: Mapping[str, MotionPlan], memory: Mapping[MotionKey, MotionPlan],
+                 steering: MotionModel, cost: Callable[[Iterable[str], np.ndarray], np.ndarray]):
+        self._planned = dict(planned)
+        self._memory = {**dict(memory), **{(m.task, m.concurrent): m for m in planned.values()}}
+        self._steering, self._cost = steering, cost
+
+    def planned(self, task: str) -> MotionPlan | None:
+        return self._planned.get(task)
+
+    def recall(self, key: MotionKey) -> MotionPlan | None:
+        return self._memory.get(key)
+
+    def steer(self, keys: Sequence[MotionKey]) -> list[MotionPlan]:
+        plans = self._steering.plan(keys)
+        self._memory.update(zip(keys, plans, strict=True))
+        return plans
+
+    def cost(self, concurrent: frozenset[str], trajectory: np.ndarray) -> float:
+        return float(self._cost(concurrent, np.asarray(trajectory)[None])[0]) if concurrent \
+            else 0.0
+
+
+def replan_steering(world: World, problem: Problem, config: RunConfig, cycle: int,
+                    policy: DiffusionPolicy, spatial: SpatialModel) -> DiffusionMotion | None:
+    """For reactive execution: the steering model re-plans inside the cycle steer new motions
+    with (seeded by (seed, cycle, 24026)); None otherwise."""
+    if config.execution != "reactive":
+        return None
+    return _cycle_motion(world, problem, config, cycle, policy, spatial, _RESTEER_STREAM)
 
 
 def execute_cycle(
@@ -89,13 +135,17 @@ def execute_cycle(
     motions: Mapping[str, MotionPlan], human: Mapping[str, HumanExecution],
     teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
     spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
-    order: Sequence[str] | None = None,
+    order: Sequence[str] | None = None, steering: MotionModel | None = None,
+    memory: Mapping[MotionKey, MotionPlan] | None = None,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
     do (``human``), under the run's execution settings; the deviation it had, if any.
     beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
     robot's motions for tasks it was not planned to do (:func:`contingency_motions`); order: the
-    order a live person took their tasks in (None: the plan's, or the simulated deviation's)."""
+    order a live person took their tasks in (None: the plan's, or the simulated deviation's);
+    steering (:func:`replan_steering`), memory (motions steered for (task, concurrent set)
+    pairs against the spatial models as they stand): what re-plans give the robot new motions
+    from where they change what runs beside it (None: they keep the plan's)."""
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, limits = cell_reactions(world)
@@ -122,7 +172,9 @@ def execute_cycle(
             mean={t: float(m) for t, m in zip(ids, mean, strict=True) if np.isfinite(m)},
             std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
             robot={j: m.duration for j, m in motions.items() if m.trajectory is not None},
-            spatial=spatial_cost, gamma=problem.objective.gamma)
+            spatial=spatial_cost, gamma=problem.objective.gamma,
+            motions=None if steering is None else CycleMotions(motions, memory or {}, steering,
+                                                                cost))
     executor = CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
         SpeedSeparation(limits) if config.execution == "reactive" else None,
