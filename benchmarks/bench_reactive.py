@@ -52,7 +52,7 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
     cfg = RunConfig(world=world, human=names[seed % len(names)], adapt=adapt, cycles=cycles,
                     seed=seed, execution=execution, reacts=True, deviate=deviate,
                     **SEARCH[world])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     recs = AdaptiveRun(cfg, policy).run()  # type: ignore[arg-type]
     r = [x["realised"] for x in recs]
     prot = [x["protective"] or {} for x in recs]
@@ -68,9 +68,32 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
         "replans": sum(len(x["replans"]) for x in recs),
         "replans_changed": sum(q["changed"] for x in recs for q in x["replans"]),
         "latencies": [q["latency_s"] for x in recs for q in x["replans"]],
+        "steer_latencies": [q.get("steer_s", 0.0) for x in recs for q in x["replans"]],
         "moving_inside": sum(p.get("moving_inside", 0) for p in prot),
         "cycles_moving_inside": sum(bool(p.get("moving_inside")) for p in prot),
-        "seconds": time.perf_counter() - t0,
+        "per_cycle": [_cycle(x) for x in recs],
+        "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+    }
+
+
+def _held(rec: dict, agent: str) -> float:
+    """Seconds an agent was held back (stopped or slowed) in one cycle."""
+    return float(sum(p["end"] - p["start"] for p in rec["pauses"] if p["agent"] == agent))
+
+
+def _cycle(rec: dict) -> dict:
+    """What one cycle's record says of reacting inside it (for the per-cycle decomposition)."""
+    r = rec["realised"]
+    return {
+        "cycle": rec["cycle"], "deviation": (rec["deviation"] or {}).get("kind"),
+        "cost": r["cost"], "makespan": r["makespan"], "spatial": r["spatial"],
+        "expected": rec["expected"]["objective"], "robot_held_s": _held(rec, "robot"),
+        "person_held_s": _held(rec, "person"),
+        "replans": [{"reason": q["reason"], "changed": q["changed"],
+                     "before": q.get("expected_cost_before"),
+                     "after": q["expected_makespan_cost"],
+                     "motions": [(m["by"], m.get("used")) for m in q.get("motions", [])]}
+                    for q in rec["replans"]],
     }
 
 

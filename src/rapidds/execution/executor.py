@@ -243,7 +243,9 @@ class CycleExecutor:
         self.replans.append({
             "time": now, "reason": reason, "task": task, "changed": changed,
             "before": current, "after": {"human": list(rem.human), "robot": list(rem.robot)},
-            "expected_makespan_cost": rem.objective, "evaluated": rem.evaluated,
+            "expected_makespan_cost": rem.objective,
+            "expected_cost_before": rem.current if math.isfinite(rem.current) else None,
+            "evaluated": rem.evaluated,
             **({"motions": motions, "steer_s": time.perf_counter() - t1}
                if rp.motions is not None else {}),
             "latency_s": time.perf_counter() - t0})

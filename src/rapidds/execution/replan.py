@@ -57,12 +57,14 @@ class MotionSupply(Protocol):
 
 @dataclass(frozen=True)
 class Remainder:
-    """The rest of a cycle: each agent's tasks still to start, in order, and its score."""
+    """The rest of a cycle: each agent's tasks still to start, in order, and its score;
+    ``current``: the score of the rest as it was planned (what the re-plan improved on)."""
 
     human: tuple[str, ...]
     robot: tuple[str, ...]
     objective: float
     evaluated: int
+    current: float = math.nan
 
 
 Times = tuple[dict[str, float], dict[str, float], dict[str, str]]  # start, finish, agent
@@ -162,7 +164,8 @@ def replan_remainder(
         return _score(problem, h, r, now, fixed, free, dur, cost, gamma)
 
     h0, r0 = tuple(current["human"]), tuple(current["robot"])
-    best = Remainder(h0, r0, score(h0, r0), 1)
+    first = score(h0, r0)
+    best = Remainder(h0, r0, first, 1, first)
     tasks = [*h0, *r0]
     options = []
     for t in tasks:
@@ -183,5 +186,5 @@ def replan_remainder(
                 evaluated += 1
                 v = score(h, r)
                 if v < best.objective - 1e-9:
-                    best = Remainder(tuple(h), tuple(r), v, 0)
-    return Remainder(best.human, best.robot, best.objective, evaluated)
+                    best = Remainder(tuple(h), tuple(r), v, 0, first)
+    return Remainder(best.human, best.robot, best.objective, evaluated, first)
