@@ -97,6 +97,96 @@ def _cycle(rec: dict) -> dict:
     }
 
 
+# the parts of reactive execution, each run on the same plan, person and deviation:
+# name -> (execution, speed and separation monitoring, re-planning, steering in re-plans)
+PARTS = {
+    "open loop": ("planned", False, False, False),
+    "monitoring": ("reactive", True, False, False),
+    "re-planning": ("reactive", False, True, True),
+    "both, no steering": ("reactive", True, True, False),
+    "both (reactive)": ("reactive", True, True, True),
+}
+
+
+def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list[dict]:
+    """Cycle 0 of the "both" system planned once and executed by each of :data:`PARTS` (same
+    draws of the person), so the differences are the parts' own."""
+    import copy
+
+    from rapidds.loop import AdaptiveRun, RunConfig
+    from rapidds.loop.carry import spatial_stamps, valid_plans
+    from rapidds.loop.execute import (
+        contingency_motions,
+        execute_cycle,
+        person_reaction,
+        replan_steering,
+    )
+    from rapidds.worlds.registry import make_world
+
+    names = make_world(world).teammate_names
+    cfg = RunConfig(world=world, human=names[seed % len(names)], adapt="full", cycles=1,
+                    seed=seed, execution="reactive", reacts=True, deviate=deviate,
+                    **SEARCH[world])
+    run = AdaptiveRun(cfg, policy)  # type: ignore[arg-type]
+    plan = run.plan()
+    spatial = run.model.spatial
+    beliefs = (run.model.temporal.mean(), run.model.temporal.std())
+    out = []
+    for part, (execution, monitor, replan, steer) in PARTS.items():
+        c = cfg.replace(execution=execution)
+        human = run.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"),
+                                     copy.deepcopy(plan.rng))
+        steering = replan_steering(run.world, run.problem, c, 0, run.policy, spatial)
+        dep, dev = execute_cycle(
+            run.world, run.problem, c, 0, plan.best.schedule, plan.best.motions, human,
+            run.teammate, person_reaction(run.world, c), beliefs, spatial,
+            beta=spatial.config.beta,
+            spare=contingency_motions(run.world, run.problem, c, 0, run.policy, spatial,
+                                      plan.best.motions),
+            steering=steering if steer else None,
+            memory=valid_plans(plan.motions, spatial_stamps(spatial)), monitor=monitor,
+            replan=replan)
+        out.append({
+            "world": world, "deviate": deviate, "seed": seed, "part": part,
+            "deviation": None if dev is None else dev.kind, "cost": dep.cost,
+            "makespan": dep.makespan, "spatial": dep.spatial,
+            "robot_held_s": sum(q["end"] - q["start"] for q in dep.pauses
+                                if q["agent"] == "robot"),
+            "person_held_s": sum(q["end"] - q["start"] for q in dep.pauses
+                                 if q["agent"] == "person"),
+            "replans": len(dep.replans), "changed": sum(q["changed"] for q in dep.replans),
+            "steered": sum(m["by"] == "steered" for q in dep.replans
+                           for m in q.get("motions", [])),
+            "resteered": sum(bool(m.get("used")) for q in dep.replans
+                             for m in q.get("motions", [])),
+            "inside": (dep.protective or {}).get("moving_inside", 0)})
+    return out
+
+
+def decompose(args: argparse.Namespace) -> None:
+    import torch
+
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
+
+    torch.set_num_threads(1)
+    policy = load_policy(make_world(args.world))
+    out = Path(args.decomposition)
+    done = set()
+    if out.exists():
+        done = {(d["world"], d["deviate"], d["seed"])
+                for d in map(json.loads, out.read_text().splitlines())}
+    for seed in range(args.first_seed, args.seeds):
+        for deviate in args.deviations:
+            if (args.world, deviate, seed) in done:
+                continue
+            rows = decompose_one(args.world, deviate, seed, policy)
+            with out.open("a") as f:
+                f.writelines(json.dumps(r) + "\n" for r in rows)
+            print(args.world, deviate, seed, {r["part"]: round(r["cost"], 2) for r in rows},
+                  flush=True)
+
+
 def bench(args: argparse.Namespace) -> None:
     import torch
 
@@ -227,9 +317,11 @@ def main() -> None:
                    default=[0.0, 0.3, 0.6])
     p.add_argument("--runs", default=os.environ.get("RAPIDDS_BENCH_RUNS", "reactive-runs.jsonl"))
     p.add_argument("--report", action="store_true")
+    p.add_argument("--decomposition", default="",
+                   help="Run the per-part decomposition of cycle 0 into this JSONL file.")
     p.add_argument("--notes", default="", help="Text appended to the docs section.")
     args = p.parse_args()
-    (report if args.report else bench)(args)
+    (report if args.report else decompose if args.decomposition else bench)(args)
 
 
 if __name__ == "__main__":

@@ -136,7 +136,8 @@ def execute_cycle(
     teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
     spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
     order: Sequence[str] | None = None, steering: MotionModel | None = None,
-    memory: Mapping[MotionKey, MotionPlan] | None = None,
+    memory: Mapping[MotionKey, MotionPlan] | None = None, monitor: bool = True,
+    replan: bool = True,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
     do (``human``), under the run's execution settings; the deviation it had, if any.
@@ -145,7 +146,9 @@ def execute_cycle(
     order a live person took their tasks in (None: the plan's, or the simulated deviation's);
     steering (:func:`replan_steering`), memory (motions steered for (task, concurrent set)
     pairs against the spatial models as they stand): what re-plans give the robot new motions
-    from where they change what runs beside it (None: they keep the plan's)."""
+    from where they change what runs beside it (None: they keep the plan's); monitor, replan:
+    whether speed and separation monitoring and re-planning act under reactive execution
+    (both, unless a decomposition of what each does turns one off)."""
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, limits = cell_reactions(world)
@@ -159,7 +162,7 @@ def execute_cycle(
 
     person = SimulatedHuman(world, human, perform, reaction, deviation, order)
     replanning = None
-    if config.execution == "reactive":
+    if config.execution == "reactive" and replan:
         cost = workspace_cost(world, spatial)
         mean, std = beliefs
         ids = problem.ids
@@ -177,7 +180,7 @@ def execute_cycle(
                                                                 cost))
     executor = CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
-        SpeedSeparation(limits) if config.execution == "reactive" else None,
+        SpeedSeparation(limits) if config.execution == "reactive" and monitor else None,
         beta=beta, replanning=replanning, limits=limits)
     return executor.run(), deviation
 
