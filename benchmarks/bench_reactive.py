@@ -250,12 +250,6 @@ def report(args: argparse.Namespace) -> None:
                     f"{sum(r['person_pauses'] for r in sel) / n_cycles:.2f} | "
                     f"{sum(r['replans'] for r in sel) / n_cycles:.2f} | "
                     f"{sum(r['cycles_moving_inside'] for r in sel)} of {n_cycles} |")
-    lat = []
-    for w in worlds:
-        xs = [x for r in rows if r["world"] == w for x in r["latencies"]]
-        if xs:
-            lat.append(f"{w}: p95 {1000 * float(np.percentile(xs, 95)):.1f} ms, max "
-                       f"{1000 * max(xs):.1f} ms over {len(xs)} re-plans")
     _figure(summary, worlds)
     seeds = sorted({r["seed"] for r in rows})
     cycles = sorted({r["cycles"] for r in rows})
@@ -271,15 +265,95 @@ def report(args: argparse.Namespace) -> None:
         "",
         *lines,
         "",
-        "Re-planning latency inside a cycle (exhaustive remainder search, no steering): "
-        + "; ".join(lat) + ".",
-        "",
         f"![cost against deviation rate](results/{FIGURE.name})",
         "",
+        *_analysis(rows, worlds),
+        *(_decomposition(args.decomposition) if args.decomposition else []),
         args.notes or "",
     ])
     update_docs_section("## Reacting inside the cycle", body, path=DOC)
     print(body)
+
+
+def _paired(rows: list[dict], w: str, dev: float, a: str, b: str) -> str:
+    """Mean ± 95 % interval over seeds of system a's cost minus system b's."""
+    cost = {(r["system"], r["seed"]): r["cost"] for r in rows
+            if (r["world"], r["deviate"]) == (w, dev)}
+    d = [cost[(a, s)] - cost[(b, s)] for (x, s) in cost if x == a and (b, s) in cost]
+    m, half = _ci(d) if d else (math.nan, math.nan)
+    return f"{m:+.2f} ± {half:.2f}"
+
+
+def _analysis(rows: list[dict], worlds: list[str]) -> list[str]:
+    """Paired differences, what the re-plans did and cost, and how long monitoring held the
+    robot, per world and deviation rate."""
+    out = ["Paired over seeds (cost difference, mean ± 95 % interval; negative: the first is "
+           "cheaper), what the re-plans of **both** did (changed: a different rest was chosen; "
+           "expected gain: the expected cost of the rest as planned minus as re-planned, mean "
+           "over the changed ones; motions: pairs whose concurrency changed, recalled from "
+           "memory / steered now / kept, and how many of them replaced the robot's motion) and "
+           "the seconds per cycle monitoring held the robot back (stopped or slowed):", "",
+           "| world | deviation | both - planned | both - reactive | re-plans (changed) | "
+           "expected gain (s) | motions: recalled / steered / kept (used) | robot held "
+           "s / cycle (reactive, both) |", "|---|---|---|---|---|---|---|---|"]
+    for w in worlds:
+        for dev in sorted({r["deviate"] for r in rows if r["world"] == w}):
+            cyc = {sys_: [c for r in rows if (r["world"], r["deviate"], r["system"]) == (
+                w, dev, sys_) for c in r["per_cycle"]] for sys_ in SYSTEMS}
+            qs = [q for c in cyc["both"] for q in c["replans"]]
+            gains = [q["before"] - q["after"] for q in qs if q["changed"] and q["before"]]
+            ms = [m for q in qs for m in q["motions"]]
+            by = {k: sum(m[0].startswith(k) for m in ms) for k in ("recalled", "steered", "kept")}
+            held = [np.mean([c["robot_held_s"] for c in cyc[x]]) if cyc[x] else math.nan
+                    for x in ("reactive", "both")]
+            out.append(
+                f"| {w} | {dev:g} | {_paired(rows, w, dev, 'both', 'planned')} | "
+                f"{_paired(rows, w, dev, 'both', 'reactive')} | {len(qs)} "
+                f"({sum(q['changed'] for q in qs)}) | "
+                f"{np.mean(gains) if gains else 0.0:.2f} | {by['recalled']} / {by['steered']} / "
+                f"{by['kept']} ({sum(bool(m[1]) for m in ms)}) | {held[0]:.2f}, {held[1]:.2f} |")
+    lat = []
+    for w in worlds:
+        sel = [r for r in rows if r["world"] == w]
+        xs = [x for r in sel for x in r["latencies"]]
+        steer = [x for r in sel for x in r.get("steer_latencies", [])]
+        steered = sum(any(m[0] == "steered" for m in q["motions"])
+                      for r in sel for c in r.get("per_cycle", []) for q in c["replans"])
+        if xs:
+            lat.append(f"{w}: p95 {1000 * float(np.percentile(xs, 95)):.1f} ms, max "
+                       f"{1000 * max(xs):.1f} ms over {len(xs)} re-plans, {steered} of which "
+                       f"steered a motion (the motion part: p95 "
+                       f"{1000 * float(np.percentile(steer, 95)) if steer else 0.0:.1f} ms)")
+    return [*out, "", "Re-planning latency inside a cycle (exhaustive remainder search, then "
+            "motions recalled or steered where the concurrency changed; wall clock, torch on "
+            "one thread, on the loaded machine): " + "; ".join(lat) + ".", ""]
+
+
+def _decomposition(path: str) -> list[str]:
+    """The parts of reactive execution on the same cycle 0 (see :data:`PARTS`)."""
+    rows = [json.loads(x) for x in Path(path).read_text().splitlines()]
+    out = ["What each part of reactive execution does on its own (`--decomposition`): cycle 0 "
+           "of **both** planned once and executed by each part, same person, same draws, same "
+           "deviation; difference to open loop paired over (seed, deviation rate) cycles, "
+           "mean ± 95 % interval.", "",
+           "| world | part | cycles | cost | vs open loop | makespan (s) | gamma x spatial | "
+           "robot held (s) | re-plans (changed) | motions steered now (motions replaced) | "
+           "moving inside S_p (instants) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for w in sorted({r["world"] for r in rows}):
+        base = {(r["deviate"], r["seed"]): r for r in rows
+                if r["world"] == w and r["part"] == "open loop"}
+        for part in PARTS:
+            sel = [r for r in rows if r["world"] == w and r["part"] == part]
+            d = _ci([r["cost"] - base[(r["deviate"], r["seed"])]["cost"] for r in sel])
+            out.append(
+                f"| {w} | {part} | {len(sel)} | {np.mean([r['cost'] for r in sel]):.2f} | "
+                f"{d[0]:+.2f} ± {d[1]:.2f} | {np.mean([r['makespan'] for r in sel]):.2f} | "
+                f"{np.mean([r['cost'] - r['makespan'] for r in sel]):.2f} | "
+                f"{np.mean([r['robot_held_s'] for r in sel]):.2f} | "
+                f"{sum(r['replans'] for r in sel)} ({sum(r['changed'] for r in sel)}) | "
+                f"{sum(r['steered'] for r in sel)} ({sum(r['resteered'] for r in sel)}) | "
+                f"{sum(r['inside'] for r in sel)} |")
+    return [*out, ""]
 
 
 def _figure(summary: dict, worlds: list[str]) -> None:
