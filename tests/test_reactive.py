@@ -374,3 +374,22 @@ def test_over_the_steering_budget_a_replan_keeps_the_plans_motion(plans):
         for j, traj in dep.robot.items():
             assert np.array_equal(traj, np.asarray(motions[j].trajectory, float))
     assert kept >= 1
+
+
+def test_robot_concurrency_is_read_off_the_expected_rest_of_the_cycle(plans):
+    from rapidds.execution.replan import robot_concurrency
+
+    problem = plans[0][0].problem  # fetch: t2 and t3 precede t0 and t1
+    mean = {"robot:t3": 2.0, "robot:t1": 3.0, "human:t0": 4.0}
+    fixed = {"t2": ("human", 0.0, 5.0)}  # the person's t2 runs until 5 s
+    near = robot_concurrency(problem, 0.0, ["t0"], ["t3", "t1"], fixed,
+                             {"human": 5.0, "robot": 0.0}, mean)
+    assert near == {"t3": frozenset({"t2"}), "t1": frozenset({"t0"})}
+    # the person's t0 after the robot's t1 ends: t1 runs beside nothing
+    mean["human:t0"] = 1.0
+    near = robot_concurrency(problem, 0.0, ["t0"], ["t3", "t1"], fixed,
+                             {"human": 9.0, "robot": 0.0}, mean)
+    assert near == {"t3": frozenset({"t2"}), "t1": frozenset()}
+    # an order that cannot finish has no timeline
+    assert robot_concurrency(problem, 0.0, ["t0"], ["t1", "t3"], fixed,
+                             {"human": 5.0, "robot": 0.0}, mean) == {}
