@@ -98,13 +98,16 @@ def _cycle(rec: dict) -> dict:
 
 
 # the parts of reactive execution, each run on the same plan, person and deviation:
-# name -> (execution, speed and separation monitoring, re-planning, steering in re-plans)
+# name -> (execution, speed and separation monitoring, re-planning, steering in re-plans,
+# recalling motions the run steered before); "no memory" steers every changed pair anew (what
+# steering costs a re-plan's latency when nothing can be recalled)
 PARTS = {
-    "open loop": ("planned", False, False, False),
-    "monitoring": ("reactive", True, False, False),
-    "re-planning": ("reactive", False, True, True),
-    "both, no steering": ("reactive", True, True, False),
-    "both (reactive)": ("reactive", True, True, True),
+    "open loop": ("planned", False, False, False, False),
+    "monitoring": ("reactive", True, False, False, False),
+    "re-planning": ("reactive", False, True, True, True),
+    "both, no steering": ("reactive", True, True, False, False),
+    "both (reactive)": ("reactive", True, True, True, True),
+    "both, no memory": ("reactive", True, True, True, False),
 }
 
 
@@ -132,7 +135,7 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
     spatial = run.model.spatial
     beliefs = (run.model.temporal.mean(), run.model.temporal.std())
     out = []
-    for part, (execution, monitor, replan, steer) in PARTS.items():
+    for part, (execution, monitor, replan, steer, recall) in PARTS.items():
         c = cfg.replace(execution=execution)
         human = run.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"),
                                      copy.deepcopy(plan.rng))
@@ -144,8 +147,8 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
             spare=contingency_motions(run.world, run.problem, c, 0, run.policy, spatial,
                                       plan.best.motions),
             steering=steering if steer else None,
-            memory=valid_plans(plan.motions, spatial_stamps(spatial)), monitor=monitor,
-            replan=replan)
+            memory=valid_plans(plan.motions, spatial_stamps(spatial)) if recall else {},
+            monitor=monitor, replan=replan)
         out.append({
             "world": world, "deviate": deviate, "seed": seed, "part": part,
             "deviation": None if dev is None else dev.kind, "cost": dep.cost,
@@ -159,7 +162,9 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
                            for m in q.get("motions", [])),
             "resteered": sum(bool(m.get("used")) for q in dep.replans
                              for m in q.get("motions", [])),
-            "inside": (dep.protective or {}).get("moving_inside", 0)})
+            "inside": (dep.protective or {}).get("moving_inside", 0),
+            "latencies": [q["latency_s"] for q in dep.replans],
+            "steer_latencies": [q.get("steer_s", 0.0) for q in dep.replans]})
     return out
 
 
@@ -338,7 +343,8 @@ def _decomposition(path: str) -> list[str]:
            "mean ± 95 % interval.", "",
            "| world | part | cycles | cost | vs open loop | makespan (s) | gamma x spatial | "
            "robot held (s) | re-plans (changed) | motions steered now (motions replaced) | "
-           "moving inside S_p (instants) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "re-plan latency p95 / max (ms) | moving inside S_p (instants) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for w in sorted({r["world"] for r in rows}):
         base = {(r["deviate"], r["seed"]): r for r in rows
                 if r["world"] == w and r["part"] == "open loop"}
@@ -352,8 +358,15 @@ def _decomposition(path: str) -> list[str]:
                 f"{np.mean([r['robot_held_s'] for r in sel]):.2f} | "
                 f"{sum(r['replans'] for r in sel)} ({sum(r['changed'] for r in sel)}) | "
                 f"{sum(r['steered'] for r in sel)} ({sum(r['resteered'] for r in sel)}) | "
-                f"{sum(r['inside'] for r in sel)} |")
+                f"{_latency(sel)} | {sum(r['inside'] for r in sel)} |")
     return [*out, ""]
+
+
+def _latency(rows: list[dict]) -> str:
+    """p95 / max of the re-plan latencies of ``rows`` in ms ("-": no re-plan)."""
+    xs = [x for r in rows for x in r.get("latencies", [])]
+    return (f"{1000 * float(np.percentile(xs, 95)):.0f} / {1000 * max(xs):.0f}" if xs
+            else "-")
 
 
 def _figure(summary: dict, worlds: list[str]) -> None:
