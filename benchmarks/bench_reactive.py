@@ -52,7 +52,7 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
     cfg = RunConfig(world=world, human=names[seed % len(names)], adapt=adapt, cycles=cycles,
                     seed=seed, execution=execution, reacts=True, deviate=deviate,
                     **SEARCH[world])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     recs = AdaptiveRun(cfg, policy).run()  # type: ignore[arg-type]
     r = [x["realised"] for x in recs]
     prot = [x["protective"] or {} for x in recs]
@@ -68,10 +68,128 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
         "replans": sum(len(x["replans"]) for x in recs),
         "replans_changed": sum(q["changed"] for x in recs for q in x["replans"]),
         "latencies": [q["latency_s"] for x in recs for q in x["replans"]],
+        "steer_latencies": [q.get("steer_s", 0.0) for x in recs for q in x["replans"]],
         "moving_inside": sum(p.get("moving_inside", 0) for p in prot),
         "cycles_moving_inside": sum(bool(p.get("moving_inside")) for p in prot),
-        "seconds": time.perf_counter() - t0,
+        "per_cycle": [_cycle(x) for x in recs],
+        "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
     }
+
+
+def _held(rec: dict, agent: str) -> float:
+    """Seconds an agent was held back (stopped or slowed) in one cycle."""
+    return float(sum(p["end"] - p["start"] for p in rec["pauses"] if p["agent"] == agent))
+
+
+def _cycle(rec: dict) -> dict:
+    """What one cycle's record says of reacting inside it (for the per-cycle decomposition)."""
+    r = rec["realised"]
+    return {
+        "cycle": rec["cycle"], "deviation": (rec["deviation"] or {}).get("kind"),
+        "cost": r["cost"], "makespan": r["makespan"], "spatial": r["spatial"],
+        "expected": rec["expected"]["objective"], "robot_held_s": _held(rec, "robot"),
+        "person_held_s": _held(rec, "person"),
+        "replans": [{"reason": q["reason"], "changed": q["changed"],
+                     "before": q.get("expected_cost_before"),
+                     "after": q["expected_makespan_cost"],
+                     "motions": [(m["by"], m.get("used")) for m in q.get("motions", [])]}
+                    for q in rec["replans"]],
+    }
+
+
+# the parts of reactive execution, each run on the same plan, person and deviation:
+# name -> (execution, speed and separation monitoring, re-planning, steering in re-plans,
+# recalling motions the run steered before); "no memory" steers every changed pair anew (what
+# steering costs a re-plan's latency when nothing can be recalled)
+PARTS = {
+    "open loop": ("planned", False, False, False, False),
+    "monitoring": ("reactive", True, False, False, False),
+    "re-planning": ("reactive", False, True, True, True),
+    "both, no steering": ("reactive", True, True, False, False),
+    "both (reactive)": ("reactive", True, True, True, True),
+    "both, no memory": ("reactive", True, True, True, False),
+}
+
+
+def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list[dict]:
+    """Cycle 0 of the "both" system planned once and executed by each of :data:`PARTS` (same
+    draws of the person), so the differences are the parts' own."""
+    import copy
+
+    from rapidds.loop import AdaptiveRun, RunConfig
+    from rapidds.loop.carry import spatial_stamps, valid_plans
+    from rapidds.loop.execute import (
+        contingency_motions,
+        execute_cycle,
+        person_reaction,
+        replan_steering,
+    )
+    from rapidds.worlds.registry import make_world
+
+    names = make_world(world).teammate_names
+    cfg = RunConfig(world=world, human=names[seed % len(names)], adapt="full", cycles=1,
+                    seed=seed, execution="reactive", reacts=True, deviate=deviate,
+                    **SEARCH[world])
+    run = AdaptiveRun(cfg, policy)  # type: ignore[arg-type]
+    plan = run.plan()
+    spatial = run.model.spatial
+    beliefs = (run.model.temporal.mean(), run.model.temporal.std())
+    out = []
+    for part, (execution, monitor, replan, steer, recall) in PARTS.items():
+        c = cfg.replace(execution=execution)
+        human = run.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"),
+                                     copy.deepcopy(plan.rng))
+        steering = replan_steering(run.world, run.problem, c, 0, run.policy, spatial)
+        dep, dev = execute_cycle(
+            run.world, run.problem, c, 0, plan.best.schedule, plan.best.motions, human,
+            run.teammate, person_reaction(run.world, c), beliefs, spatial,
+            beta=spatial.config.beta,
+            spare=contingency_motions(run.world, run.problem, c, 0, run.policy, spatial,
+                                      plan.best.motions),
+            steering=steering if steer else None,
+            memory=valid_plans(plan.motions, spatial_stamps(spatial)) if recall else {},
+            monitor=monitor, replan=replan)
+        out.append({
+            "world": world, "deviate": deviate, "seed": seed, "part": part,
+            "deviation": None if dev is None else dev.kind, "cost": dep.cost,
+            "makespan": dep.makespan, "spatial": dep.spatial,
+            "robot_held_s": sum(q["end"] - q["start"] for q in dep.pauses
+                                if q["agent"] == "robot"),
+            "person_held_s": sum(q["end"] - q["start"] for q in dep.pauses
+                                 if q["agent"] == "person"),
+            "replans": len(dep.replans), "changed": sum(q["changed"] for q in dep.replans),
+            "steered": sum(m["by"] == "steered" for q in dep.replans
+                           for m in q.get("motions", [])),
+            "resteered": sum(bool(m.get("used")) for q in dep.replans
+                             for m in q.get("motions", [])),
+            "inside": (dep.protective or {}).get("moving_inside", 0),
+            "latencies": [q["latency_s"] for q in dep.replans],
+            "steer_latencies": [q.get("steer_s", 0.0) for q in dep.replans]})
+    return out
+
+
+def decompose(args: argparse.Namespace) -> None:
+    import torch
+
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
+
+    torch.set_num_threads(1)
+    policy = load_policy(make_world(args.world))
+    out = Path(args.decomposition)
+    done = set()
+    if out.exists():
+        done = {(d["world"], d["deviate"], d["seed"])
+                for d in map(json.loads, out.read_text().splitlines())}
+    for seed in range(args.first_seed, args.seeds):
+        for deviate in args.deviations:
+            if (args.world, deviate, seed) in done:
+                continue
+            rows = decompose_one(args.world, deviate, seed, policy)
+            with out.open("a") as f:
+                f.writelines(json.dumps(r) + "\n" for r in rows)
+            print(args.world, deviate, seed, {r["part"]: round(r["cost"], 2) for r in rows},
+                  flush=True)
 
 
 def bench(args: argparse.Namespace) -> None:
@@ -137,12 +255,6 @@ def report(args: argparse.Namespace) -> None:
                     f"{sum(r['person_pauses'] for r in sel) / n_cycles:.2f} | "
                     f"{sum(r['replans'] for r in sel) / n_cycles:.2f} | "
                     f"{sum(r['cycles_moving_inside'] for r in sel)} of {n_cycles} |")
-    lat = []
-    for w in worlds:
-        xs = [x for r in rows if r["world"] == w for x in r["latencies"]]
-        if xs:
-            lat.append(f"{w}: p95 {1000 * float(np.percentile(xs, 95)):.1f} ms, max "
-                       f"{1000 * max(xs):.1f} ms over {len(xs)} re-plans")
     _figure(summary, worlds)
     seeds = sorted({r["seed"] for r in rows})
     cycles = sorted({r["cycles"] for r in rows})
@@ -158,15 +270,103 @@ def report(args: argparse.Namespace) -> None:
         "",
         *lines,
         "",
-        "Re-planning latency inside a cycle (exhaustive remainder search, no steering): "
-        + "; ".join(lat) + ".",
-        "",
         f"![cost against deviation rate](results/{FIGURE.name})",
         "",
+        *_analysis(rows, worlds),
+        *(_decomposition(args.decomposition) if args.decomposition else []),
         args.notes or "",
     ])
     update_docs_section("## Reacting inside the cycle", body, path=DOC)
     print(body)
+
+
+def _paired(rows: list[dict], w: str, dev: float, a: str, b: str) -> str:
+    """Mean ± 95 % interval over seeds of system a's cost minus system b's."""
+    cost = {(r["system"], r["seed"]): r["cost"] for r in rows
+            if (r["world"], r["deviate"]) == (w, dev)}
+    d = [cost[(a, s)] - cost[(b, s)] for (x, s) in cost if x == a and (b, s) in cost]
+    m, half = _ci(d) if d else (math.nan, math.nan)
+    return f"{m:+.2f} ± {half:.2f}"
+
+
+def _analysis(rows: list[dict], worlds: list[str]) -> list[str]:
+    """Paired differences, what the re-plans did and cost, and how long monitoring held the
+    robot, per world and deviation rate."""
+    out = ["Paired over seeds (cost difference, mean ± 95 % interval; negative: the first is "
+           "cheaper), what the re-plans of **both** did (changed: a different rest was chosen; "
+           "expected gain: the expected cost of the rest as planned minus as re-planned, mean "
+           "over the changed ones; motions: pairs whose concurrency changed, recalled from "
+           "memory / steered now / kept, and how many of them replaced the robot's motion) and "
+           "the seconds per cycle monitoring held the robot back (stopped or slowed):", "",
+           "| world | deviation | both - planned | both - reactive | re-plans (changed) | "
+           "expected gain (s) | motions: recalled / steered / kept (used) | robot held "
+           "s / cycle (reactive, both) |", "|---|---|---|---|---|---|---|---|"]
+    for w in worlds:
+        for dev in sorted({r["deviate"] for r in rows if r["world"] == w}):
+            cyc = {sys_: [c for r in rows if (r["world"], r["deviate"], r["system"]) == (
+                w, dev, sys_) for c in r["per_cycle"]] for sys_ in SYSTEMS}
+            qs = [q for c in cyc["both"] for q in c["replans"]]
+            gains = [q["before"] - q["after"] for q in qs if q["changed"] and q["before"]]
+            ms = [m for q in qs for m in q["motions"]]
+            by = {k: sum(m[0].startswith(k) for m in ms) for k in ("recalled", "steered", "kept")}
+            held = [np.mean([c["robot_held_s"] for c in cyc[x]]) if cyc[x] else math.nan
+                    for x in ("reactive", "both")]
+            out.append(
+                f"| {w} | {dev:g} | {_paired(rows, w, dev, 'both', 'planned')} | "
+                f"{_paired(rows, w, dev, 'both', 'reactive')} | {len(qs)} "
+                f"({sum(q['changed'] for q in qs)}) | "
+                f"{np.mean(gains) if gains else 0.0:.2f} | {by['recalled']} / {by['steered']} / "
+                f"{by['kept']} ({sum(bool(m[1]) for m in ms)}) | {held[0]:.2f}, {held[1]:.2f} |")
+    lat = []
+    for w in worlds:
+        sel = [r for r in rows if r["world"] == w]
+        xs = [x for r in sel for x in r["latencies"]]
+        steer = [x for r in sel for x in r.get("steer_latencies", [])]
+        steered = sum(any(m[0] == "steered" for m in q["motions"])
+                      for r in sel for c in r.get("per_cycle", []) for q in c["replans"])
+        if xs:
+            lat.append(f"{w}: p95 {1000 * float(np.percentile(xs, 95)):.1f} ms, max "
+                       f"{1000 * max(xs):.1f} ms over {len(xs)} re-plans, {steered} of which "
+                       f"steered a motion (the motion part: p95 "
+                       f"{1000 * float(np.percentile(steer, 95)) if steer else 0.0:.1f} ms)")
+    return [*out, "", "Re-planning latency inside a cycle (exhaustive remainder search, then "
+            "motions recalled or steered where the concurrency changed; wall clock, torch on "
+            "one thread, on the loaded machine): " + "; ".join(lat) + ".", ""]
+
+
+def _decomposition(path: str) -> list[str]:
+    """The parts of reactive execution on the same cycle 0 (see :data:`PARTS`)."""
+    rows = [json.loads(x) for x in Path(path).read_text().splitlines()]
+    out = ["What each part of reactive execution does on its own (`--decomposition`): cycle 0 "
+           "of **both** planned once and executed by each part, same person, same draws, same "
+           "deviation; difference to open loop paired over (seed, deviation rate) cycles, "
+           "mean ± 95 % interval.", "",
+           "| world | part | cycles | cost | vs open loop | makespan (s) | gamma x spatial | "
+           "robot held (s) | re-plans (changed) | motions steered now (motions replaced) | "
+           "re-plan latency p95 / max (ms) | moving inside S_p (instants) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for w in sorted({r["world"] for r in rows}):
+        base = {(r["deviate"], r["seed"]): r for r in rows
+                if r["world"] == w and r["part"] == "open loop"}
+        for part in PARTS:
+            sel = [r for r in rows if r["world"] == w and r["part"] == part]
+            d = _ci([r["cost"] - base[(r["deviate"], r["seed"])]["cost"] for r in sel])
+            out.append(
+                f"| {w} | {part} | {len(sel)} | {np.mean([r['cost'] for r in sel]):.2f} | "
+                f"{d[0]:+.2f} ± {d[1]:.2f} | {np.mean([r['makespan'] for r in sel]):.2f} | "
+                f"{np.mean([r['cost'] - r['makespan'] for r in sel]):.2f} | "
+                f"{np.mean([r['robot_held_s'] for r in sel]):.2f} | "
+                f"{sum(r['replans'] for r in sel)} ({sum(r['changed'] for r in sel)}) | "
+                f"{sum(r['steered'] for r in sel)} ({sum(r['resteered'] for r in sel)}) | "
+                f"{_latency(sel)} | {sum(r['inside'] for r in sel)} |")
+    return [*out, ""]
+
+
+def _latency(rows: list[dict]) -> str:
+    """p95 / max of the re-plan latencies of ``rows`` in ms ("-": no re-plan)."""
+    xs = [x for r in rows for x in r.get("latencies", [])]
+    return (f"{1000 * float(np.percentile(xs, 95)):.0f} / {1000 * max(xs):.0f}" if xs
+            else "-")
 
 
 def _figure(summary: dict, worlds: list[str]) -> None:
@@ -204,9 +404,11 @@ def main() -> None:
                    default=[0.0, 0.3, 0.6])
     p.add_argument("--runs", default=os.environ.get("RAPIDDS_BENCH_RUNS", "reactive-runs.jsonl"))
     p.add_argument("--report", action="store_true")
+    p.add_argument("--decomposition", default="",
+                   help="Run the per-part decomposition of cycle 0 into this JSONL file.")
     p.add_argument("--notes", default="", help="Text appended to the docs section.")
     args = p.parse_args()
-    (report if args.report else bench)(args)
+    (report if args.report else decompose if args.decomposition else bench)(args)
 
 
 if __name__ == "__main__":

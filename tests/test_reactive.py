@@ -201,9 +201,10 @@ def test_bad_execution_settings_are_one_line_errors(capsys, tmp_path, command, f
 
 
 def _same(rec: dict) -> dict:
-    """A record without what a clock measures (seconds, re-plan latencies)."""
+    """A record without what a clock measures (seconds, re-plan latencies and steering times)."""
     out = stored(rec)
-    out["replans"] = [{k: v for k, v in r.items() if k != "latency_s"} for r in rec["replans"]]
+    out["replans"] = [{k: v for k, v in r.items() if k not in ("latency_s", "steer_s")}
+                      for r in rec["replans"]]
     return out
 
 
@@ -274,3 +275,118 @@ def test_a_replan_can_hand_the_robot_a_task_of_the_person(plans):
             assert any(r["changed"] for r in dep.replans)
             assert (robot_did & mine) <= set(dep.robot)  # it followed a trajectory for it
     assert handed >= 1
+
+
+def test_deviation_kinds_are_those_the_plan_leaves_room_for(plans):
+    from rapidds.schedule import Schedule
+    from rapidds.worlds.reactions import deviation_kinds
+
+    problem = plans[0][0].problem  # fetch: t2 and t3 precede t0 and t1
+    assert deviation_kinds(problem, Schedule(("t2", "t3"), ("t0", "t1"))) == (
+        "order", "pause", "take")
+    # a chain of the person's tasks leaves no other order
+    assert deviation_kinds(problem, Schedule(("t2", "t0"), ("t3", "t1"))) == ("pause", "take")
+    # the robot's only task starts at once: nothing is left to take
+    assert deviation_kinds(problem, Schedule(("t3", "t0", "t1"), ("t2",))) == ("order", "pause")
+
+
+def test_a_deviation_without_room_is_redrawn_and_the_rest_stay_as_drawn():
+    from rapidds.worlds.reactions import ReactionPopulation, draw_deviation
+
+    pop = ReactionPopulation((1.0, 0.1), (0.5, 0.1))
+    kinds_seen, redrawn, deviated = set(), 0, 0
+    for s in range(300):
+        every = draw_deviation(0.6, np.random.default_rng(s), pop)
+        some = draw_deviation(0.6, np.random.default_rng(s), pop, ("pause", "take"))
+        assert (every is None) == (some is None)  # the rate does not depend on the kinds
+        if every is None:
+            continue
+        deviated += 1
+        kinds_seen.add(some.kind)
+        assert some.kind in ("pause", "take")
+        if every.kind == "order":
+            redrawn += 1
+            assert some.instead_of == "order" and some.to_json()["instead_of"] == "order"
+            assert (some.pick, some.task, some.at, some.seconds) == (
+                every.pick, every.task, every.at, every.seconds)
+        else:
+            assert some == every  # a kind with room is drawn as all kinds would draw it
+    assert kinds_seen == {"pause", "take"} and redrawn > 30 and 120 < deviated < 240
+    assert draw_deviation(1.0, np.random.default_rng(0), pop, ()) is None
+
+
+def _steering_cycle(run, plan, deviation, steer_max):
+    """A reactive cycle whose re-plans steer with an empty memory (every changed pair is new)."""
+    from rapidds.loop.execute import CycleMotions, contingency_motions, replan_steering
+    from rapidds.loop.model import workspace_cost
+
+    cfg = run.config.replace(execution="reactive")
+    motions = {**contingency_motions(run.world, run.problem, cfg, 0, run.policy,
+                                     run.model.spatial, plan.best.motions), **plan.best.motions}
+    supply = CycleMotions(motions, {}, replan_steering(run.world, run.problem, cfg, 0,
+                                                       run.policy, run.model.spatial),
+                          workspace_cost(run.world, run.model.spatial))
+    rp = _replanning(run, plan)
+    rp = Replanning(rp.mean, rp.std, {j: m.duration for j, m in motions.items()},
+                    lambda j, c: supply.cost(c, motions[j].trajectory), rp.gamma,
+                    motions=supply, steer_max=steer_max)
+    _, person = _person(run, plan, 0, deviation=deviation)
+    dep = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
+                        PlannedRobot(run.world, motions), beta=1.0, replanning=rp).run()
+    return motions, supply, dep
+
+
+def test_a_replan_steers_a_motion_only_where_the_concurrency_changed(plans):
+    steered = used = 0
+    for run, plan in plans:
+        for dev in (Deviation("take", pick=0.0), Deviation("order", pick=0.0)):
+            motions, supply, dep = _steering_cycle(run, plan, dev, steer_max=4)
+            resteered = {}
+            for q in dep.replans:
+                assert q["steer_s"] >= 0.0 and q["latency_s"] >= q["steer_s"]
+                for m in q["motions"]:
+                    assert m["now"] != m["was"]
+                    assert m["by"] in ("steered", "recalled")  # none over the budget of 4
+                    new = supply.recall((m["task"], frozenset(m["now"])))
+                    assert new is not None and new.concurrent == frozenset(m["now"])
+                    assert m["used"] == (m["value"][1] < m["value"][0] - 1e-9)
+                    steered += m["by"] == "steered"
+                    if m["used"]:
+                        resteered[m["task"]] = new
+            for j, traj in dep.robot.items():  # no monitoring: every motion ran undisturbed
+                want = resteered[j] if j in resteered else motions[j]
+                assert np.array_equal(traj, np.asarray(want.trajectory, float)), j
+            used += len(resteered)
+    assert steered >= 2 and used >= 1, (steered, used)
+
+
+def test_over_the_steering_budget_a_replan_keeps_the_plans_motion(plans):
+    kept = 0
+    for run, plan in plans:
+        motions, _, dep = _steering_cycle(run, plan, Deviation("take", pick=0.0), steer_max=0)
+        for q in dep.replans:
+            assert all(m["by"] == "kept (steering budget)" and "used" not in m
+                       for m in q["motions"])
+            kept += len(q["motions"])
+        for j, traj in dep.robot.items():
+            assert np.array_equal(traj, np.asarray(motions[j].trajectory, float))
+    assert kept >= 1
+
+
+def test_robot_concurrency_is_read_off_the_expected_rest_of_the_cycle(plans):
+    from rapidds.execution.replan import robot_concurrency
+
+    problem = plans[0][0].problem  # fetch: t2 and t3 precede t0 and t1
+    mean = {"robot:t3": 2.0, "robot:t1": 3.0, "human:t0": 4.0}
+    fixed = {"t2": ("human", 0.0, 5.0)}  # the person's t2 runs until 5 s
+    near = robot_concurrency(problem, 0.0, ["t0"], ["t3", "t1"], fixed,
+                             {"human": 5.0, "robot": 0.0}, mean)
+    assert near == {"t3": frozenset({"t2"}), "t1": frozenset({"t0"})}
+    # the person's t0 after the robot's t1 ends: t1 runs beside nothing
+    mean["human:t0"] = 1.0
+    near = robot_concurrency(problem, 0.0, ["t0"], ["t3", "t1"], fixed,
+                             {"human": 9.0, "robot": 0.0}, mean)
+    assert near == {"t3": frozenset({"t2"}), "t1": frozenset()}
+    # an order that cannot finish has no timeline
+    assert robot_concurrency(problem, 0.0, ["t0"], ["t1", "t3"], fixed,
+                             {"human": 5.0, "robot": 0.0}, mean) == {}

@@ -12,18 +12,21 @@ the cycle, :class:`Replanning`). What it returns is the realised cycle as a
 from rapidds.execution.deployment import Deployment, realise
 from rapidds.execution.executor import CycleExecutor, Replanning
 from rapidds.execution.policies import OpenLoop, RobotPolicy, SpeedSeparation, protective_distance
+from rapidds.execution.replan import MotionSupply
 from rapidds.execution.sources import (
     HumanSource,
     PlannedRobot,
     RobotSource,
     RobotView,
     SimulatedHuman,
+    SteerableRobot,
 )
 
 __all__ = [
     "CycleExecutor",
     "Deployment",
     "HumanSource",
+    "MotionSupply",
     "OpenLoop",
     "PlannedRobot",
     "Replanning",
@@ -32,6 +35,7 @@ __all__ = [
     "RobotView",
     "SimulatedHuman",
     "SpeedSeparation",
+    "SteerableRobot",
     "protective_distance",
     "realise",
 ]

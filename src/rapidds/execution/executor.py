@@ -28,8 +28,15 @@ import numpy as np
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Deployment, realise
 from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_distance
-from rapidds.execution.replan import replan_remainder
-from rapidds.execution.sources import HumanSource, RobotSource, RobotView, SimulatedHuman
+from rapidds.execution.replan import MotionSupply, Remainder, replan_remainder, robot_concurrency
+from rapidds.execution.sources import (
+    HumanSource,
+    RobotSource,
+    RobotView,
+    SimulatedHuman,
+    SteerableRobot,
+)
+from rapidds.motion.interface import MotionPlan
 from rapidds.problem import Problem
 from rapidds.schedule import Item, Schedule, Timeline, Wait
 from rapidds.worlds.base import World
@@ -47,7 +54,10 @@ class Replanning:
     mean, std: the person's expected duration and its spread per task (the belief); robot: the
     robot's motion duration per task it has a trajectory for; spatial(j, C): robot task j's
     spatial cost beside the person's tasks C; gamma: the proximity weight; z: a running task
-    overruns past mean + z std (1.2816: the 90 % quantile of a normal)."""
+    overruns past mean + z std (1.2816: the 90 % quantile of a normal); motions: where a re-plan
+    gets a motion for a robot task whose concurrent person's tasks it changed (None: the robot
+    keeps its motions); steer_max: how many such pairs one re-plan may steer anew (the rest keep
+    their motion), which bounds its latency."""
 
     mean: Mapping[str, float]
     std: Mapping[str, float]
@@ -55,6 +65,8 @@ class Replanning:
     spatial: Callable[[str, frozenset[str]], float]
     gamma: float
     z: float = 1.2816
+    motions: MotionSupply | None = None
+    steer_max: int = 1
 
 
 class CycleExecutor:
@@ -85,6 +97,7 @@ class CycleExecutor:
         self._robot_pauses: list[dict[str, Any]] = []
         self._overran: set[str] = set()
         self._claimed: frozenset[str] = frozenset()  # robot tasks the person took
+        self._steered: dict[str, MotionPlan] = {}  # motions re-plans gave the robot
         self._last: tuple[float, np.ndarray] | None = None
         self._vh = 0.0
         self.now = 0.0  # the executor's clock: every instant before it has been run
@@ -222,16 +235,77 @@ class CycleExecutor:
                    for a in AGENTS}
         mean = {f"human:{t}": m for t, m in rp.mean.items()}
         mean.update({f"robot:{t}": d for t, d in rp.robot.items()})
+        mean.update({f"robot:{t}": m.duration for t, m in self._steered.items()})
         rem = replan_remainder(self.problem, now, current, fixed, free, mean,
-                               frozenset(rp.robot), rp.spatial, rp.gamma, self._claimed)
+                               frozenset(rp.robot), self._spatial, rp.gamma, self._claimed)
         changed = (list(rem.human), list(rem.robot)) != (current["human"], current["robot"])
         if changed:
             self.queue = {"human": list(rem.human), "robot": list(rem.robot)}
+        t1 = time.perf_counter()
+        motions = self._resteer(now, rem, fixed, free, mean)
         self.replans.append({
             "time": now, "reason": reason, "task": task, "changed": changed,
             "before": current, "after": {"human": list(rem.human), "robot": list(rem.robot)},
-            "expected_makespan_cost": rem.objective, "evaluated": rem.evaluated,
+            "expected_makespan_cost": rem.objective,
+            "expected_cost_before": rem.current if math.isfinite(rem.current) else None,
+            "evaluated": rem.evaluated,
+            **({"motions": motions, "steer_s": time.perf_counter() - t1}
+               if rp.motions is not None else {}),
             "latency_s": time.perf_counter() - t0})
+
+    def _spatial(self, task: str, near: frozenset[str]) -> float:
+        """Robot task's spatial cost beside the person's tasks ``near``, with the motion it has
+        now (one a re-plan gave it, else the plan's)."""
+        rp = self.replanning
+        assert rp is not None
+        plan = self._steered.get(task)
+        if plan is None or rp.motions is None:
+            return rp.spatial(task, near)
+        return 0.0 if plan.trajectory is None else rp.motions.cost(near, plan.trajectory)
+
+    def _resteer(self, now: float, rem: Remainder,
+                 fixed: Mapping[str, tuple[str, float, float]], free: Mapping[str, float],
+                 mean: Mapping[str, float]) -> list[dict[str, Any]]:
+        """Where the re-planned rest runs a robot task beside other person's tasks than its
+        motion was steered for, a motion for the new (task, set): recalled (steered already,
+        free), else steered now (at most ``steer_max`` a re-plan, one batch; the rest keep
+        theirs). It replaces the robot's when its value d + gamma S against the new set is
+        lower. Pairs whose set did not change keep their motion and are not listed."""
+        rp = self.replanning
+        assert rp is not None
+        supply = rp.motions
+        if supply is None or not isinstance(self.robot, SteerableRobot):
+            return []
+        todo: list[tuple[str, MotionPlan, frozenset[str]]] = []
+        for j, near in robot_concurrency(self.problem, now, rem.human, rem.robot, fixed, free,
+                                         mean).items():
+            have = self._steered.get(j) or supply.planned(j)
+            if have is not None and have.concurrent != near:
+                todo.append((j, have, near))
+        found = {j: supply.recall((j, near)) for j, _, near in todo}
+        fresh = [(j, near) for j, _, near in todo if found[j] is None][:rp.steer_max]
+        steered = dict(zip([j for j, _ in fresh], supply.steer(fresh) if fresh else [],
+                           strict=True))
+
+        def value(plan: MotionPlan, near: frozenset[str]) -> float:
+            far = not near or plan.trajectory is None or rp.gamma == 0
+            return plan.duration + (0.0 if far else rp.gamma * supply.cost(near,
+                                                                           plan.trajectory))
+
+        out = []
+        for j, have, near in todo:
+            new = found[j] or steered.get(j)
+            entry: dict[str, Any] = {
+                "task": j, "was": sorted(have.concurrent), "now": sorted(near),
+                "by": "recalled" if found[j] else "steered" if new else "kept (steering budget)"}
+            if new is not None:
+                entry["value"] = [value(have, near), value(new, near)]
+                entry["used"] = entry["value"][1] < entry["value"][0] - 1e-9
+                if entry["used"]:
+                    self._steered[j] = new
+                    self.robot.follow(new)
+            out.append(entry)
+        return out
 
     def _check_overrun(self, now: float) -> None:
         rp, task = self.replanning, self.running["human"]

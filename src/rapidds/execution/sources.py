@@ -24,7 +24,7 @@ from rapidds.worlds.base import HumanExecution, World, body_points
 from rapidds.worlds.reactions import Deviation, Reaction
 
 __all__ = ["HumanSource", "PlannedRobot", "Progress", "RobotSource", "RobotView",
-           "SimulatedHuman"]
+           "SimulatedHuman", "SteerableRobot"]
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,14 @@ class RobotSource(Protocol):
         ...
 
 
+@runtime_checkable
+class SteerableRobot(RobotSource, Protocol):
+    """A robot source that can be given another motion for a task it has not started (a
+    re-plan steered it for the person's tasks now expected beside it)."""
+
+    def follow(self, plan: MotionPlan) -> None: ...
+
+
 class Progress:
     """One running task: how far along its nominal timing it is. ``lost`` is the time it was
     held back (slowed or paused), so an undisturbed task ends exactly at start + duration, as
@@ -143,15 +151,27 @@ class PlannedRobot:
     _done: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        dt = self.world.dt
-        for j, m in self.motions.items():
-            if m.trajectory is None:
-                continue
-            pts = self.world.robot_points(np.asarray(m.trajectory, float))  # (H, P, d_ws)
-            self._points[j] = pts
-            step = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max(axis=-1) / dt
-            self._speed[j] = np.append(step, 0.0)
+        for m in self.motions.values():
+            self._prepare(m)
         self._rest = self.world.robot_points(np.asarray(self.world.robot_rest(), float)[None])[0]
+
+    def _prepare(self, m: MotionPlan) -> None:
+        """Body points and speeds along a motion's trajectory, for the watching executor."""
+        if m.trajectory is None:
+            return
+        pts = self.world.robot_points(np.asarray(m.trajectory, float))  # (H, P, d_ws)
+        self._points[m.task] = pts
+        step = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max(axis=-1) / self.world.dt
+        self._speed[m.task] = np.append(step, 0.0)
+
+    def follow(self, plan: MotionPlan) -> None:
+        """Do ``plan.task`` with ``plan`` (the task has not started)."""
+        if plan.task in self._done or (self._run is not None and self._run.task == plan.task):
+            raise ValueError(f"the robot already started '{plan.task}'")
+        self.motions = {**self.motions, plan.task: plan}
+        self._points.pop(plan.task, None)
+        self._speed.pop(plan.task, None)
+        self._prepare(plan)
 
     def start(self, task: str, now: float) -> None:
         self._run = Progress(task, now, self.motions[task].duration)

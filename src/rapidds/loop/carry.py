@@ -28,7 +28,7 @@ from rapidds.human.spatial import SpatialModel
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.problem import Problem
 
-__all__ = ["CarriedMotions", "decode_plans", "encode_plans", "spatial_stamps"]
+__all__ = ["CarriedMotions", "decode_plans", "encode_plans", "spatial_stamps", "valid_plans"]
 
 Stamped = tuple[MotionPlan, dict[str, str]]
 """A plan and the fingerprints of the spatial models of its concurrent tasks."""
@@ -48,6 +48,18 @@ def spatial_stamps(spatial: SpatialModel) -> dict[str, str]:
     return out
 
 
+def _current(key: MotionKey, stamped: Stamped, stamps: Mapping[str, str]) -> bool:
+    """Whether a carried plan was steered against the spatial models ``stamps`` fingerprint."""
+    return all(stamped[1].get(t) == stamps.get(t) for t in key[1])
+
+
+def valid_plans(carried: Mapping[MotionKey, Stamped],
+                stamps: Mapping[str, str]) -> dict[MotionKey, MotionPlan]:
+    """The carried plans that are still samples of their steering problem under the spatial
+    models ``stamps`` fingerprint (what :class:`CarriedMotions` would answer a request with)."""
+    return {k: got[0] for k, got in carried.items() if _current(k, got, stamps)}
+
+
 class CarriedMotions:
     """A :class:`~rapidds.motion.interface.MotionModel` that reuses carried plans whose
     concurrent tasks' spatial models are unchanged and steers every other request with
@@ -62,7 +74,7 @@ class CarriedMotions:
 
     def _valid(self, key: MotionKey) -> bool:
         got = self.carried.get(key)
-        return got is not None and all(got[1].get(t) == self.stamps.get(t) for t in key[1])
+        return got is not None and _current(key, got, self.stamps)
 
     def nominal_durations(self, problem: Problem) -> np.ndarray:
         return self.inner.nominal_durations(problem)

@@ -24,7 +24,7 @@ import numpy as np
 from rapidds.errors import CheckpointError, RapiddsError, StateError
 from rapidds.execution import CycleExecutor, HumanSource
 from rapidds.human.spatial import SpatialModel
-from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps
+from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
 from rapidds.loop.comfort import SimulatedComfort, said_and_signalled, simulated_comfort
 from rapidds.loop.config import RunConfig
@@ -36,6 +36,7 @@ from rapidds.loop.execute import (
     cycle_record,
     execute_cycle,
     person_reaction,
+    replan_steering,
 )
 from rapidds.loop.model import (
     HumanModel,
@@ -408,6 +409,8 @@ class AdaptiveRun:
         missing = set(tasks) - set(human)
         if missing:
             raise ValueError(f"no observation of human task(s) {sorted(missing)}")
+        steering = replan_steering(self.world, self.problem, self.config, plan.cycle,
+                                   self.policy, self._spatial())
         dep, self._deviations[plan.cycle] = execute_cycle(
             self.world, self.problem, self.config, plan.cycle, plan.best.schedule,
             plan.best.motions, human, self.teammate, self._reaction,
@@ -416,7 +419,9 @@ class AdaptiveRun:
             spare=contingency_motions(self.world, self.problem, self.config, plan.cycle,
                                       self.policy, self._spatial(), plan.best.motions),
             order=(self.teammate.played_order(plan.cycle)
-                   if isinstance(self.teammate, FreeOrderTeammate) else None))
+                   if isinstance(self.teammate, FreeOrderTeammate) else None),
+            steering=steering, memory=None if steering is None else valid_plans(
+                plan.motions, spatial_stamps(self._spatial())))
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 

@@ -11,19 +11,27 @@ distance they pause until the robot has passed (moved out of it, or stopped: a r
 stopped for them is no threat, so they go on, as people do when a cobot yields).
 
 Deviation model: with probability P per cycle the person deviates once, in one of three ways
-drawn uniformly: another order that precedence allows (at their first choice between two ready
-tasks they take one that is not the plan's next), a mid-cycle pause (during one of their tasks,
-at a random point of it, for a random time), or taking a robot task that has not started and
-that the world lets a person do (at their first choice point where there is one).
+drawn uniformly among those the cycle's plan allows (:func:`deviation_kinds`): another order that
+precedence allows (at their first choice between two ready tasks they take one that is not the
+plan's next), a mid-cycle pause (during one of their tasks, at a random point of it, for a random
+time), or taking a robot task that has not started and that the world lets a person do (at
+their first choice point where there is one). A kind the plan leaves no room for (painting's
+person does a chain of tasks: no other order) is redrawn among the others, so P is the rate at
+which people deviate, not at which a deviation is drawn and then cannot happen.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
+
+from rapidds.problem import Problem
+from rapidds.schedule import Schedule
+from rapidds.scheduler.operators import closure
 
 __all__ = [
     "DEVIATIONS",
@@ -33,6 +41,7 @@ __all__ = [
     "ReactiveCell",
     "SafetyLimits",
     "cell_reactions",
+    "deviation_kinds",
     "draw_deviation",
 ]
 
@@ -104,21 +113,48 @@ class Deviation:
     task: int = 0
     at: float = 0.5
     seconds: float = 0.0
+    instead_of: DeviationKind | None = None  # the kind drawn first, when the plan had no room
 
     def to_json(self) -> dict[str, Any]:
-        return {"kind": self.kind, **({"seconds": self.seconds} if self.kind == "pause" else {})}
+        return {"kind": self.kind, **({"seconds": self.seconds} if self.kind == "pause" else {}),
+                **({"instead_of": self.instead_of} if self.instead_of else {})}
 
 
-def draw_deviation(p: float, rng: np.random.Generator,
-                   population: ReactionPopulation) -> Deviation | None:
+def deviation_kinds(problem: Problem, schedule: Schedule) -> tuple[DeviationKind, ...]:
+    """The deviations a cycle of ``schedule`` leaves room for, in :data:`DEVIATIONS` order:
+    "order" when two of the person's tasks are not ordered by precedence (transitively), so
+    that both can be ready at once; "pause" when the person has a task; "take" when a robot task
+    a person may do has not started at the person's first choice (every robot task but the one
+    the robot starts at once: its first, when nothing gates it)."""
+    mine = schedule.tasks("human")
+    after = closure(problem.ids, problem.precedence)
+    free = any(b not in after[a] and a not in after[b]
+               for k, a in enumerate(mine) for b in mine[k + 1:])
+    seq = schedule.sequence("robot")
+    first = seq[0] if seq and isinstance(seq[0], str) and not problem.preceding[seq[0]] else None
+    takeable = any(problem.task(t).can("human") and t != first for t in schedule.tasks("robot"))
+    room = {"order": free, "pause": bool(mine), "take": takeable}
+    return tuple(k for k in DEVIATIONS if room[k])
+
+
+def draw_deviation(p: float, rng: np.random.Generator, population: ReactionPopulation,
+                   kinds: Sequence[DeviationKind] = DEVIATIONS) -> Deviation | None:
     """With probability ``p``, one deviation for this cycle (always the same draws, so a
-    cycle's numbers do not depend on whether it deviates)."""
+    cycle's numbers do not depend on whether it deviates). ``kinds``: those the cycle has room
+    for (:func:`deviation_kinds`); a kind drawn outside them is redrawn among them from the
+    same number (where in its third of [0, 1) it fell), so every draw of a kind that has room
+    is the one all kinds would give. None when no kind has room."""
     u, kind, pick, task, at, pause = rng.random(6)
-    if u >= p:
+    if u >= p or not kinds:
         return None
+    k = min(int(kind * 3), 2)
+    drawn: DeviationKind = DEVIATIONS[k]
+    chosen = drawn
+    if drawn not in kinds:
+        chosen = kinds[min(int((kind * 3 - k) * len(kinds)), len(kinds) - 1)]
     lo, hi = population.pause
-    return Deviation(DEVIATIONS[min(int(kind * 3), 2)], float(pick), int(task * 1000),
-                     0.2 + 0.6 * float(at), lo + (hi - lo) * float(pause))
+    return Deviation(chosen, float(pick), int(task * 1000), 0.2 + 0.6 * float(at),
+                     lo + (hi - lo) * float(pause), None if chosen == drawn else drawn)
 
 
 @runtime_checkable
