@@ -428,16 +428,21 @@ class AdaptiveRun:
     def _live_executor(self, plan: CyclePlan) -> Callable[[HumanSource], CycleExecutor]:
         """What builds the executor of ``plan`` around a live person (every restart of the
         cycle builds a fresh one): the robot's spare motions are steered once, here, before
-        the cycle is shown; a live cycle has no time limit but the person's patience."""
+        the cycle is shown; its re-plans steer where the concurrency changed as a simulated
+        cycle's do; a live cycle has no time limit but the person's patience."""
         motions = {**contingency_motions(self.world, self.problem, self.config, plan.cycle,
                                          self.policy, self._spatial(), plan.best.motions),
                    **plan.best.motions}
         beliefs = (self.model.temporal.mean(), self.model.temporal.std())
         spatial, beta = self._spatial(), self.model.spatial.config.beta
+        steering = replan_steering(self.world, self.problem, self.config, plan.cycle,
+                                   self.policy, spatial)
+        memory = None if steering is None else valid_plans(plan.motions, spatial_stamps(spatial))
 
         def build(person: HumanSource) -> CycleExecutor:
             return cycle_executor(self.world, self.problem, self.config, plan.best.schedule,
-                                  motions, person, beliefs, spatial, beta, max_time=math.inf)
+                                  motions, person, beliefs, spatial, beta, max_time=math.inf,
+                                  steering=steering, memory=memory)
 
         return build
 
