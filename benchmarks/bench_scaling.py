@@ -44,7 +44,8 @@ BASELINE = "6967d1e"  # the last commit before the scaling work (GA of docs/desi
 
 def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
     """One GA run on instance (n, r) of the benchmark generator, with the ``rapidds`` found on
-    the path. Prints ``P seconds objective rss_mb`` per improvement, then ``R {json}``."""
+    the path. Prints ``P seconds objective rss_mb cpu_seconds`` per improvement, then
+    ``R {json}``."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_scheduler import human_samples, random_instance
 
@@ -56,7 +57,7 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
     config = GAConfig(**overrides)  # type: ignore[arg-type]
     samples, mean = human_samples(rng, problem, config.samples)
     best = [float("inf")]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:  # where the GA calls Algorithm 2: its evaluator since the split of ga.py
         import rapidds.scheduler.evaluator as ga_module
     except ImportError:  # an older checkout (--base)
@@ -68,7 +69,8 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
         low = min((e.objective for e in out), default=float("inf"))
         if low < best[0]:
             best[0] = low
-            print(f"P {time.perf_counter() - t0:.4f} {low!r} {_rss_mb():.0f}", flush=True)
+            print(f"P {time.perf_counter() - t0:.4f} {low!r} {_rss_mb():.0f} "
+                  f"{time.process_time() - c0:.4f}", flush=True)
         return out
 
     ga_module.evaluate_population = traced  # type: ignore[assignment]
@@ -77,6 +79,7 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
         "objective": result.best.objective, "makespan": result.best.makespan_mean,
         "seconds": result.seconds, "evaluations": result.evaluations,
         "generations": result.generations_run, "rss_mb": _rss_mb(),
+        "cpu": time.process_time() - c0,
     }), flush=True)
 
 
@@ -98,11 +101,18 @@ class Run:
     capped: bool = False
     evaluations: int = 0
     rss_mb: float = float("nan")
+    cpu: float = float("nan")
     trace: list[tuple[float, float]] = field(default_factory=list)
+    cpu_trace: list[float] = field(default_factory=list)  # CPU seconds at each trace entry
 
     def time_to(self, target: float) -> float:
         """Seconds until the best objective was within ``target``; inf if never."""
         return next((t for t, v in self.trace if v <= target + 1e-9), float("inf"))
+
+    def cpu_to(self, target: float) -> float:
+        """CPU seconds until the best objective was within ``target``; inf if never."""
+        return next((c for (_, v), c in zip(self.trace, self.cpu_trace, strict=True)
+                     if v <= target + 1e-9), float("inf"))
 
 
 def run(src: Path, code: str, n: int, r: int, std: float, cap: float,
@@ -121,16 +131,19 @@ def run(src: Path, code: str, n: int, r: int, std: float, cap: float,
             out.capped, out.seconds = True, time.perf_counter() - t0
     for line in stdout.splitlines():
         if line.startswith("P "):
-            _, t, v, rss = line.split()
+            _, t, v, rss, cpu = line.split()
             out.trace.append((float(t), float(v)))
+            out.cpu_trace.append(float(cpu))
             out.objective, out.rss_mb = float(v), float(rss)
         elif line.startswith("R "):
             res = json.loads(line[2:])
             out.objective, out.seconds = res["objective"], res["seconds"]
             out.evaluations, out.rss_mb = res["evaluations"], res["rss_mb"]
+            out.cpu = res["cpu"]
     if out.capped:
         out.seconds = cap
-    print(f"  {code:>24} n={n} r={r} std={std}: {out.objective:.4f} in {out.seconds:.1f} s"
+    print(f"  {code:>24} n={n} r={r} std={std}: {out.objective:.4f} in {out.seconds:.1f} s "
+          f"({out.cpu:.1f} CPU s, load {load_average()})"
           f"{' (capped)' if out.capped else ''}, {out.rss_mb:.0f} MB", file=sys.stderr)
     return out
 

@@ -11,12 +11,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rapidds.motion.interface import TrajectoryCache
+from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
 from rapidds.problem import Problem
-from rapidds.schedule import Schedule
+from rapidds.schedule import Schedule, ScheduleBatch
 from rapidds.scheduler.active import AllocationOrders
 from rapidds.scheduler.config import GAConfig
-from rapidds.scheduler.diversity import AllocationHistory
+from rapidds.scheduler.diversity import AllocationHistory, diversity_term
 from rapidds.scheduler.evaluate import Evaluation, evaluate_population
 
 _NONE = np.empty(0)
@@ -76,6 +76,28 @@ class Evaluator:
         self.best_time = 0.0
         self.improvements: list[tuple[float, float]] = []
         self.searched: set[int] = set()  # allocations whose order was searched, as bit masks
+        self._sample_mean = samples.mean(axis=0)[None]  # (1, n): the row of lower_bound
+
+    @property
+    def bounded(self) -> bool:
+        """Whether :meth:`lower_bound` bounds the objective: robot durations that no overlap
+        changes and no spatial cost (a :class:`FixedDurationMotion`)."""
+        return isinstance(self.cache.motion, FixedDurationMotion)
+
+    def lower_bound(self, schedules: Sequence[Schedule]) -> np.ndarray:
+        """(B,) a lower bound of each schedule's objective where :attr:`bounded`: its
+        makespan on the samples' mean durations plus lam z_d; inf where it deadlocks. A
+        makespan is a max of sums of durations, so convex in them, and the mean of the K
+        samples' makespans is at least the makespan of their mean (Jensen). One timeline row
+        instead of K + 1 and no overlap loop: about a fifteenth of an evaluation."""
+        if not schedules:
+            return np.empty(0)
+        batch = ScheduleBatch(self.problem, schedules)
+        _, finish, feasible = batch.simulate(batch.durations(self._sample_mean, self.d_init))
+        z_d = diversity_term(self.problem, self.history)
+        bound = finish[:, :, 0].max(axis=1) + self.lam * np.array([z_d(s) for s in schedules])
+        bound[~feasible] = math.inf
+        return bound
 
     def late(self) -> bool:
         return time.perf_counter() > self.deadline
