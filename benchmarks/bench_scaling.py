@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_scaling.py --quick         # 8-32 tasks, one instance
     .venv/bin/python benchmarks/bench_scaling.py --baseline REF  # compare with another commit
     .venv/bin/python benchmarks/bench_scaling.py --ladder 32     # each commit of the work
+    .venv/bin/python benchmarks/bench_scaling.py --big --baseline REF  # 32-128 tasks, CPU s
 
 Each GA run is a subprocess (``--worker``) with ``PYTHONPATH`` on the sources it measures: the
 baseline's come from ``git archive REF src``, the current ones from this tree; the instances
@@ -305,6 +306,63 @@ def ladder(n: int, instances: int, cap: float, load: str) -> str:
     return "\n".join(out)
 
 
+# ---------------------------------------------------------------------------------- big
+
+BIG = {32: 3, 64: 4, 128: 2}  # instances per size
+BIG_SECTION = "## GA on big jobs: the screened polish"
+
+
+def cp_bound(n: int, r: int, seconds: float) -> float:
+    """CP-SAT's lower bound on the makespan of instance (n, r) on the mean of the worker's
+    samples: a lower bound on every schedule's expected makespan (Jensen: a makespan is
+    convex in the durations), up to CP-SAT's rounding to 1/100 s."""
+    from bench_scheduler import human_samples, random_instance
+
+    from rapidds.scheduler import solve_exact
+
+    rng = np.random.default_rng(17 * n + r)
+    problem = random_instance(rng, n, std_frac=0.15)
+    samples, _ = human_samples(rng, problem, 64)
+    mean = samples.mean(axis=0)
+    return solve_exact(problem, time_limit_s=seconds, human_mean=mean, load_bound=True).bound
+
+
+def big(baseline: str, cp_seconds: float) -> str:
+    """The default GA of ``baseline`` and of this tree on the 32-128-task stochastic instances,
+    alternating run by run: whole-run wall and CPU seconds, wall and CPU seconds to within
+    1 % of the best known (the better final of the two), and the gap to CP-SAT's bound."""
+    load0 = load_average()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        old_src = baseline_sources(baseline, Path(tmp))
+        new_src = Path(tmp) / "new" / "src"
+        shutil.copytree(ROOT / "src", new_src, ignore=shutil.ignore_patterns("__pycache__"))
+        for n, count in BIG.items():
+            for r in range(count):
+                old = run(old_src, "base", n, r, 0.15, 600)
+                new = run(new_src, "this tree", n, r, 0.15, 600)
+                rows.append((n, r, old, new, cp_bound(n, r, cp_seconds)))
+    out = [f"Default `GAConfig`, K = 64, stochastic instances (std 15 %) of `bench_scaling.py`, "
+           f"base = `{baseline}` and this tree alternating run by run in fresh processes "
+           f"(`bench_scaling.py --big`), {os.cpu_count()} cores ({cpu_model()}) shared with "
+           f"other sessions; 1-min load average {load0} at start, {load_average()} at end. "
+           "Best known = the better final objective of the two runs; \"to 1 %\" = until "
+           "within 1 % of it; CP-SAT bound = CP-SAT's lower bound on the makespan on the "
+           f"samples' mean durations ({cp_seconds:.0f} s, 1 worker), a lower bound on every "
+           "schedule's expected makespan.", "",
+           "| tasks | inst. | code | wall s | CPU s | to 1 %: wall s | CPU s | final vs best "
+           "| gap to CP-SAT bound | evaluations |",
+           "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for n, r, old, new, bound in rows:
+        best = min(old.objective, new.objective)
+        for x in (old, new):
+            out.append(f"| {n} | {r} | {x.code} | {_fmt_s(x.seconds, x.capped)} | "
+                       f"{x.cpu:.1f} | {_fmt_s(x.time_to(1.01 * best))} | "
+                       f"{_fmt_s(x.cpu_to(1.01 * best))} | {_pct(x.objective / best - 1)} | "
+                       f"{_pct(x.objective / bound - 1)} | {x.evaluations:,} |")
+    return "\n".join(out)
+
+
 # --------------------------------------------------------------------------------- main
 
 
@@ -320,7 +378,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ladder", type=int, metavar="N", default=0,
                         help="instead: each commit of the work, one by one, on N-task jobs")
     parser.add_argument("--instances", type=int, default=2, help="instances for --ladder")
+    parser.add_argument("--big", action="store_true",
+                        help="instead: 32-128 tasks against --baseline, CPU seconds beside")
+    parser.add_argument("--cp-seconds", type=float, default=30.0, help="CP-SAT's limit, --big")
     args = parser.parse_args(argv)
+    if args.big:
+        sys.path.insert(0, str(ROOT / "src"))
+        text = big(args.baseline, args.cp_seconds)
+        print(text)
+        if not args.no_write:
+            update_docs_section(BIG_SECTION, text)
+        return 0
     if args.ladder:
         text = ladder(args.ladder, args.instances, 600, load_average())
         print(text)
