@@ -107,7 +107,7 @@ class Evaluator:
         ``order_search_nodes``, of the shortest order of each allocation among them not met
         before."""
         if self.config.order_search_nodes:
-            schedules = [*schedules, *self._shortest_orders(schedules)]
+            schedules = [*schedules, *self.shortest_orders(schedules)]
         new = [s for s in dict.fromkeys(schedules) if s not in self.evaluated]
         full: dict[Schedule, Evaluation] = {}
         if new:
@@ -134,7 +134,7 @@ class Evaluator:
             self.gamma, self.lam, self.history, self.config.max_overlap_iters,
         )
 
-    def _shortest_orders(self, schedules: Sequence[Schedule]) -> list[Schedule]:
+    def shortest_orders(self, schedules: Sequence[Schedule]) -> list[Schedule]:
         """The shortest order found by :meth:`AllocationOrders.search` for each allocation of
         ``schedules`` not searched before. Without waits: they only delay, and the first
         schedule met with an allocation may carry any."""

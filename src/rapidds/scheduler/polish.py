@@ -116,8 +116,8 @@ def polish(ops: Operators, config: GAConfig, start: Evaluation, evaluator: Evalu
                                 config.polish_window)
         limit = current.objective - 1e-12 * max(1.0, abs(current.objective))
         best = None
-        for chunk in (screened(candidates, evaluator, limit, config.polish_screen_chunk)
-                      if screen else [candidates] if candidates else []):
+        for chunk in (screened(candidates, evaluator, limit, config) if screen
+                      else [candidates] if candidates else []):
             best = min(evaluator.evaluate(chunk), key=lambda e: e.objective)
             if best.objective < limit:
                 break
@@ -127,17 +127,23 @@ def polish(ops: Operators, config: GAConfig, start: Evaluation, evaluator: Evalu
     return current
 
 
-def screened(candidates: list[Schedule], evaluator: Evaluator, limit: float, chunk: int
+def screened(candidates: list[Schedule], evaluator: Evaluator, limit: float, config: GAConfig
              ) -> Iterator[list[Schedule]]:
     """``candidates`` whose :meth:`Evaluator.lower_bound` is below ``limit``, most promising
-    first, ``chunk`` at a time. The others cannot improve on ``limit``: on 64 tasks about half
-    of a neighbourhood, whose full evaluation (and the order search of each new allocation)
-    the polish then skips. The bound's ranking puts the best neighbour first in most passes."""
+    first, ``polish_screen_chunk`` at a time; with ``polish_screen_orders`` (and the order
+    search on), first the shortest orders of every allocation among all ``candidates`` not
+    searched before. The others cannot improve on ``limit``: on 64 tasks about half of a
+    neighbourhood, whose full evaluation the polish then skips. The bound's ranking puts the
+    best neighbour first in most passes."""
+    if config.polish_screen_orders and config.order_search_nodes:
+        orders = evaluator.shortest_orders(candidates)  # what evaluating them all would add
+        if orders:
+            yield orders
     bound = evaluator.lower_bound(candidates)
     slack = 1e-9 * max(1.0, abs(limit))  # rounding of the bound's sums against the samples'
     order = [int(k) for k in np.argsort(bound, kind="stable") if bound[k] < limit + slack]
-    for lo in range(0, len(order), chunk):
-        yield [candidates[k] for k in order[lo : lo + chunk]]
+    for lo in range(0, len(order), config.polish_screen_chunk):
+        yield [candidates[k] for k in order[lo : lo + config.polish_screen_chunk]]
 
 
 def polish_runners_up(ops: Operators, config: GAConfig, evaluator: Evaluator,
