@@ -45,7 +45,7 @@ def test_lower_bound_is_below_every_objective() -> None:
     rng = random.Random(0)
     schedules = list(dict.fromkeys(list_schedule(ops, rng, mean, ev.d_init) for _ in range(40)))
     schedules += polishing.neighbours(ops, schedules[0])
-    bound = ev.lower_bound(schedules)
+    bound = ev.lower_bounds(schedules)[0]
     objective = np.array([e.objective for e in ev.evaluate(schedules)])
     feasible = np.isfinite(objective)
     assert feasible.sum() > 100

@@ -80,24 +80,30 @@ class Evaluator:
 
     @property
     def bounded(self) -> bool:
-        """Whether :meth:`lower_bound` bounds the objective: robot durations that no overlap
+        """Whether :meth:`lower_bounds` bound the objective: robot durations that no overlap
         changes and no spatial cost (a :class:`FixedDurationMotion`)."""
         return isinstance(self.cache.motion, FixedDurationMotion)
 
-    def lower_bound(self, schedules: Sequence[Schedule]) -> np.ndarray:
-        """(B,) a lower bound of each schedule's objective where :attr:`bounded`: its
-        makespan on the samples' mean durations plus lam z_d; inf where it deadlocks. A
+    def lower_bounds(self, schedules: Sequence[Schedule]) -> tuple[np.ndarray, np.ndarray]:
+        """Two (B,) lower bounds of objectives where :attr:`bounded`, both on the samples'
+        mean durations plus lam z_d: each schedule's makespan (inf where it deadlocks), and
+        the larger agent's load, which bounds every order of the schedule's allocation. A
         makespan is a max of sums of durations, so convex in them, and the mean of the K
         samples' makespans is at least the makespan of their mean (Jensen). One timeline row
         instead of K + 1 and no overlap loop: about a fifteenth of an evaluation."""
         if not schedules:
-            return np.empty(0)
+            return np.empty(0), np.empty(0)
         batch = ScheduleBatch(self.problem, schedules)
-        _, finish, feasible = batch.simulate(batch.durations(self._sample_mean, self.d_init))
+        durations = batch.durations(self._sample_mean, self.d_init)
+        _, finish, feasible = batch.simulate(durations)
         z_d = diversity_term(self.problem, self.history)
-        bound = finish[:, :, 0].max(axis=1) + self.lam * np.array([z_d(s) for s in schedules])
+        extra = self.lam * np.array([z_d(s) for s in schedules])
+        bound = finish[:, :, 0].max(axis=1) + extra
         bound[~feasible] = math.inf
-        return bound
+        d = durations[:, :, 0]
+        load = np.maximum(np.where(batch.human, d, 0.0).sum(axis=1),
+                          np.where(batch.human, 0.0, d).sum(axis=1)) + extra
+        return bound, load
 
     def late(self) -> bool:
         return time.perf_counter() > self.deadline

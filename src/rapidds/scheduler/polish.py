@@ -129,18 +129,21 @@ def polish(ops: Operators, config: GAConfig, start: Evaluation, evaluator: Evalu
 
 def screened(candidates: list[Schedule], evaluator: Evaluator, limit: float, config: GAConfig
              ) -> Iterator[list[Schedule]]:
-    """``candidates`` whose :meth:`Evaluator.lower_bound` is below ``limit``, most promising
-    first, ``polish_screen_chunk`` at a time; with ``polish_screen_orders`` (and the order
-    search on), first the shortest orders of every allocation among all ``candidates`` not
-    searched before. The others cannot improve on ``limit``: on 64 tasks about half of a
-    neighbourhood, whose full evaluation the polish then skips. The bound's ranking puts the
-    best neighbour first in most passes."""
+    """``candidates`` whose lower bound (:meth:`Evaluator.lower_bounds`) is below ``limit``,
+    most promising first, ``polish_screen_chunk`` at a time; with ``polish_screen_orders``
+    (and the order search on), first the shortest orders of every allocation among all
+    ``candidates`` not searched before whose agent-load bound is below ``limit``. The others
+    cannot improve on ``limit``: on 64 tasks about half of a neighbourhood, whose full
+    evaluation the polish then skips. The bound's ranking puts the best neighbour first in
+    most passes."""
+    bound, load = evaluator.lower_bounds(candidates)
+    slack = 1e-9 * max(1.0, abs(limit))  # rounding of the bounds' sums against the samples'
     if config.polish_screen_orders and config.order_search_nodes:
-        orders = evaluator.shortest_orders(candidates)  # what evaluating them all would add
+        # what evaluating them all would add, less the allocations whose load cannot improve
+        orders = evaluator.shortest_orders([s for s, b in zip(candidates, load, strict=True)
+                                            if b < limit + slack])
         if orders:
             yield orders
-    bound = evaluator.lower_bound(candidates)
-    slack = 1e-9 * max(1.0, abs(limit))  # rounding of the bound's sums against the samples'
     order = [int(k) for k in np.argsort(bound, kind="stable") if bound[k] < limit + slack]
     for lo in range(0, len(order), config.polish_screen_chunk):
         yield [candidates[k] for k in order[lo : lo + config.polish_screen_chunk]]
