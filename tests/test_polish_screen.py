@@ -45,12 +45,14 @@ def test_lower_bound_is_below_every_objective() -> None:
     rng = random.Random(0)
     schedules = list(dict.fromkeys(list_schedule(ops, rng, mean, ev.d_init) for _ in range(40)))
     schedules += polishing.neighbours(ops, schedules[0])
-    bound = ev.lower_bounds(schedules)[0]
+    bound, load = ev.lower_bounds(schedules)
     objective = np.array([e.objective for e in ev.evaluate(schedules)])
     feasible = np.isfinite(objective)
     assert feasible.sum() > 100
     assert np.array_equal(np.isfinite(bound), feasible)
     assert np.all(bound[feasible] <= objective[feasible] + 1e-9)
+    assert np.all(load[feasible] <= bound[feasible] + 1e-9)  # an agent's load never overlaps
+    assert np.all(np.isfinite(load))  # a deadlocked order's allocation still has its loads
     assert np.any(bound[feasible] > objective[feasible] - 1e-3 * objective[feasible]), \
         "a bound this loose would screen nothing"
 

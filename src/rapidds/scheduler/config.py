@@ -55,8 +55,9 @@ class GAConfig(Settings):
             A reorder of one agent often helps only together with a matching reorder of the
             other, and a moved task needs an order that suits its new allocation.
         polish: best-improvement local search over the whole single-step neighbourhood (see
-            :meth:`~rapidds.scheduler.ga.GeneticScheduler.neighbours`), one batch per pass,
-            applied to the best of each stalled population and to the final best. It costs
+            :meth:`~rapidds.scheduler.ga.GeneticScheduler.neighbours`), one batch per pass
+            (screened on big jobs, see ``polish_screen_chunk``), applied to the best of each
+            stalled population and to the final best. It costs
             O(n^2) evaluations per pass, and with a diffusion motion model as many new motion
             requests at most; turn it off where those are expensive.
         polish_passes: cap on the local-search passes of one polish.
