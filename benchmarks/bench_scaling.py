@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_scaling.py --quick         # 8-32 tasks, one instance
     .venv/bin/python benchmarks/bench_scaling.py --baseline REF  # compare with another commit
     .venv/bin/python benchmarks/bench_scaling.py --ladder 32     # each commit of the work
+    .venv/bin/python benchmarks/bench_scaling.py --big --baseline REF  # 32-128 tasks, CPU s
 
 Each GA run is a subprocess (``--worker``) with ``PYTHONPATH`` on the sources it measures: the
 baseline's come from ``git archive REF src``, the current ones from this tree; the instances
@@ -44,7 +45,8 @@ BASELINE = "6967d1e"  # the last commit before the scaling work (GA of docs/desi
 
 def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
     """One GA run on instance (n, r) of the benchmark generator, with the ``rapidds`` found on
-    the path. Prints ``P seconds objective rss_mb`` per improvement, then ``R {json}``."""
+    the path. Prints ``P seconds objective rss_mb cpu_seconds`` per improvement, then
+    ``R {json}``."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_scheduler import human_samples, random_instance
 
@@ -56,7 +58,7 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
     config = GAConfig(**overrides)  # type: ignore[arg-type]
     samples, mean = human_samples(rng, problem, config.samples)
     best = [float("inf")]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:  # where the GA calls Algorithm 2: its evaluator since the split of ga.py
         import rapidds.scheduler.evaluator as ga_module
     except ImportError:  # an older checkout (--base)
@@ -68,7 +70,8 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
         low = min((e.objective for e in out), default=float("inf"))
         if low < best[0]:
             best[0] = low
-            print(f"P {time.perf_counter() - t0:.4f} {low!r} {_rss_mb():.0f}", flush=True)
+            print(f"P {time.perf_counter() - t0:.4f} {low!r} {_rss_mb():.0f} "
+                  f"{time.process_time() - c0:.4f}", flush=True)
         return out
 
     ga_module.evaluate_population = traced  # type: ignore[assignment]
@@ -77,6 +80,7 @@ def worker(n: int, r: int, std: float, overrides: dict[str, object]) -> None:
         "objective": result.best.objective, "makespan": result.best.makespan_mean,
         "seconds": result.seconds, "evaluations": result.evaluations,
         "generations": result.generations_run, "rss_mb": _rss_mb(),
+        "cpu": time.process_time() - c0,
     }), flush=True)
 
 
@@ -98,11 +102,18 @@ class Run:
     capped: bool = False
     evaluations: int = 0
     rss_mb: float = float("nan")
+    cpu: float = float("nan")
     trace: list[tuple[float, float]] = field(default_factory=list)
+    cpu_trace: list[float] = field(default_factory=list)  # CPU seconds at each trace entry
 
     def time_to(self, target: float) -> float:
         """Seconds until the best objective was within ``target``; inf if never."""
         return next((t for t, v in self.trace if v <= target + 1e-9), float("inf"))
+
+    def cpu_to(self, target: float) -> float:
+        """CPU seconds until the best objective was within ``target``; inf if never."""
+        return next((c for (_, v), c in zip(self.trace, self.cpu_trace, strict=True)
+                     if v <= target + 1e-9), float("inf"))
 
 
 def run(src: Path, code: str, n: int, r: int, std: float, cap: float,
@@ -121,16 +132,19 @@ def run(src: Path, code: str, n: int, r: int, std: float, cap: float,
             out.capped, out.seconds = True, time.perf_counter() - t0
     for line in stdout.splitlines():
         if line.startswith("P "):
-            _, t, v, rss = line.split()
+            _, t, v, rss, cpu = line.split()
             out.trace.append((float(t), float(v)))
+            out.cpu_trace.append(float(cpu))
             out.objective, out.rss_mb = float(v), float(rss)
         elif line.startswith("R "):
             res = json.loads(line[2:])
             out.objective, out.seconds = res["objective"], res["seconds"]
             out.evaluations, out.rss_mb = res["evaluations"], res["rss_mb"]
+            out.cpu = res["cpu"]
     if out.capped:
         out.seconds = cap
-    print(f"  {code:>24} n={n} r={r} std={std}: {out.objective:.4f} in {out.seconds:.1f} s"
+    print(f"  {code:>24} n={n} r={r} std={std}: {out.objective:.4f} in {out.seconds:.1f} s "
+          f"({out.cpu:.1f} CPU s, load {load_average()})"
           f"{' (capped)' if out.capped else ''}, {out.rss_mb:.0f} MB", file=sys.stderr)
     return out
 
@@ -292,6 +306,62 @@ def ladder(n: int, instances: int, cap: float, load: str) -> str:
     return "\n".join(out)
 
 
+# ---------------------------------------------------------------------------------- big
+
+BIG_SECTION = "## GA on big jobs: the screened polish"
+
+
+def cp_bound(n: int, r: int, seconds: float) -> float:
+    """CP-SAT's lower bound on the makespan of instance (n, r) on the mean of the worker's
+    samples: a lower bound on every schedule's expected makespan (Jensen: a makespan is
+    convex in the durations), up to CP-SAT's rounding to 1/100 s."""
+    from bench_scheduler import human_samples, random_instance
+
+    from rapidds.scheduler import solve_exact
+
+    rng = np.random.default_rng(17 * n + r)
+    problem = random_instance(rng, n, std_frac=0.15)
+    samples, _ = human_samples(rng, problem, 64)
+    mean = samples.mean(axis=0)
+    return solve_exact(problem, time_limit_s=seconds, human_mean=mean, load_bound=True).bound
+
+
+def big(baseline: str, cp_seconds: float, sizes: dict[int, int]) -> str:
+    """The default GA of ``baseline`` and of this tree on the 32-128-task stochastic instances,
+    alternating run by run: whole-run wall and CPU seconds, wall and CPU seconds to within
+    1 % of the best known (the better final of the two), and the gap to CP-SAT's bound."""
+    load0 = load_average()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        old_src = baseline_sources(baseline, Path(tmp))
+        new_src = Path(tmp) / "new" / "src"
+        shutil.copytree(ROOT / "src", new_src, ignore=shutil.ignore_patterns("__pycache__"))
+        for n, count in sizes.items():
+            for r in range(count):
+                old = run(old_src, "base", n, r, 0.15, 600)
+                new = run(new_src, "this tree", n, r, 0.15, 600)
+                rows.append((n, r, old, new, cp_bound(n, r, cp_seconds)))
+    out = [f"Default `GAConfig`, K = 64, stochastic instances (std 15 %) of `bench_scaling.py`, "
+           f"base = `{baseline}` and this tree alternating run by run in fresh processes "
+           f"(`bench_scaling.py --big`), {os.cpu_count()} cores ({cpu_model()}) shared with "
+           f"other sessions; 1-min load average {load0} at start, {load_average()} at end. "
+           "Best known = the better final objective of the two runs; \"to 1 %\" = until "
+           "within 1 % of it; CP-SAT bound = CP-SAT's lower bound on the makespan on the "
+           f"samples' mean durations ({cp_seconds:.0f} s, 1 worker), a lower bound on every "
+           "schedule's expected makespan.", "",
+           "| tasks | inst. | code | wall s | CPU s | to 1 %: wall s | CPU s | final vs best "
+           "| gap to CP-SAT bound | evaluations |",
+           "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for n, r, old, new, bound in rows:
+        best = min(old.objective, new.objective)
+        for x in (old, new):
+            out.append(f"| {n} | {r} | {x.code} | {_fmt_s(x.seconds, x.capped)} | "
+                       f"{x.cpu:.1f} | {_fmt_s(x.time_to(1.01 * best))} | "
+                       f"{_fmt_s(x.cpu_to(1.01 * best))} | {_pct(x.objective / best - 1)} | "
+                       f"{_pct(x.objective / bound - 1)} | {x.evaluations:,} |")
+    return "\n".join(out)
+
+
 # --------------------------------------------------------------------------------- main
 
 
@@ -307,7 +377,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ladder", type=int, metavar="N", default=0,
                         help="instead: each commit of the work, one by one, on N-task jobs")
     parser.add_argument("--instances", type=int, default=2, help="instances for --ladder")
+    parser.add_argument("--big", action="store_true",
+                        help="instead: 32-128 tasks against --baseline, CPU seconds beside")
+    parser.add_argument("--cp-seconds", type=float, default=30.0, help="CP-SAT's limit, --big")
+    parser.add_argument("--big-sizes", default="32:3,64:4,128:2",
+                        help="tasks:instances for --big, comma separated")
     args = parser.parse_args(argv)
+    if args.big:
+        sys.path.insert(0, str(ROOT / "src"))
+        sizes = dict(tuple(map(int, x.split(":"))) for x in args.big_sizes.split(","))
+        text = big(args.baseline, args.cp_seconds, sizes)
+        print(text)
+        if not args.no_write:
+            update_docs_section(BIG_SECTION, text)
+        return 0
     if args.ladder:
         text = ladder(args.ladder, args.instances, 600, load_average())
         print(text)
