@@ -235,9 +235,9 @@ def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
         ax.set_yscale("log")
         ax.set_xlabel("cycle")
         ax.set_ylabel("gamma planned with")
-        ax.set_title(f"{world}: {len(learn)} simulated people (dotted: their true gamma"
-                     + ("; dashed: not learning from reactions" if said else "") + ")",
-                     fontsize=9)
+        ax.set_title(f"{world}: {len(learn)} simulated people (dotted: their true gamma)"
+                     + ("\nsolid: learning from reactions too; dashed: from what they say"
+                        if said else ""), fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
