@@ -13,6 +13,7 @@ from conftest import SMALL_SEARCH as SMALL
 from rapidds.human.gamma import GammaBelief, GammaEvidence
 from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.comfort import SimulatedComfort, reaction_anchor
+from rapidds.store import RunStore
 from rapidds.worlds.reactions import Reaction
 from rapidds.worlds.registry import make_world
 
@@ -118,3 +119,20 @@ def test_a_person_who_says_nothing_but_reacts_is_learned_from(policy):
     off_records = off.run()
     assert off.model.gamma is not None and off.model.gamma.evidence == 0
     assert [r["gamma"] for r in off_records] == [G_REF] * 3
+
+
+def test_a_resumed_run_learning_from_reactions_matches_an_uninterrupted_one(policy, tmp_path):
+    cfg = RunConfig(cycles=3, seed=2, gamma_learn=True, comfort=6.0, reacts=True, **SMALL)
+    whole = AdaptiveRun(cfg, policy).run()
+    assert any(r["comfort"]["reactions"]["onsets"] for r in whole)  # reactions were learned
+    with RunStore(tmp_path / "run.sqlite") as store:
+        first = AdaptiveRun(cfg, policy, store=store)
+        first.step()
+        first.step()
+    with RunStore(tmp_path / "run.sqlite") as store:
+        rest = AdaptiveRun(cfg, policy, store=store)
+        assert rest.next_cycle == 2
+        (last,) = rest.run()
+    drop = ("seconds",)
+    assert ({k: v for k, v in last.items() if k not in drop}
+            == {k: v for k, v in whole[2].items() if k not in drop})
