@@ -52,7 +52,7 @@ FACTORS = (2 ** -2.5, 2 ** -0.83, 2 ** 0.83, 2 ** 2.5)  # lowest to highest: a f
 SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)
 
 
-def one(job: tuple[str, str, int, float, int, bool]) -> dict[str, Any]:
+def one(job: tuple[str, str, int, float, int, bool, str]) -> dict[str, Any]:
     """One run of one arm for one simulated person."""
     import torch
 
@@ -60,7 +60,7 @@ def one(job: tuple[str, str, int, float, int, bool]) -> dict[str, Any]:
     from rapidds.worlds.registry import make_world
 
     torch.set_num_threads(1)
-    world, arm, seed, factor, cycles, reacts = job
+    world, arm, seed, factor, cycles, reacts, execution = job
     w = make_world(world)
     g_ref = w.problem().objective.gamma
     truth = g_ref * factor
@@ -68,8 +68,8 @@ def one(job: tuple[str, str, int, float, int, bool]) -> dict[str, Any]:
                           "oracle": dict(gamma=truth),
                           "cautious": dict(gamma_learn=True, gamma_plan="cautious"),
                           "said": dict(gamma_learn=True, gamma_reactions=False)}[arm]
-    cfg = RunConfig(world=world, cycles=cycles, seed=seed, comfort=truth, reacts=reacts, **kw,
-                    **SEARCH)
+    cfg = RunConfig(world=world, cycles=cycles, seed=seed, comfort=truth, reacts=reacts,
+                    execution=execution, **kw, **SEARCH)
     t_cpu = time.process_time()
     t0 = time.perf_counter()
     recs = AdaptiveRun(cfg, load_policy(w)).run()
@@ -82,7 +82,7 @@ def one(job: tuple[str, str, int, float, int, bool]) -> dict[str, Any]:
         "realised": [r["realised"]["makespan"] + truth * r["realised"]["spatial"] for r in recs],
         "answers": [r["comfort"]["answer"] for r in recs],
         "too_close": [len(r["comfort"]["too_close"]) for r in recs],
-        "reacts": reacts,
+        "reacts": reacts, **({"execution": execution} if execution != "planned" else {}),
         "reactions": [sum(p["agent"] == "person" for p in r.get("pauses", ())) for r in recs],
         "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - t_cpu,
     }
@@ -259,14 +259,18 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true", help="Only summarise the stored runs.")
     ap.add_argument("--reacts", action="store_true",
                     help="The person reacts to the robot by their gamma (arms: add 'said').")
+    ap.add_argument("--execution", default="planned", choices=("planned", "reactive"),
+                    help="The robot follows its plan (the paper) or monitors and re-plans.")
     ap.add_argument("--figure", type=Path, default=FIGURE)
     args = ap.parse_args()
     done: list[dict[str, Any]] = []
     if args.runs.exists():
         done = [json.loads(x) for x in args.runs.read_text().splitlines() if x.strip()]
-    done = [r for r in done if r.get("reacts", False) == args.reacts]
+    done = [r for r in done if r.get("reacts", False) == args.reacts
+            and r.get("execution", "planned") == args.execution]
     have = {(r["world"], r["arm"], r["seed"]) for r in done}
-    jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles, args.reacts)
+    jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles, args.reacts,
+             args.execution)
             for s in parse_seeds(args.seeds) for arm in args.arms.split(",")
             if (args.world, arm, s) not in have]
     if not args.reuse and jobs:

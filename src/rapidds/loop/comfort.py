@@ -91,7 +91,8 @@ def reaction_evidence(world: World, dep: Deployment, beta: float
                       ) -> tuple[tuple[tuple[float, float], ...], float]:
     """What the person did about the robot this cycle: per reaction episode (closeness one
     sample before it began, closeness when it began), and the peak closeness while both were
-    busy (person and robot each running a task: when a reaction could happen)."""
+    busy (person and robot each running a task) and the robot was not stopped (speed and
+    separation monitoring's stops): when a reaction could happen."""
     times, c = closeness(world, dep, beta)
     if not times.size:
         return (), 0.0
@@ -107,6 +108,9 @@ def reaction_evidence(world: World, dep: Deployment, beta: float
         return m
 
     both = busy("human") & busy("robot")
+    for p in dep.pauses:  # a robot stopped for the person is no threat: nobody reacts to it
+        if p.get("agent") == "robot" and str(p.get("reason", "")).endswith("(stop)"):
+            both &= ~((times >= p["start"]) & (times < p["end"]))
     return onsets, float(c[both].max()) if both.any() else 0.0
 
 
