@@ -9,6 +9,12 @@ planners run the same person (same seed, so the same durations and paths where p
              ``--arms`` naming it
     fixed    the world's fixed default gamma (the paper)
     oracle   a fixed gamma equal to the person's true one
+    said     ``--gamma learn`` counting only what the person says, not their reactions (with
+             ``--reacts``, where the default ``learn`` counts both)
+
+With ``--reacts`` every arm's person also reacts to the robot (slows or pauses near it, their
+distances set by their true gamma: ``SimulatedComfort.reaction``), and ``learn`` learns from
+those reactions too; the runs are kept apart from those without (``reacts`` in each run).
 
 Every arm's person answers and signals through the SIMULATED response model
 (``rapidds.loop.comfort``, not the learner's likelihood). Per run and cycle: the gamma planned
@@ -46,7 +52,7 @@ FACTORS = (2 ** -2.5, 2 ** -0.83, 2 ** 0.83, 2 ** 2.5)  # lowest to highest: a f
 SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2, candidates=4)
 
 
-def one(job: tuple[str, str, int, float, int]) -> dict[str, Any]:
+def one(job: tuple[str, str, int, float, int, bool, str]) -> dict[str, Any]:
     """One run of one arm for one simulated person."""
     import torch
 
@@ -54,14 +60,17 @@ def one(job: tuple[str, str, int, float, int]) -> dict[str, Any]:
     from rapidds.worlds.registry import make_world
 
     torch.set_num_threads(1)
-    world, arm, seed, factor, cycles = job
+    world, arm, seed, factor, cycles, reacts, execution = job
     w = make_world(world)
     g_ref = w.problem().objective.gamma
     truth = g_ref * factor
     kw: dict[str, Any] = {"learn": dict(gamma_learn=True), "fixed": {},
                           "oracle": dict(gamma=truth),
-                          "cautious": dict(gamma_learn=True, gamma_plan="cautious")}[arm]
-    cfg = RunConfig(world=world, cycles=cycles, seed=seed, comfort=truth, **kw, **SEARCH)
+                          "cautious": dict(gamma_learn=True, gamma_plan="cautious"),
+                          "said": dict(gamma_learn=True, gamma_reactions=False)}[arm]
+    cfg = RunConfig(world=world, cycles=cycles, seed=seed, comfort=truth, reacts=reacts,
+                    execution=execution, **kw, **SEARCH)
+    t_cpu = time.process_time()
     t0 = time.perf_counter()
     recs = AdaptiveRun(cfg, load_policy(w)).run()
     return {
@@ -73,7 +82,9 @@ def one(job: tuple[str, str, int, float, int]) -> dict[str, Any]:
         "realised": [r["realised"]["makespan"] + truth * r["realised"]["spatial"] for r in recs],
         "answers": [r["comfort"]["answer"] for r in recs],
         "too_close": [len(r["comfort"]["too_close"]) for r in recs],
-        "seconds": time.perf_counter() - t0,
+        "reacts": reacts, **({"execution": execution} if execution != "planned" else {}),
+        "reactions": [sum(p["agent"] == "person" for p in r.get("pauses", ())) for r in recs],
+        "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - t_cpu,
     }
 
 
@@ -158,6 +169,50 @@ def summarise_cautious(runs: list[dict[str, Any]], start: int) -> str:
     return "\n".join(lines)
 
 
+def summarise_reactions(runs: list[dict[str, Any]], start: int) -> str:
+    """Learning with the person's reactions (``learn``) against without (``said``), per world
+    and true gamma: cycles to within x1.5, the learned gamma at the end, cost over the oracle
+    from cycle ``start``, "too close" signals and the person's pauses (slowed or stopped) per
+    run (fixed beside)."""
+    by = {(r["world"], r["arm"], r["seed"]): r for r in runs}
+    arms = ("learn", "said", "fixed")
+    lines = ["| world | true gamma (x default) | seeds | cycles to within x1.5: reactions "
+             "| said only | learned at end: reactions | said only | plan cost over oracle, "
+             f"cycles {start}+: reactions | said only | fixed | too close per run: reactions | "
+             "said only | fixed | person pauses per run: reactions | said only | fixed |",
+             "|" + "---|" * 15]
+    for world in sorted({r["world"] for r in runs}):
+        for factor in sorted({r["factor"] for r in runs if r["world"] == world}):
+            seeds = sorted(s for (w, a, s), r in by.items() if w == world and a == "said"
+                           and r["factor"] == factor
+                           and all((w, b, s) in by for b in (*arms, "oracle")))
+            if not seeds:
+                continue
+            sets = {a: [by[(world, a, s)] for s in seeds] for a in (*arms, "oracle")}
+            truth = sets["learn"][0]["truth"]
+
+            def over(a: str, sets: dict[str, list[Any]] = sets) -> str:
+                v = np.mean([np.mean(r["plan_cost"][start:]) / np.mean(o["plan_cost"][start:])
+                             - 1 for r, o in zip(sets[a], sets["oracle"], strict=True)])
+                return f"{100 * v:+.1f} %"
+
+            def per_run(key: str, a: str, sets: dict[str, list[Any]] = sets) -> str:
+                return f"{np.mean([sum(r[key]) for r in sets[a]]):.2f}"
+
+            learned = [", ".join("never" if n is None else str(n) for n in
+                                 (cycles_to_learn(r["posterior"], truth) for r in sets[a]))
+                       for a in arms[:2]]
+            lines.append(
+                f"| {world} | {truth:.3g} (x{factor:.3g}) | {len(seeds)} | "
+                + " | ".join(learned) + " | "
+                + " | ".join(", ".join(f"{r['posterior'][-1]:.3g}" for r in sets[a])
+                             for a in arms[:2]) + " | "
+                + " | ".join(over(a) for a in arms) + " | "
+                + " | ".join(per_run("too_close", a) for a in arms) + " | "
+                + " | ".join(per_run("reactions", a) for a in arms) + " |")
+    return "\n".join(lines)
+
+
 def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
     import matplotlib
 
@@ -170,16 +225,19 @@ def figure(runs: list[dict[str, Any]], path: Path = FIGURE) -> Path:
         learn = [r for r in runs if r["world"] == world and r["arm"] == "learn"]
         colours = plt.get_cmap("viridis")
         factors = sorted({r["factor"] for r in learn})
-        for r in learn:
+        said = [r for r in runs if r["world"] == world and r["arm"] == "said"]
+        for r in learn + said:
             c = colours(factors.index(r["factor"]) / max(1, len(factors) - 1))
             x = np.arange(len(r["planned"]))
-            ax.plot(x, r["planned"], color=c, lw=1, alpha=0.7)
+            ax.plot(x, r["planned"], color=c, lw=1, alpha=0.7,
+                    ls="--" if r["arm"] == "said" else "-")
             ax.axhline(r["truth"], color=c, lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xlabel("cycle")
         ax.set_ylabel("gamma planned with")
-        ax.set_title(f"{world}: {len(learn)} simulated people (dotted: their true gamma)",
-                     fontsize=10)
+        ax.set_title(f"{world}: {len(learn)} simulated people (dotted: their true gamma)"
+                     + ("\nsolid: learning from reactions too; dashed: from what they say"
+                        if said else ""), fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -199,12 +257,20 @@ def main() -> None:
     ap.add_argument("--arms", default=",".join(ARMS),
                     help="arms to run, of learn, fixed, oracle, cautious")
     ap.add_argument("--reuse", action="store_true", help="Only summarise the stored runs.")
+    ap.add_argument("--reacts", action="store_true",
+                    help="The person reacts to the robot by their gamma (arms: add 'said').")
+    ap.add_argument("--execution", default="planned", choices=("planned", "reactive"),
+                    help="The robot follows its plan (the paper) or monitors and re-plans.")
+    ap.add_argument("--figure", type=Path, default=FIGURE)
     args = ap.parse_args()
     done: list[dict[str, Any]] = []
     if args.runs.exists():
         done = [json.loads(x) for x in args.runs.read_text().splitlines() if x.strip()]
+    done = [r for r in done if r.get("reacts", False) == args.reacts
+            and r.get("execution", "planned") == args.execution]
     have = {(r["world"], r["arm"], r["seed"]) for r in done}
-    jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles)
+    jobs = [(args.world, arm, s, FACTORS[s % len(FACTORS)], args.cycles, args.reacts,
+             args.execution)
             for s in parse_seeds(args.seeds) for arm in args.arms.split(",")
             if (args.world, arm, s) not in have]
     if not args.reuse and jobs:
@@ -221,7 +287,9 @@ def main() -> None:
     print(summarise(done, args.start))
     if any(r["arm"] == "cautious" for r in done):
         print(summarise_cautious(done, args.start))
-    print(f"figure: {figure(done)}")
+    if any(r["arm"] == "said" for r in done):
+        print(summarise_reactions(done, args.start))
+    print(f"figure: {figure(done, args.figure)}")
 
 
 if __name__ == "__main__":

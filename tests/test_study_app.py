@@ -27,7 +27,7 @@ from rapidds.motion.policy import DiffusionPolicy
 from rapidds.store import RunStore
 from rapidds.web.server import allowed_hosts
 from rapidds.web.study.app import MAX_BODY, StudyWorker, create_study_app
-from rapidds.web.study.runner import StudySession
+from rapidds.web.study.runner import InputError, StudySession
 from rapidds.web.study.tracker import tracker_csv
 from rapidds.worlds.fetch.world import FetchWorld
 
@@ -262,8 +262,10 @@ def test_the_comfort_item_goes_with_the_round_to_the_gamma_learner(comfort_study
     # "too close" at 7 of 7 moves the belief above the prior's median (the world's gamma)
     assert belief["median"] > study.world.problem().objective.gamma
     assert rec["gamma"] == pytest.approx(study.world.problem().objective.gamma)  # planned prior
-    # a round played in the game is recorded without the item (the game page does not ask)
-    assert study.worker.run(lambda s: s._comfort("game", {})) is None
+    # a round played in the game has to bring the item too (the game asks it: tests of the
+    # study's game source)
+    with pytest.raises(InputError, match="please answer"):
+        study.worker.run(lambda s: s._comfort("game", {}))
 
 
 def test_malformed_requests_get_4xx_never_500(study: Study) -> None:

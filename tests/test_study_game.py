@@ -2,7 +2,8 @@
 TestClient, the real session, store, planner and game on a small study): offered for fetch only,
 the game page plays the plan the round page shows, one page per round, a closed tab restarts the
 round, and a round the study has moved past is refused with a message. Rounds played through the
-game in a browser are tests/test_study_browser.py's second test."""
+game in a browser are tests/test_study_browser.py's second test. With the comfort item on, the
+game asks it once the round is over and the round is recorded with the answer and the presses."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from play_bot import until
+from play_bot import RouteBot, until
 from starlette.websockets import WebSocketDisconnect
 from study_helpers import make_study
 
@@ -154,3 +155,43 @@ def test_the_game_plays_the_round_pages_plan_once_and_refuses_rounds_out_of_turn
         assert page.status_code == 409
         assert "no round to play" in page.text and "survey" in page.text
     assert _rounds(folder) == 2  # the two simulated rounds; nothing from the games
+
+
+def test_a_game_round_asks_the_comfort_item_and_is_stored_with_it(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+    folder = make_study(tmp_path, fetch_world, comfort=True)
+    bot, seq = RouteBot(fetch_world), iter(range(1, 10**6))
+
+    def send(ws: object, **msg: object) -> None:
+        ws.send_text(json.dumps({**msg, "seq": next(seq)}))  # type: ignore[attr-defined]
+
+    with _serve(folder, fetch_world, fetch_policy) as (client, pid):
+        step = _step(client, pid)
+        assert client.get(f"/p/{pid}/play").status_code == 200
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
+            assert until(ws, "phase")["phase"] == "ready"
+            send(ws, type="start", cycle=0)
+            held, pressed_at = (0, 0), None
+            while not ((st := until(ws, "state"))["over"] and st["ask"]):
+                assert not st["ask"]  # never asked before the round is over
+                if pressed_at is None and st["started"] and not st["over"] and st["t"] >= 0.5:
+                    send(ws, type="too_close", cycle=0)
+                    pressed_at = st["t"]
+                if (want := bot.move(st)) != held:
+                    send(ws, type="move", dx=want[0], dy=want[1])
+                    held = want
+            # the round is over, its question open: nothing is recorded before the answer
+            assert _rounds(folder) == 0 and st["signals"] == 1
+            send(ws, type="comfort", cycle=0, answer=9)  # the gate refuses it
+            assert "answer" in until(ws, "refused-message")["reason"]
+            send(ws, type="comfort", cycle=0, answer=6)
+            while (phase := until(ws, "phase"))["phase"] != "done":
+                assert phase["phase"] != "error", phase
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        rid = s.run_id(pid, s.participant(pid).systems[0])
+        (rec,) = s.records(rid)
+    said = rec["comfort"]
+    assert said["answer"] == 6 and "simulated" not in said
+    assert pressed_at is not None and len(said["too_close"]) == 1
+    assert said["too_close"][0] == pytest.approx(pressed_at, abs=0.1)  # the game's clock
+    assert rec["gamma_belief"]["evidence"] == 1

@@ -226,7 +226,11 @@ def run_cmd(
                                   "paper: the robot follows its plan) or reactive (speed and "
                                   "separation monitoring, re-planning on deviations)."),
     reacts: bool = typer.Option(False, help="The simulated person slows down or pauses when "
-                                "the moving robot comes close."),
+                                "the moving robot comes close (with --comfort or --gamma learn: "
+                                "at distances set by their own gamma)."),
+    gamma_reactions: bool = typer.Option(_D["gamma_reactions"].default, help="With --reacts: "
+                                         "the person's reactions are evidence about their "
+                                         "gamma too (else only what they say)."),
     deviate: float = typer.Option(0.0, help="Probability per cycle that the simulated person "
                                   "deviates from the plan (another order, a pause, a robot "
                                   "task taken)."),

@@ -68,7 +68,11 @@ class RunConfig(Settings):
         gamma, spread 4); gamma_plan: ``mean`` or ``cautious`` (an upper quantile).
     comfort: the SIMULATED teammate's true gamma (None: drawn from a population when learning).
         With it (or when learning) the simulated teammate answers a comfort question and
-        signals "too close" every cycle, stored in the record.
+        signals "too close" every cycle, stored in the record; with ``reacts`` their comfort
+        and stop distances follow it too.
+    gamma_reactions: with ``reacts``, the person's reactions (slowing or pausing near the robot)
+        are evidence about their gamma too (stored with the comfort evidence); False: only
+        what they say (run id ``-saidonly`` when learning).
     Inside the cycle (docs/design-notes.md "Reacting inside the cycle"):
     execution: ``planned`` (the paper: the robot follows its plan whatever happens) or
         ``reactive`` (speed and separation monitoring, and re-planning the rest of the cycle
@@ -112,6 +116,7 @@ class RunConfig(Settings):
     gamma_prior: str | None = None
     gamma_plan: Literal["mean", "cautious"] = "mean"
     comfort: Annotated[float, Field(gt=0)] | None = None
+    gamma_reactions: bool = True
     execution: Execution = "planned"
     reacts: bool = False
     deviate: Annotated[float, Field(ge=0, le=1)] = 0.0
@@ -173,7 +178,8 @@ class RunConfig(Settings):
             human += f"-drift{self.drift:+g}@{self.drift_from}"
         if self.comfort is not None:
             human += f"-comfort{self.comfort:g}"
-        learn = f"-glearn{'-cautious' if self.gamma_plan == 'cautious' else ''}"
+        learn = (f"-glearn{'-cautious' if self.gamma_plan == 'cautious' else ''}"
+                 f"{'' if self.gamma_reactions or not self.reacts else '-saidonly'}")
         return (f"{world}-{human}-{self.adapt}{learn if self.gamma_learn else ''}"
                 f"{self.cell_suffix}-s{self.seed}")
 

@@ -12,6 +12,7 @@ cycle draws its random numbers from (seed, cycle) and the stored state holds eve
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -26,7 +27,14 @@ from rapidds.execution import CycleExecutor, HumanSource
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
-from rapidds.loop.comfort import SimulatedComfort, said_and_signalled, simulated_comfort
+from rapidds.loop.comfort import (
+    SimulatedComfort,
+    cycle_evidence,
+    reaction_anchor,
+    reaction_evidence,
+    said_and_signalled,
+    simulated_comfort,
+)
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import Deployment
 from rapidds.loop.execute import (
@@ -240,7 +248,10 @@ class AdaptiveRun:
         self.next_cycle = 0
         self._timing: dict[int, dict[str, float]] = {}
         check_cell(self.config, self.teammate)
-        self._reaction = person_reaction(self.world, self.config)  # the person's, all run long
+        # the person's reaction, all run long; a simulated person with a comfort reacts by it
+        self._reaction = person_reaction(self.world, self.config)
+        if self._reaction is not None and self.comfort is not None:
+            self._reaction = self.comfort.reaction(self._reaction, self.model.spatial.config.beta)
         self._deviations: dict[int, Deviation | None] = {}
         if store is not None:
             self._attach(store)
@@ -470,10 +481,19 @@ class AdaptiveRun:
         self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
 
     def _learn_gamma(self, cycle: int, deployment: Deployment) -> None:
-        """What the person said and signalled about the robot's closeness this cycle (kept for
-        the record), and the gamma belief updated with it when the run learns gamma."""
-        ev = said_and_signalled(self.world, deployment, self.model.spatial.config.beta,
-                                self.comfort, self.teammate, self.config.seed, cycle)
+        """What the person said and signalled about the robot's closeness this cycle, and how
+        they reacted to it (kept for the record), and the gamma belief updated with it when the
+        run learns gamma. A person who says nothing still shows their reactions."""
+        beta = self.model.spatial.config.beta
+        ev = said_and_signalled(self.world, deployment, beta, self.comfort, self.teammate,
+                                self.config.seed, cycle)
+        if self.config.reacts and self.config.gamma_reactions and (
+                ev is not None or self.model.gamma is not None):
+            onsets, calm = reaction_evidence(self.world, deployment, beta)
+            watched = dict(reactions=onsets, calm_peak=calm,
+                           anchor=reaction_anchor(self.world, beta))
+            ev = dataclasses.replace(ev or cycle_evidence(self.world, deployment, beta, None, ()),
+                                     **watched, asked=ev is not None)
         if ev is None:
             return
         if self.model.gamma is not None:

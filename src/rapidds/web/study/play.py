@@ -14,6 +14,13 @@ it to the study worker:
 transaction like every other source. The page goes on to the study's next step once the round is
 recorded and the cycle on screen is over (the robot finished too).
 
+When the study asks the comfort item (``StudyDesign.comfort``), the game asks it too: the
+player is asked (``ask_comfort``), so the page takes "too close" presses (key T, the red button)
+timed by the game's clock during the round and asks the 1-7 item once the round is over (the
+robot's part too), as ``rapidds play --gamma learn`` does; the round is recorded with both once
+the person has answered (the round page's fields ``comfort`` and ``too_close``, checked as a
+typed round's are), so the game's time 0, the cycle's start, is their clock's.
+
 Safety is the game's: one page per participant round (the Hub turns a second away), origin and
 host checks, every message through the Gate. A round the study has moved past is refused; a
 closed tab puts the cycle back to its start (reopening plays it again); a killed server stores
@@ -54,10 +61,10 @@ class GameRound:
     summary_version = 0
 
     def __init__(self, worker: StudyWorker, world: FetchWorld, pid: str, token: str,
-                 plan: CyclePlan, view: View):
+                 plan: CyclePlan, view: View, ask_comfort: bool = False):
         self.worker, self.world, self.pid, self.token = worker, world, pid, token
         self.plan, self.view = plan, view
-        self.player = BrowserPlayer(world, name=pid)
+        self.player = BrowserPlayer(world, name=pid, ask_comfort=ask_comfort)
         self.player.show(plan)
         self.hub = Hub(self)
         self.stored = 0  # 1 once the round is in the store
@@ -101,6 +108,7 @@ class GameRound:
         if reason is not None and conn is not None:
             with contextlib.suppress(Exception):
                 await refuse_socket(conn.ws, reason)
+        self.player.close()  # wakes a wait for the comfort answer
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -112,6 +120,7 @@ class GameRound:
         try:
             while (observed := self.player.played(self.plan.cycle, tasks)) is None:
                 await asyncio.sleep(_POLL)
+            said = await self._said()
         except Exception as exc:
             log.exception("the game round of %s failed", self.pid)
             self.error = f"{type(exc).__name__}: {exc}"
@@ -119,7 +128,7 @@ class GameRound:
         t0 = time.perf_counter()
         pid, token = self.pid, self.token
         try:
-            await self.worker.call(lambda s: s.submit_round(pid, token, "game", {},
+            await self.worker.call(lambda s: s.submit_round(pid, token, "game", said,
                                                             played=observed))
         except OutOfTurn as exc:
             self.error = str(exc)
@@ -143,6 +152,18 @@ class GameRound:
                  "over" if state.get("over") else "still running", self.timing["next_plan"])
 
 
+    async def _said(self) -> dict[str, str]:
+        """The comfort item's fields once the person has answered (none when not asked). The
+        answer comes after the round is over; waiting for it takes a thread only then (the
+        player's report blocks; :meth:`close` wakes it)."""
+        if not self.player.ask_comfort:
+            return {}
+        said = await asyncio.to_thread(self.player.comfort_report, self.plan.cycle)
+        assert said is not None  # asked: an answer, or PlayerGone
+        answer, signals = said
+        return {"comfort": str(answer), "too_close": ",".join(f"{t:.6f}" for t in signals)}
+
+
 async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
                      token: str) -> GameRound:
     """A started :class:`GameRound` of ``pid``'s current round ``token``, made in the study
@@ -153,7 +174,7 @@ async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
         if held is None or step_token(step) != token:
             raise OutOfTurn(f"{pid}'s next step is {step.describe()}, not this round: reload "
                             f"/p/{pid}", step)
-        return GameRound(worker, world, pid, token, *held)
+        return GameRound(worker, world, pid, token, *held, ask_comfort=s.store.design.comfort)
 
     game = await worker.call(make)
     game.start()

@@ -373,8 +373,6 @@ class StudySession:
         if not self.store.design.comfort:
             return None
         answer = str(fields.get("comfort", "")).strip()
-        if not answer and source == "game":  # the study's game page does not ask (yet)
-            return None
         if not re.fullmatch(r"[1-7]", answer):
             raise InputError(f"\u201c{COMFORT_ITEM}\u201d: the answer must be 1..7, got "
                              f"{answer[:20]!r}" if answer else
