@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from conftest import SMALL_SEARCH as SMALL
+from record_helpers import stored
 
 from rapidds.human.gamma import GammaBelief, GammaEvidence
 from rapidds.loop import AdaptiveRun, RunConfig
@@ -107,24 +108,24 @@ def test_a_person_who_says_nothing_but_reacts_is_learned_from(policy):
     run = AdaptiveRun(RunConfig(**cfg), policy, teammate=person)
     records = run.run()
     assert run.model.gamma is not None and run.model.gamma.evidence == 3
-    assert all(r["comfort"]["asked"] is False and r["comfort"]["answer"] is None
-               and r["comfort"]["reactions"]["anchor"] == pytest.approx(
+    assert all(r.comfort["asked"] is False and r.comfort["answer"] is None
+               and r.comfort["reactions"]["anchor"] == pytest.approx(
                    reaction_anchor(world, 1.0)) for r in records)
-    assert records[-1]["gamma_belief"]["mean"] != G_REF
-    assert [r["gamma"] for r in records[1:]] == [
-        pytest.approx(r["gamma_belief"]["mean"]) for r in records[:-1]]
+    assert records[-1].gamma_belief["mean"] != G_REF
+    assert [r.plan.gamma for r in records[1:]] == [
+        pytest.approx(r.gamma_belief["mean"]) for r in records[:-1]]
     # the same person with reactions not counted: no evidence, the prior stays
     off = AdaptiveRun(RunConfig(**cfg, gamma_reactions=False), policy, teammate=person)
     assert off.config.run_id.endswith("-glearn-saidonly-reacts-s0")
     off_records = off.run()
     assert off.model.gamma is not None and off.model.gamma.evidence == 0
-    assert [r["gamma"] for r in off_records] == [G_REF] * 3
+    assert [r.plan.gamma for r in off_records] == [G_REF] * 3
 
 
 def test_a_resumed_run_learning_from_reactions_matches_an_uninterrupted_one(policy, tmp_path):
     cfg = RunConfig(cycles=3, seed=2, gamma_learn=True, comfort=6.0, reacts=True, **SMALL)
     whole = AdaptiveRun(cfg, policy).run()
-    assert any(r["comfort"]["reactions"]["onsets"] for r in whole)  # reactions were learned
+    assert any(r.comfort["reactions"]["onsets"] for r in whole)  # reactions were learned
     with RunStore(tmp_path / "run.sqlite") as store:
         first = AdaptiveRun(cfg, policy, store=store)
         first.step()
@@ -133,6 +134,4 @@ def test_a_resumed_run_learning_from_reactions_matches_an_uninterrupted_one(poli
         rest = AdaptiveRun(cfg, policy, store=store)
         assert rest.next_cycle == 2
         (last,) = rest.run()
-    drop = ("seconds",)
-    assert ({k: v for k, v in last.items() if k not in drop}
-            == {k: v for k, v in whole[2].items() if k not in drop})
+    assert stored(last) == stored(whole[2])
