@@ -53,7 +53,7 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
                     seed=seed, execution=execution, reacts=True, deviate=deviate,
                     **SEARCH[world])
     t0, c0 = time.perf_counter(), time.process_time()
-    recs = AdaptiveRun(cfg, policy).run()  # type: ignore[arg-type]
+    recs = [r.to_json() for r in AdaptiveRun(cfg, policy).run()]  # type: ignore[arg-type]
     r = [x["realised"] for x in recs]
     prot = [x["protective"] or {} for x in recs]
     return {

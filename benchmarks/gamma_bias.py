@@ -43,7 +43,7 @@ def one(world: str, seed: int, reacts: bool = False) -> dict[str, Any]:
     truth = g_ref * FACTORS[seed % len(FACTORS)]
     cfg = RunConfig(world=world, cycles=10, seed=seed, comfort=truth, gamma_learn=True,
                     reacts=reacts, **SEARCH)
-    recs = AdaptiveRun(cfg, load_policy(w)).run()
+    recs = [r.to_json() for r in AdaptiveRun(cfg, load_policy(w)).run()]  # the stored form
     return {"world": world, "seed": seed, "truth": truth, "g_ref": g_ref, "reacts": reacts,
             "evidence": [r["comfort"] for r in recs]}
 

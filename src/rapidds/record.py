@@ -237,18 +237,6 @@ class CycleRecord:
             **({"run_id": self.run_id} if self.run_id is not None else {}),
         }
 
-    # Transitional: the stored dict's part ``key`` (and ``key in record``), only for readers
-    # written on other lines of work before the record was typed (the browser game's session
-    # summary, some benchmarks); remove once they read the fields, as every reader in the
-    # package does (tests/test_owners.py).
-    def __getitem__(self, key: str) -> Any:
-        return self.to_json()[key]
-
-    def __contains__(self, key: object) -> bool:
-        return key in self.to_json()
-
-    __iter__ = None  # not a sequence: ``list(record)`` fails loudly, not through __getitem__
-
     @property
     def done(self) -> Schedule:
         """Who did what, in order: as executed where the cycle ran in-cycle execution (the
