@@ -20,6 +20,7 @@ from rapidds.human.spatial import (
     SpatialModel,
     point_cost,
 )
+from rapidds.human.spatial.grid import grid_trajectory_costs
 
 BOUNDS = ((0.0, 10.0), (0.0, 10.0))
 ROUTE_A = [(5, 1), (2, 3), (2, 7), (5, 9)]
@@ -200,6 +201,58 @@ def test_grid_interpolation_in_3d_matches_scipy():
     ref = RegularGridInterpolator(axes, model.mean.reshape(cfg.shape))
     x = rng.random((200, 3)) * [1, 2, 1]
     np.testing.assert_allclose(model.point_cost(x), ref(x), atol=1e-12)
+
+
+def _corner_by_corner(model: SpatialCostModel, x: torch.Tensor) -> torch.Tensor:
+    """Multilinear interpolation written out one corner at a time (index, weight, sum)."""
+    shape = model.config.shape
+    lo, hi = (torch.as_tensor(np.array(b, dtype=float), dtype=x.dtype)
+              for b in zip(*model.config.bounds, strict=True))
+    top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype)
+    vals = torch.as_tensor(model.mean, dtype=x.dtype)
+    u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
+    i0 = torch.minimum(u.floor(), top - 1)
+    frac, i0 = u - i0, i0.long()
+    strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
+    out = torch.zeros(x.shape[0], dtype=x.dtype)
+    for corner in itertools.product((0, 1), repeat=len(shape)):
+        idx = torch.zeros(x.shape[0], dtype=torch.long)
+        w = torch.ones_like(out)
+        for k, c in enumerate(corner):
+            idx += (i0[:, k] + c) * strides[k]
+            w *= frac[:, k] if c else 1.0 - frac[:, k]
+        out += w * vals[idx]
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_grid_interpolation_is_bit_identical_to_corner_by_corner(dtype):
+    rng = np.random.default_rng(8)
+    cfg = SpatialConfig(bounds=((0, 1), (0, 2), (0, 1)), beta=5.0, grid_points=(6, 9, 5))
+    people = [rng.random((40, 3)) * [1, 2, 1] for _ in range(3)]
+    model = SpatialCostModel.from_population(cfg, people)
+    x = torch.as_tensor(rng.uniform(-0.3, 2.3, size=(500, 3)), dtype=dtype)  # some clamped
+    assert torch.equal(model._eval_grid(x), _corner_by_corner(model, x))
+    # the corner table follows the belief: after an observation it interpolates the new mean
+    model.observe(rng.random((30, 3)) * [1, 2, 1])
+    assert torch.equal(model._eval_grid(x), _corner_by_corner(model, x))
+
+
+def test_shared_interpolation_weights_give_each_tasks_own_costs(pop):
+    """Several tasks' costs from one set of interpolation weights, in chunks or not, are the
+    bits of each task's own trajectory cost."""
+    sm = _two_task_model(pop)
+    xi = np.random.default_rng(9).uniform(-1.0, 11.0, size=(13, 7, 2))
+    own = [sm[t].trajectory_cost(xi) for t in ("t2", "t3")]
+    small = _two_task_model(pop, chunk=5)  # 91 points in chunks of 5
+    for shared in (grid_trajectory_costs([sm["t2"], sm["t3"]], xi),
+                   grid_trajectory_costs([small["t2"], small["t3"]], xi)):
+        for got, ref in zip(shared, own, strict=True):
+            np.testing.assert_array_equal(got, ref)
+    tensor = grid_trajectory_costs([sm["t2"], sm["t3"]], torch.as_tensor(xi))
+    assert all(isinstance(t, torch.Tensor) for t in tensor)
+    with pytest.raises(ValueError, match="NaN"):
+        grid_trajectory_costs([sm["t2"], sm["t3"]], np.full((1, 2, 2), np.nan))
 
 
 @pytest.fixture(scope="module")

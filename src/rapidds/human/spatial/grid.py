@@ -19,7 +19,7 @@ from rapidds.errors import StateError
 from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
 from rapidds.human.spatial.surrogate import FitReport, Surrogate, SurrogateError
 
-__all__ = ["Points", "SpatialCostModel", "point_cost"]
+__all__ = ["Points", "SpatialCostModel", "grid_trajectory_costs", "point_cost"]
 
 # Elements of the largest temporary (chunk x T x d) array point_cost builds: 8 MiB of float64.
 _POINT_COST_ELEMS = 1 << 20
@@ -306,32 +306,58 @@ class SpatialCostModel:
         return SurrogateError(*out)
 
     # ------------------------------------------------------------------------ evaluation
-    def _grid_values(self, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    def _corner_table(self, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+        """(2^d, V) posterior mean at the corners of the cell whose lowest corner is grid point
+        v, corners in :meth:`_stencil`'s order; rows of points on a top face hold the padding 0
+        (no interpolation reads them). Built once per belief, so an evaluation gathers each
+        point's corners in one indexing instead of one per corner."""
         key = (device, dtype)
         if key not in self._grid_cache:
-            self._grid_cache[key] = torch.as_tensor(self._mean, dtype=dtype, device=device)
+            d = len(self.config.shape)
+            offsets = [sum(c * s for c, s in zip(corner, self._strides, strict=True))
+                       for corner in itertools.product((0, 1), repeat=d)]
+            padded = np.concatenate([self._mean, np.zeros(max(offsets))])
+            v = len(self._mean)
+            table = np.stack([padded[o:o + v] for o in offsets])
+            self._grid_cache[key] = torch.as_tensor(table, dtype=dtype, device=device)
         return self._grid_cache[key]
 
-    def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
-        """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
+    def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Multilinear interpolation weights of points x (n, d), clamped to bounds: the flat
+        grid index (n,) of each point's lowest cell corner and the (2^d, n) weights of the
+        cell's corners (corner c = (c_1..c_d) in itertools.product order). Depends on the
+        grid alone, so every task of a model shares it."""
         shape = self.config.shape
-        vals = self._grid_values(x.device, x.dtype)
         lo = torch.as_tensor(self._lo, dtype=x.dtype, device=x.device)
         hi = torch.as_tensor(self._hi, dtype=x.dtype, device=x.device)
         top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype, device=x.device)
         u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
         i0 = torch.minimum(u.floor(), top - 1)
         frac = u - i0
-        i0 = i0.long()
-        out = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        for corner in itertools.product((0, 1), repeat=len(shape)):
-            idx = torch.zeros(x.shape[0], dtype=torch.long, device=x.device)
-            w = torch.ones_like(out)
-            for k, c in enumerate(corner):
-                idx += (i0[:, k] + c) * self._strides[k]
-                w *= frac[:, k] if c else 1.0 - frac[:, k]
-            out += w * vals[idx]
+        strides = torch.as_tensor(self._strides, dtype=torch.long, device=x.device)
+        base = (i0.long() * strides).sum(dim=1)
+        # Per axis the weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight
+        # is their product taken axis by axis, the same products as one corner at a time.
+        axis_w = [(1.0 - frac[:, k], frac[:, k]) for k in range(len(shape))]
+        weights = [axis_w[0][0], axis_w[0][1]]
+        for k in range(1, len(shape)):
+            weights = [w * a for w in weights for a in axis_w[k]]
+        return base, torch.stack(weights)
+
+    def _interpolate(self, base: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """The posterior mean at the points of a :meth:`_stencil`, (n,). The corners are
+        summed one after another in a fixed order, so the result does not depend on how many
+        points are evaluated together."""
+        corners = self._corner_table(weights.device, weights.dtype)[:, base]   # (2^d, n)
+        terms = corners.mul_(weights)
+        out = terms[0].clone()
+        for term in terms[1:]:
+            out += term
         return out
+
+    def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
+        """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
+        return self._interpolate(*self._stencil(x))
 
     def _mlp_on(self, device: torch.device) -> Surrogate:
         assert self._net is not None
@@ -444,11 +470,11 @@ class SpatialCostModel:
         return model
 
 
-def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
-    """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+def _as_points(model: SpatialCostModel, x: Any, ndim: int | None) -> torch.Tensor:
+    """The input checks of point_cost / trajectory_cost: x as a floating tensor (a NumPy
+    array as float64, shared memory), of shape (..., d), or (N, H, d) when ``ndim`` is 3."""
     d = model.config.dim
-    is_tensor = isinstance(x, torch.Tensor)
-    t = x if is_tensor else torch.from_numpy(np.asarray(x, dtype=np.float64))
+    t = x if isinstance(x, torch.Tensor) else torch.from_numpy(np.asarray(x, dtype=np.float64))
     if not t.is_floating_point():
         t = t.to(torch.float32)
     if t.ndim < 1 or t.shape[-1] != d:
@@ -456,7 +482,37 @@ def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
     if ndim is not None and (t.ndim != ndim or t.shape[1] == 0):
         raise ValueError(f"trajectories must have shape (N, H, {d}) with H >= 1, "
                          f"got {tuple(t.shape)}")
-    out = model._eval_flat(t.reshape(-1, d)).reshape(t.shape[:-1])
+    return t
+
+
+def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
+    """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+    t = _as_points(model, x, ndim)
+    out = model._eval_flat(t.reshape(-1, model.config.dim)).reshape(t.shape[:-1])
     if ndim is not None:
         out = out.amax(dim=-1)
-    return out if is_tensor else out.numpy()
+    return out if isinstance(x, torch.Tensor) else out.numpy()
+
+
+def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> list[Points]:
+    """[S_i(xi) for each model], xi (N, H, d) -> (N,) each, for models of one config evaluated
+    by grid interpolation: the same values as each model's :meth:`~SpatialCostModel.
+    trajectory_cost`, with the interpolation weights of the points computed once for all.
+    (Steering scores every candidate against all tasks concurrent with the robot's.)"""
+    first = models[0]
+    if first.config.use_surrogate or any(m.config != first.config for m in models):
+        raise ValueError("grid_trajectory_costs needs models of one config without surrogate")
+    t = _as_points(first, xi, ndim=3)
+    flat = t.reshape(-1, first.config.dim)
+    if not bool(torch.isfinite(flat).all()):
+        raise ValueError("points contain NaN or infinite coordinates")
+    step = first.config.chunk
+    parts: list[list[torch.Tensor]] = [[] for _ in models]
+    with torch.no_grad():
+        for s in range(0, flat.shape[0], step):
+            stencil = first._stencil(flat[s:s + step])
+            for part, m in zip(parts, models, strict=True):
+                part.append(m._interpolate(*stencil))
+    outs = [(p[0] if len(p) == 1 else torch.cat(p)).reshape(t.shape[:-1]).amax(dim=-1)
+            for p in parts]
+    return outs if isinstance(xi, torch.Tensor) else [o.numpy() for o in outs]
