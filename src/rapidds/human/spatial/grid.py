@@ -348,7 +348,8 @@ class SpatialCostModel:
         """The posterior mean at the points of a :meth:`_stencil`, (n,). The corners are
         summed one after another in a fixed order, so the result does not depend on how many
         points are evaluated together."""
-        corners = self._corner_table(weights.device, weights.dtype)[:, base]   # (2^d, n)
+        table = self._corner_table(weights.device, weights.dtype)
+        corners = torch.index_select(table, 1, base)                        # (2^d, n)
         terms = corners.mul_(weights)
         out = terms[0].clone()
         for term in terms[1:]:
