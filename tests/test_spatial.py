@@ -233,9 +233,15 @@ def test_grid_interpolation_is_bit_identical_to_corner_by_corner(dtype):
     model = SpatialCostModel.from_population(cfg, people)
     x = torch.as_tensor(rng.uniform(-0.3, 2.3, size=(500, 3)), dtype=dtype)  # some clamped
     assert torch.equal(model._eval_grid(x), _corner_by_corner(model, x))
-    # the corner table follows the belief: after an observation it interpolates the new mean
+    # the corner table follows the belief: after an observation or a reset it interpolates
+    # the new mean
+    before = model._eval_grid(x)
     model.observe(rng.random((30, 3)) * [1, 2, 1])
-    assert torch.equal(model._eval_grid(x), _corner_by_corner(model, x))
+    after = model._eval_grid(x)
+    assert not torch.equal(after, before)
+    assert torch.equal(after, _corner_by_corner(model, x))
+    model.reset()
+    assert torch.equal(model._eval_grid(x), before)
 
 
 def test_shared_interpolation_weights_give_each_tasks_own_costs(pop):
