@@ -244,21 +244,35 @@ def test_grid_interpolation_is_bit_identical_to_corner_by_corner(dtype):
     assert torch.equal(model._eval_grid(x), before)
 
 
-def test_shared_interpolation_weights_give_each_tasks_own_costs(pop):
-    """Several tasks' costs from one set of interpolation weights, in chunks or not, are the
-    bits of each task's own trajectory cost."""
-    sm = _two_task_model(pop)
-    xi = np.random.default_rng(9).uniform(-1.0, 11.0, size=(13, 7, 2))
-    own = [sm[t].trajectory_cost(xi) for t in ("t2", "t3")]
-    small = _two_task_model(pop, chunk=5)  # 91 points in chunks of 5
-    for shared in (grid_trajectory_costs([sm["t2"], sm["t3"]], xi),
-                   grid_trajectory_costs([small["t2"], small["t3"]], xi)):
-        for got, ref in zip(shared, own, strict=True):
-            np.testing.assert_array_equal(got, ref)
+def test_trajectory_costs_are_the_max_of_every_points_interpolation(pop):
+    """Several tasks' trajectory costs from one set of interpolation weights, interpolating
+    only the points that can hold a trajectory's maximum, in chunks or not: the bits of the
+    max over every point's interpolated value."""
+    sm, small = _two_task_model(pop), _two_task_model(pop, chunk=20)  # chunks of 2 paths
+    rng = np.random.default_rng(9)
+    xi = rng.uniform(-1.0, 11.0, size=(13, 7, 2))
+    for dtype in (np.float64, np.float32):
+        x = xi.astype(dtype)
+        every = [sm[t].point_cost(x).max(axis=1) for t in ("t2", "t3")]
+        for shared in (grid_trajectory_costs([sm["t2"], sm["t3"]], x),
+                       grid_trajectory_costs([small["t2"], small["t3"]], x),
+                       [sm["t2"].trajectory_cost(x), sm["t3"].trajectory_cost(x)]):
+            for got, ref in zip(shared, every, strict=True):
+                np.testing.assert_array_equal(got, ref)
     tensor = grid_trajectory_costs([sm["t2"], sm["t3"]], torch.as_tensor(xi))
     assert all(isinstance(t, torch.Tensor) for t in tensor)
+    assert grid_trajectory_costs([sm["t2"]], np.zeros((0, 3, 2)))[0].shape == (0,)
     with pytest.raises(ValueError, match="NaN"):
         grid_trajectory_costs([sm["t2"], sm["t3"]], np.full((1, 2, 2), np.nan))
+
+
+def test_trajectory_cost_of_a_flat_belief_keeps_every_tie():
+    """Where every cell has the same corners, no point can be ruled out; the max is still
+    every point's value (ties and rounding included)."""
+    cfg = SpatialConfig(bounds=BOUNDS, grid_points=9)
+    model = SpatialCostModel(cfg, np.full(cfg.n_points, 0.3), np.ones(cfg.n_points))
+    xi = np.random.default_rng(3).uniform(0.0, 10.0, size=(5, 40, 2))
+    np.testing.assert_array_equal(model.trajectory_cost(xi), model.point_cost(xi).max(axis=1))
 
 
 @pytest.fixture(scope="module")

@@ -146,7 +146,7 @@ class SpatialCostModel:
         self._strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
         self._net: Surrogate | None = None
         self._stale = True
-        self._grid_cache: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
+        self._grid_cache: dict[tuple[torch.device, torch.dtype], tuple[torch.Tensor, ...]] = {}
         self._net_cache: dict[torch.device, Surrogate] = {}
 
     @classmethod
@@ -306,11 +306,13 @@ class SpatialCostModel:
         return SurrogateError(*out)
 
     # ------------------------------------------------------------------------ evaluation
-    def _corner_table(self, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    def _corner_table(self, device: torch.device, dtype: torch.dtype
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(2^d, V) posterior mean at the corners of the cell whose lowest corner is grid point
-        v, corners in :meth:`_stencil`'s order; rows of points on a top face hold the padding 0
-        (no interpolation reads them). Built once per belief, so an evaluation gathers each
-        point's corners in one indexing instead of one per corner."""
+        v, corners in :meth:`_stencil`'s order, and the (V,) least and greatest of each cell's
+        corners; rows of points on a top face hold the padding 0 (no interpolation reads
+        them). Built once per belief, so an evaluation gathers each point's corners in one
+        indexing instead of one per corner."""
         key = (device, dtype)
         if key not in self._grid_cache:
             d = len(self.config.shape)
@@ -318,9 +320,10 @@ class SpatialCostModel:
                        for corner in itertools.product((0, 1), repeat=d)]
             padded = np.concatenate([self._mean, np.zeros(max(offsets))])
             v = len(self._mean)
-            table = np.stack([padded[o:o + v] for o in offsets])
-            self._grid_cache[key] = torch.as_tensor(table, dtype=dtype, device=device)
-        return self._grid_cache[key]
+            table = torch.as_tensor(np.stack([padded[o:o + v] for o in offsets]), dtype=dtype,
+                                    device=device)
+            self._grid_cache[key] = (table, table.amin(dim=0), table.amax(dim=0))
+        return self._grid_cache[key]  # type: ignore[return-value]
 
     def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Multilinear interpolation weights of points x (n, d), clamped to bounds: the flat
@@ -348,7 +351,7 @@ class SpatialCostModel:
         """The posterior mean at the points of a :meth:`_stencil`, (n,). The corners are
         summed one after another in a fixed order, so the result does not depend on how many
         points are evaluated together."""
-        table = self._corner_table(weights.device, weights.dtype)
+        table = self._corner_table(weights.device, weights.dtype)[0]
         corners = torch.index_select(table, 1, base)                        # (2^d, n)
         terms = corners.mul_(weights)
         out = terms[0].clone()
@@ -359,6 +362,23 @@ class SpatialCostModel:
     def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
         """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
         return self._interpolate(*self._stencil(x))
+
+    def _row_max(self, base: torch.Tensor, weights: torch.Tensor, rows: int) -> torch.Tensor:
+        """max over each row of the interpolated mean at the points of a :meth:`_stencil` of
+        ``rows`` equal rows of points, (rows,): the same value as interpolating every point,
+        but only points that can hold their row's maximum are interpolated. An interpolated
+        value lies within its cell's corner range (up to rounding, which ``slack`` covers), so
+        a point whose cell's greatest corner is below the greatest least corner of its row
+        cannot be that row's maximum."""
+        _, least, greatest = self._corner_table(weights.device, weights.dtype)
+        floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
+        slack = 256 * torch.finfo(weights.dtype).eps * (1.0 + floor.abs())
+        cand = torch.index_select(greatest, 0, base).view(rows, -1) >= (floor - slack)[:, None]
+        idx = cand.view(-1).nonzero().squeeze(1)
+        values = torch.full((base.shape[0],), -torch.inf, dtype=weights.dtype,
+                            device=weights.device)
+        values[idx] = self._interpolate(base[idx], weights[:, idx])
+        return values.view(rows, -1).amax(dim=1)
 
     def _mlp_on(self, device: torch.device) -> Surrogate:
         assert self._net is not None
@@ -488,6 +508,8 @@ def _as_points(model: SpatialCostModel, x: Any, ndim: int | None) -> torch.Tenso
 
 def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
     """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+    if ndim == 3 and not model.config.use_surrogate:
+        return grid_trajectory_costs([model], x)[0]
     t = _as_points(model, x, ndim)
     out = model._eval_flat(t.reshape(-1, model.config.dim)).reshape(t.shape[:-1])
     if ndim is not None:
@@ -497,23 +519,26 @@ def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
 
 def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> list[Points]:
     """[S_i(xi) for each model], xi (N, H, d) -> (N,) each, for models of one config evaluated
-    by grid interpolation: the same values as each model's :meth:`~SpatialCostModel.
-    trajectory_cost`, with the interpolation weights of the points computed once for all.
-    (Steering scores every candidate against all tasks concurrent with the robot's.)"""
+    by grid interpolation: the same values as the max over each trajectory of the
+    interpolated means, with the interpolation weights of the points computed once for all
+    models and only the points that can hold a trajectory's maximum interpolated
+    (:meth:`SpatialCostModel._row_max`). Steering scores every candidate against all tasks
+    concurrent with the robot's. Chunks hold whole trajectories of at most ``config.chunk``
+    points (at least one trajectory)."""
     first = models[0]
     if first.config.use_surrogate or any(m.config != first.config for m in models):
         raise ValueError("grid_trajectory_costs needs models of one config without surrogate")
     t = _as_points(first, xi, ndim=3)
-    flat = t.reshape(-1, first.config.dim)
-    if not bool(torch.isfinite(flat).all()):
+    if not bool(torch.isfinite(t).all()):
         raise ValueError("points contain NaN or infinite coordinates")
-    step = first.config.chunk
+    n, h, d = t.shape
+    step = max(1, first.config.chunk // h)
     parts: list[list[torch.Tensor]] = [[] for _ in models]
     with torch.no_grad():
-        for s in range(0, flat.shape[0], step):
-            stencil = first._stencil(flat[s:s + step])
+        for s in range(0, n, step):
+            rows = t[s:s + step]
+            stencil = first._stencil(rows.reshape(-1, d))
             for part, m in zip(parts, models, strict=True):
-                part.append(m._interpolate(*stencil))
-    outs = [(p[0] if len(p) == 1 else torch.cat(p)).reshape(t.shape[:-1]).amax(dim=-1)
-            for p in parts]
+                part.append(m._row_max(*stencil, rows=rows.shape[0]))
+    outs = [torch.cat(p) if p else t.new_zeros(0) for p in parts]
     return outs if isinstance(xi, torch.Tensor) else [o.numpy() for o in outs]

@@ -89,7 +89,7 @@ class SpatialModel:
                 return torch.zeros(arr.shape[0], dtype=dtype, device=arr.device)
             return np.zeros(arr.shape[0])
         models = [self[tid] for tid in ids]
-        if len(models) > 1 and not self.config.use_surrogate:
+        if not self.config.use_surrogate:
             costs = grid_trajectory_costs(models, xi)
         else:
             costs = [m.trajectory_cost(xi) for m in models]
