@@ -93,6 +93,14 @@ def test_point_cost_chunks_agree_with_brute_force():
     dense = np.concatenate([np.linspace(a, b, 20_000) for a, b in itertools.pairwise(path)])
     np.testing.assert_allclose(point_cost(pts[:400], path, 0.7),
                                point_cost(pts[:400], dense, 0.7, polyline=False), atol=4e-4)
+    # a point's cost does not depend on which points share its chunk (3-D body-point paths)
+    pts3, body = rng.random((3000, 3)), rng.random((50, 4, 3))
+    whole = point_cost(pts3, body, 2.0)
+    assert np.array_equal(whole, np.concatenate([point_cost(pts3[:7], body, 2.0),
+                                                 point_cost(pts3[7:], body, 2.0)]))
+    seg_d = min(seg_dist(pts3[11], a, b) for k in range(4)
+                for a, b in itertools.pairwise(body[:, k]))
+    assert whole[11] == pytest.approx(math.exp(-2.0 * seg_d), rel=1e-12)
 
 
 def test_point_cost_rejects_bad_input():
