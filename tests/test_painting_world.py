@@ -183,6 +183,20 @@ def test_forward_kinematics_equals_mujoco() -> None:
     assert kin.points(q.reshape(4, 10, 7)).shape == (4, 10, len(POINT_NAMES), 3)
 
 
+def test_kept_forward_kinematics_answers_only_the_same_joints() -> None:
+    """The last answer is reused for the very same joints only, and callers may write into
+    what they get."""
+    kin = arm_kinematics()
+    q = np.random.default_rng(4).uniform(kin.lower, kin.upper, size=(5, 9, 7))
+    first = kin.points(q)
+    first[:] = 0.0                                   # a caller writing into its answer
+    np.testing.assert_array_equal(kin.points(q.copy()), kin._points(q))
+    moved = q.copy()
+    moved[2, 3, 4] += 1e-9                           # one joint of one row, barely
+    np.testing.assert_array_equal(kin.points(moved), kin._points(moved))
+    assert not np.array_equal(kin.points(moved), kin.points(q))
+
+
 def test_mirrored_joints_mirror_the_arm() -> None:
     # exact up to the model's 1.57 for pi/2 in the wrist: under a millimetre
     kin = arm_kinematics()
