@@ -2,25 +2,115 @@
 process CPU time, one torch thread.
 
     .venv/bin/python benchmarks/bench_painting_cycle.py [--seeds 0,1] [--cycles 7] [--docs]
+    .venv/bin/python benchmarks/bench_painting_cycle.py --base /tmp/old-checkout [--rounds 2]
 
 Runs ``rapidds run painting --human left-slow --gamma 12 --cycles 7`` (full adaptation, the
 default search) in memory for each seed. The loop is single-threaded, so on a shared machine
 its CPU time is what the wall time would be on an idle core; both are reported, with the load.
-The target is a median of at most 2 s on 2 cores.
+
+``--base DIR`` measures the checkout at DIR (its ``src``) beside this one: every (round, seed)
+runs in a fresh process of each tree, the two alternating, and the runs' records (timings
+aside) are compared by digest, so a speed-up that changed a plan shows.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import os
 import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
-import torch
-from _common import cpu_model, load_average, update_docs_section
+from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
-from rapidds.loop.config import RunConfig
-from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
-from rapidds.worlds.painting import PaintingWorld
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _strip_timing(obj: object) -> object:
+    if isinstance(obj, dict):
+        return {k: _strip_timing(v) for k, v in obj.items() if k != "seconds"}
+    if isinstance(obj, list):
+        return [_strip_timing(v) for v in obj]
+    return obj
+
+
+def run_seed(seed: int, cycles: int) -> dict[str, object]:
+    """One run in this process: per-cycle wall and CPU seconds, the wall parts, the records'
+    digest."""
+    import torch
+
+    from rapidds.loop.config import RunConfig
+    from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
+    from rapidds.worlds.painting import PaintingWorld
+
+    torch.set_num_threads(1)
+    policy = load_policy(PaintingWorld())
+    cfg = RunConfig(world="painting", human="left-slow", gamma=12.0, cycles=cycles, seed=seed)
+    run = AdaptiveRun(cfg, policy)
+    out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": []}
+    digest = hashlib.sha256()
+    while not run.finished:
+        w0, c0 = time.perf_counter(), time.process_time()
+        res: CycleResult = run.step()
+        out["wall"].append(time.perf_counter() - w0)
+        out["cpu"].append(time.process_time() - c0)
+        # the stored form: a typed record here, a dict in checkouts from before it was typed
+        rec = res.record.to_json() if hasattr(res.record, "to_json") else res.record
+        for k in ("plan", "deploy", "update"):
+            out[k].append(rec["seconds"][k])
+        digest.update(json.dumps(_strip_timing(rec), sort_keys=True,
+                                 default=str).encode())
+    return {**out, "digest": digest.hexdigest()[:16]}
+
+
+def _child(src: Path, seed: int, cycles: int) -> dict[str, object]:
+    env = {**os.environ, "PYTHONPATH": f"{src}{os.pathsep}{Path(__file__).parent}"}
+    code = ("import json, bench_painting_cycle as b; "
+            f"print(json.dumps(b.run_seed({seed}, {cycles})))")
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def compare(base: Path, seeds: list[int], cycles: int, rounds: int) -> str:
+    """Base and this tree alternating run by run; CPU and wall medians over all cycles."""
+    load0 = load_average()
+    trees = {"base": base.resolve() / "src", "this tree": ROOT / "src"}
+    got: dict[str, list[dict]] = {name: [] for name in trees}
+    for r in range(rounds):
+        for seed in seeds:
+            for name, src in (trees.items() if r % 2 == 0 else reversed(trees.items())):
+                res = _child(src, seed, cycles)
+                got[name].append({**res, "seed": seed})
+                print(f"round {r} seed {seed} {name}: CPU median "
+                      f"{statistics.median(res['cpu']):.3f} s, digest {res['digest']}, "
+                      f"load {load_average()}", flush=True)
+    same = all(a["digest"] == b["digest"] for a, b in zip(got["base"], got["this tree"],
+                                                          strict=True))
+    rows = []
+    for name, runs in got.items():
+        cpu = [c for run in runs for c in run["cpu"]]
+        wall = [c for run in runs for c in run["wall"]]
+        parts = {k: statistics.median(c for run in runs for c in run[k])
+                 for k in ("plan", "deploy", "update")}
+        rows.append(f"| {name} | {statistics.median(cpu):.2f} | {max(cpu):.2f} | "
+                    f"{statistics.median(wall):.2f} | {parts['plan']:.2f} / "
+                    f"{parts['deploy']:.2f} / {parts['update']:.2f} |")
+    return (
+        f"`benchmarks/bench_painting_cycle.py --base {base} --seeds "
+        f"{','.join(map(str, seeds))} --cycles {cycles} --rounds {rounds}`: "
+        f"{len(seeds) * rounds} runs per tree of `rapidds run painting --human left-slow "
+        f"--gamma 12 --cycles {cycles}`, each in a fresh process, base and this tree "
+        f"alternating run by run; {cpu_model()}, one torch thread, 2 cores shared with other "
+        f"jobs; 1-min load average {load0} at start, {load_average()} at end. Records "
+        f"(timings aside) {'identical' if same else 'DIFFERENT'} run by run.\n\n"
+        "| tree | CPU s per cycle (median) | CPU s (max) | wall s (median) | "
+        "wall plan / execute / learn (median) |\n|---|---:|---:|---:|---|\n"
+        + "\n".join(rows) + "\n")
 
 
 def main() -> None:
@@ -28,23 +118,18 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--cycles", type=int, default=7)
     ap.add_argument("--docs", action="store_true")
+    ap.add_argument("--base", type=Path, help="an older checkout to measure beside this one")
+    ap.add_argument("--rounds", type=int, default=1)
     args = ap.parse_args()
-    torch.set_num_threads(1)
+    if args.base is not None:
+        print(compare(args.base, parse_seeds(args.seeds), args.cycles, args.rounds))
+        return
     load0 = load_average()
-    policy = load_policy(PaintingWorld())
-    wall, cpu, parts = [], [], {"plan": [], "deploy": [], "update": []}
-    for seed in (int(s) for s in args.seeds.split(",")):
-        cfg = RunConfig(world="painting", human="left-slow", gamma=12.0, cycles=args.cycles,
-                        seed=seed)
-        run = AdaptiveRun(cfg, policy)
-        while not run.finished:
-            w0, c0 = time.perf_counter(), time.process_time()
-            res: CycleResult = run.step()
-            wall.append(time.perf_counter() - w0)
-            cpu.append(time.process_time() - c0)
-            for k in parts:
-                parts[k].append(res.record["seconds"][k])
-    med = {k: statistics.median(v) for k, v in parts.items()}
+    runs = [run_seed(seed, args.cycles) for seed in parse_seeds(args.seeds)]
+    wall = [c for r in runs for c in r["wall"]]
+    cpu = [c for r in runs for c in r["cpu"]]
+    med = {k: statistics.median(c for r in runs for c in r[k])
+           for k in ("plan", "deploy", "update")}
     text = (
         f"`benchmarks/bench_painting_cycle.py --seeds {args.seeds}`: {len(wall)} cycles of "
         f"`rapidds run painting --human left-slow --gamma 12 --cycles {args.cycles}` (full "

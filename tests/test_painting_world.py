@@ -18,6 +18,8 @@ from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
 from rapidds.worlds.painting import PaintingWorld
 from rapidds.worlds.painting.kinematics import (
     POINT_NAMES,
+    POINT_RADII,
+    TOOL,
     arm_kinematics,
     mirror_joints,
     solve_ik,
@@ -181,6 +183,20 @@ def test_forward_kinematics_equals_mujoco() -> None:
     assert kin.points(q.reshape(4, 10, 7)).shape == (4, 10, len(POINT_NAMES), 3)
 
 
+def test_kept_forward_kinematics_answers_only_the_same_joints() -> None:
+    """The last answer is reused for the very same joints only, and callers may write into
+    what they get."""
+    kin = arm_kinematics()
+    q = np.random.default_rng(4).uniform(kin.lower, kin.upper, size=(5, 9, 7))
+    first = kin.points(q)
+    first[:] = 0.0                                   # a caller writing into its answer
+    np.testing.assert_array_equal(kin.points(q.copy()), kin._points(q))
+    moved = q.copy()
+    moved[2, 3, 4] += 1e-9                           # one joint of one row, barely
+    np.testing.assert_array_equal(kin.points(moved), kin._points(moved))
+    assert not np.array_equal(kin.points(moved), kin.points(q))
+
+
 def test_mirrored_joints_mirror_the_arm() -> None:
     # exact up to the model's 1.57 for pi/2 in the wrist: under a millimetre
     kin = arm_kinematics()
@@ -257,6 +273,33 @@ def test_trajectories_that_cannot_be_executed_never_complete(world: PaintingWorl
     # not executable: the penalty and H * dt more, even though the goals were all visited
     np.testing.assert_allclose(t, world.penalty + world.horizon * world.dt)
     assert world.penalty == 2 * world.horizon * world.dt
+
+
+def test_collisions_are_every_points_sphere_against_the_table_and_every_object(
+        world: PaintingWorld) -> None:
+    """Rows touching the table skip the object test; the answer is still, row by row, whether
+    any point's sphere touches the table or an object the point may not enter."""
+    rng = np.random.default_rng(3)
+    base = np.stack([world.robot_trajectory(t, m) for t in ("mix_l", "mix_r", "brush")
+                     for m in ("direct", "avoidant")])
+    q = np.concatenate([base, base[rng.integers(0, 6, 30)] + rng.normal(0.0, 0.25, (30, 64, 7))])
+    pts = world.kinematics.points(q)
+    radius = np.broadcast_to(POINT_RADII, pts.shape[1:-1])
+    boxes = world.layout.obstacles()
+    open_to_tool = {"workpiece", "bowl", "left_tray", "right_tray"}
+    expected = []
+    for row in pts:
+        touch = (row[..., 2] - radius < 0.0).any()
+        for name, box in boxes.items():
+            gap = np.maximum(box.lo - row, 0.0) + np.maximum(row - box.hi, 0.0)
+            near = (gap * gap).sum(axis=-1) <= radius * radius
+            if name in open_to_tool:
+                near[..., TOOL] = False
+            touch |= near.any()
+        expected.append(touch)
+    got = world.collides(pts)
+    np.testing.assert_array_equal(got, expected)
+    assert 0 < got.sum() < len(got)  # both kinds present
 
 
 def test_the_penalty_grows_with_how_far_a_trajectory_stays_short(world: PaintingWorld) -> None:

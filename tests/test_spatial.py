@@ -20,6 +20,7 @@ from rapidds.human.spatial import (
     SpatialModel,
     point_cost,
 )
+from rapidds.human.spatial.grid import grid_trajectory_costs
 
 BOUNDS = ((0.0, 10.0), (0.0, 10.0))
 ROUTE_A = [(5, 1), (2, 3), (2, 7), (5, 9)]
@@ -92,6 +93,14 @@ def test_point_cost_chunks_agree_with_brute_force():
     dense = np.concatenate([np.linspace(a, b, 20_000) for a, b in itertools.pairwise(path)])
     np.testing.assert_allclose(point_cost(pts[:400], path, 0.7),
                                point_cost(pts[:400], dense, 0.7, polyline=False), atol=4e-4)
+    # a point's cost does not depend on which points share its chunk (3-D body-point paths)
+    pts3, body = rng.random((3000, 3)), rng.random((50, 4, 3))
+    whole = point_cost(pts3, body, 2.0)
+    assert np.array_equal(whole, np.concatenate([point_cost(pts3[:7], body, 2.0),
+                                                 point_cost(pts3[7:], body, 2.0)]))
+    seg_d = min(seg_dist(pts3[11], a, b) for k in range(4)
+                for a, b in itertools.pairwise(body[:, k]))
+    assert whole[11] == pytest.approx(math.exp(-2.0 * seg_d), rel=1e-12)
 
 
 def test_point_cost_rejects_bad_input():
@@ -200,6 +209,78 @@ def test_grid_interpolation_in_3d_matches_scipy():
     ref = RegularGridInterpolator(axes, model.mean.reshape(cfg.shape))
     x = rng.random((200, 3)) * [1, 2, 1]
     np.testing.assert_allclose(model.point_cost(x), ref(x), atol=1e-12)
+
+
+def _corner_by_corner(model: SpatialCostModel, x: torch.Tensor) -> torch.Tensor:
+    """Multilinear interpolation written out one corner at a time (index, weight, sum)."""
+    shape = model.config.shape
+    lo, hi = (torch.as_tensor(np.array(b, dtype=float), dtype=x.dtype)
+              for b in zip(*model.config.bounds, strict=True))
+    top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype)
+    vals = torch.as_tensor(model.mean, dtype=x.dtype)
+    u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
+    i0 = torch.minimum(u.floor(), top - 1)
+    frac, i0 = u - i0, i0.long()
+    strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
+    out = torch.zeros(x.shape[0], dtype=x.dtype)
+    for corner in itertools.product((0, 1), repeat=len(shape)):
+        idx = torch.zeros(x.shape[0], dtype=torch.long)
+        w = torch.ones_like(out)
+        for k, c in enumerate(corner):
+            idx += (i0[:, k] + c) * strides[k]
+            w *= frac[:, k] if c else 1.0 - frac[:, k]
+        out += w * vals[idx]
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_grid_interpolation_is_bit_identical_to_corner_by_corner(dtype):
+    rng = np.random.default_rng(8)
+    cfg = SpatialConfig(bounds=((0, 1), (0, 2), (0, 1)), beta=5.0, grid_points=(6, 9, 5))
+    people = [rng.random((40, 3)) * [1, 2, 1] for _ in range(3)]
+    model = SpatialCostModel.from_population(cfg, people)
+    x = torch.as_tensor(rng.uniform(-0.3, 2.3, size=(500, 3)), dtype=dtype)  # some clamped
+    assert torch.equal(model._eval_grid(x), _corner_by_corner(model, x))
+    # the corner table follows the belief: after an observation or a reset it interpolates
+    # the new mean
+    before = model._eval_grid(x)
+    model.observe(rng.random((30, 3)) * [1, 2, 1])
+    after = model._eval_grid(x)
+    assert not torch.equal(after, before)
+    assert torch.equal(after, _corner_by_corner(model, x))
+    model.reset()
+    assert torch.equal(model._eval_grid(x), before)
+
+
+def test_trajectory_costs_are_the_max_of_every_points_interpolation(pop):
+    """Several tasks' trajectory costs from one set of interpolation weights, interpolating
+    only the points that can hold a trajectory's maximum, in chunks or not: the bits of the
+    max over every point's interpolated value."""
+    sm, small = _two_task_model(pop), _two_task_model(pop, chunk=20)  # chunks of 2 paths
+    rng = np.random.default_rng(9)
+    xi = rng.uniform(-1.0, 11.0, size=(13, 7, 2))
+    for dtype in (np.float64, np.float32):
+        x = xi.astype(dtype)
+        every = [sm[t].point_cost(x).max(axis=1) for t in ("t2", "t3")]
+        for shared in (grid_trajectory_costs([sm["t2"], sm["t3"]], x),
+                       grid_trajectory_costs([small["t2"], small["t3"]], x),
+                       [sm["t2"].trajectory_cost(x), sm["t3"].trajectory_cost(x)]):
+            for got, ref in zip(shared, every, strict=True):
+                np.testing.assert_array_equal(got, ref)
+    tensor = grid_trajectory_costs([sm["t2"], sm["t3"]], torch.as_tensor(xi))
+    assert all(isinstance(t, torch.Tensor) for t in tensor)
+    assert grid_trajectory_costs([sm["t2"]], np.zeros((0, 3, 2)))[0].shape == (0,)
+    with pytest.raises(ValueError, match="NaN"):
+        grid_trajectory_costs([sm["t2"], sm["t3"]], np.full((1, 2, 2), np.nan))
+
+
+def test_trajectory_cost_of_a_flat_belief_keeps_every_tie():
+    """Where every cell has the same corners, no point can be ruled out; the max is still
+    every point's value (ties and rounding included)."""
+    cfg = SpatialConfig(bounds=BOUNDS, grid_points=9)
+    model = SpatialCostModel(cfg, np.full(cfg.n_points, 0.3), np.ones(cfg.n_points))
+    xi = np.random.default_rng(3).uniform(0.0, 10.0, size=(5, 40, 2))
+    np.testing.assert_array_equal(model.trajectory_cost(xi), model.point_cost(xi).max(axis=1))
 
 
 @pytest.fixture(scope="module")

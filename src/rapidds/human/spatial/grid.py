@@ -19,10 +19,10 @@ from rapidds.errors import StateError
 from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
 from rapidds.human.spatial.surrogate import FitReport, Surrogate, SurrogateError
 
-__all__ = ["Points", "SpatialCostModel", "point_cost"]
+__all__ = ["Points", "SpatialCostModel", "grid_trajectory_costs", "point_cost"]
 
-# Elements of the largest temporary (chunk x T x d) array point_cost builds: 8 MiB of float64.
-_POINT_COST_ELEMS = 1 << 20
+# Elements of point_cost's (chunk x S) temporaries: 1 MiB of float64 each, to stay in cache.
+_POINT_COST_PAIRS = 1 << 17
 
 Points = TypeVar("Points", np.ndarray, torch.Tensor)
 
@@ -73,8 +73,9 @@ def point_cost(
 
     Returns:
         (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
-        exp(-beta * distance to the nearest path point or segment), computed in chunks of points
-        so the (chunk, S, d) temporaries stay near 8 MiB (S segments of all K paths together).
+        exp(-beta * distance to the nearest path point or segment), computed coordinate by
+        coordinate on (chunk, S) arrays of about 1 MiB (S segments of all K paths together),
+        which stay in cache: several times faster than (chunk, S, d) arrays and einsum.
     """
     if not _is_real(beta) or not math.isfinite(beta) or beta <= 0:
         raise ValueError(f"beta must be a finite number > 0, got {beta!r}")
@@ -91,15 +92,30 @@ def point_cost(
     else:
         start = paths.reshape(-1, pts.shape[1])
         seg, inv = np.zeros_like(start), np.zeros(len(start))
-    s, d = start.shape
-    step = max(1, _POINT_COST_ELEMS // (s * d))
+    start_t, seg_t = start.T.copy(), seg.T.copy()                       # (d, S)
+    step = max(1, _POINT_COST_PAIRS // len(start))
     nearest = np.empty(len(pts))
     for k in range(0, len(pts), step):
-        rel = pts[k:k + step, None, :] - start[None]  # (c, S, d)
-        t = np.clip(np.einsum("csd,sd->cs", rel, seg) * inv, 0.0, 1.0)
-        rel -= t[..., None] * seg
-        nearest[k:k + step] = np.einsum("csd,csd->cs", rel, rel).min(axis=1)
+        rel = [pts[k:k + step, i, None] - start_t[i] for i in range(len(start_t))]  # d x (c, S)
+        t = np.clip(_coordinate_sum([r * g for r, g in zip(rel, seg_t, strict=True)]) * inv,
+                    0.0, 1.0)
+        for r, g in zip(rel, seg_t, strict=True):
+            r -= t * g
+        nearest[k:k + step] = _coordinate_sum([r * r for r in rel]).min(axis=1)
     return np.exp(-float(beta) * np.sqrt(nearest))
+
+
+def _coordinate_sum(terms: list[np.ndarray]) -> np.ndarray:
+    """Sum of per-coordinate arrays in the order NumPy's einsum adds three coordinates
+    ((x + z) + y), so that costs are the bits the einsum form gave; other d in order."""
+    if len(terms) == 3:
+        out = terms[0] + terms[2]
+        out += terms[1]
+        return out
+    out = terms[0].copy()
+    for term in terms[1:]:
+        out += term
+    return out
 
 
 class SpatialCostModel:
@@ -146,7 +162,7 @@ class SpatialCostModel:
         self._strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
         self._net: Surrogate | None = None
         self._stale = True
-        self._grid_cache: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
+        self._grid_cache: dict[tuple[torch.device, torch.dtype], tuple[torch.Tensor, ...]] = {}
         self._net_cache: dict[torch.device, Surrogate] = {}
 
     @classmethod
@@ -306,32 +322,79 @@ class SpatialCostModel:
         return SurrogateError(*out)
 
     # ------------------------------------------------------------------------ evaluation
-    def _grid_values(self, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    def _corner_table(self, device: torch.device, dtype: torch.dtype
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(2^d, V) posterior mean at the corners of the cell whose lowest corner is grid point
+        v, corners in :meth:`_stencil`'s order, and the (V,) least and greatest of each cell's
+        corners; rows of points on a top face hold the padding 0 (no interpolation reads
+        them). Built once per belief, so an evaluation gathers each point's corners in one
+        indexing instead of one per corner."""
         key = (device, dtype)
         if key not in self._grid_cache:
-            self._grid_cache[key] = torch.as_tensor(self._mean, dtype=dtype, device=device)
-        return self._grid_cache[key]
+            d = len(self.config.shape)
+            offsets = [sum(c * s for c, s in zip(corner, self._strides, strict=True))
+                       for corner in itertools.product((0, 1), repeat=d)]
+            padded = np.concatenate([self._mean, np.zeros(max(offsets))])
+            v = len(self._mean)
+            table = torch.as_tensor(np.stack([padded[o:o + v] for o in offsets]), dtype=dtype,
+                                    device=device)
+            self._grid_cache[key] = (table, table.amin(dim=0), table.amax(dim=0))
+        return self._grid_cache[key]  # type: ignore[return-value]
 
-    def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
-        """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
+    def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Multilinear interpolation weights of points x (n, d), clamped to bounds: the flat
+        grid index (n,) of each point's lowest cell corner and the (2^d, n) weights of the
+        cell's corners (corner c = (c_1..c_d) in itertools.product order). Depends on the
+        grid alone, so every task of a model shares it."""
         shape = self.config.shape
-        vals = self._grid_values(x.device, x.dtype)
         lo = torch.as_tensor(self._lo, dtype=x.dtype, device=x.device)
         hi = torch.as_tensor(self._hi, dtype=x.dtype, device=x.device)
         top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype, device=x.device)
         u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
         i0 = torch.minimum(u.floor(), top - 1)
         frac = u - i0
-        i0 = i0.long()
-        out = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        for corner in itertools.product((0, 1), repeat=len(shape)):
-            idx = torch.zeros(x.shape[0], dtype=torch.long, device=x.device)
-            w = torch.ones_like(out)
-            for k, c in enumerate(corner):
-                idx += (i0[:, k] + c) * self._strides[k]
-                w *= frac[:, k] if c else 1.0 - frac[:, k]
-            out += w * vals[idx]
+        strides = torch.as_tensor(self._strides, dtype=torch.long, device=x.device)
+        base = (i0.long() * strides).sum(dim=1)
+        # Per axis the weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight
+        # is their product taken axis by axis, the same products as one corner at a time.
+        axis_w = [(1.0 - frac[:, k], frac[:, k]) for k in range(len(shape))]
+        weights = [axis_w[0][0], axis_w[0][1]]
+        for k in range(1, len(shape)):
+            weights = [w * a for w in weights for a in axis_w[k]]
+        return base, torch.stack(weights)
+
+    def _interpolate(self, base: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """The posterior mean at the points of a :meth:`_stencil`, (n,). The corners are
+        summed one after another in a fixed order, so the result does not depend on how many
+        points are evaluated together."""
+        table = self._corner_table(weights.device, weights.dtype)[0]
+        corners = torch.index_select(table, 1, base)                        # (2^d, n)
+        terms = corners.mul_(weights)
+        out = terms[0].clone()
+        for term in terms[1:]:
+            out += term
         return out
+
+    def _eval_grid(self, x: torch.Tensor) -> torch.Tensor:
+        """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
+        return self._interpolate(*self._stencil(x))
+
+    def _row_max(self, base: torch.Tensor, weights: torch.Tensor, rows: int) -> torch.Tensor:
+        """max over each row of the interpolated mean at the points of a :meth:`_stencil` of
+        ``rows`` equal rows of points, (rows,): the same value as interpolating every point,
+        but only points that can hold their row's maximum are interpolated. An interpolated
+        value lies within its cell's corner range (up to rounding, which ``slack`` covers), so
+        a point whose cell's greatest corner is below the greatest least corner of its row
+        cannot be that row's maximum."""
+        _, least, greatest = self._corner_table(weights.device, weights.dtype)
+        floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
+        slack = 256 * torch.finfo(weights.dtype).eps * (1.0 + floor.abs())
+        cand = torch.index_select(greatest, 0, base).view(rows, -1) >= (floor - slack)[:, None]
+        idx = cand.view(-1).nonzero().squeeze(1)
+        values = torch.full((base.shape[0],), -torch.inf, dtype=weights.dtype,
+                            device=weights.device)
+        values[idx] = self._interpolate(base[idx], weights[:, idx])
+        return values.view(rows, -1).amax(dim=1)
 
     def _mlp_on(self, device: torch.device) -> Surrogate:
         assert self._net is not None
@@ -444,11 +507,11 @@ class SpatialCostModel:
         return model
 
 
-def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
-    """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+def _as_points(model: SpatialCostModel, x: Any, ndim: int | None) -> torch.Tensor:
+    """The input checks of point_cost / trajectory_cost: x as a floating tensor (a NumPy
+    array as float64, shared memory), of shape (..., d), or (N, H, d) when ``ndim`` is 3."""
     d = model.config.dim
-    is_tensor = isinstance(x, torch.Tensor)
-    t = x if is_tensor else torch.from_numpy(np.asarray(x, dtype=np.float64))
+    t = x if isinstance(x, torch.Tensor) else torch.from_numpy(np.asarray(x, dtype=np.float64))
     if not t.is_floating_point():
         t = t.to(torch.float32)
     if t.ndim < 1 or t.shape[-1] != d:
@@ -456,7 +519,42 @@ def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
     if ndim is not None and (t.ndim != ndim or t.shape[1] == 0):
         raise ValueError(f"trajectories must have shape (N, H, {d}) with H >= 1, "
                          f"got {tuple(t.shape)}")
-    out = model._eval_flat(t.reshape(-1, d)).reshape(t.shape[:-1])
+    return t
+
+
+def _evaluate(model: SpatialCostModel, x: Any, ndim: int | None) -> Any:
+    """Shared input handling of point_cost / trajectory_cost: type, shape, dtype round trip."""
+    if ndim == 3 and not model.config.use_surrogate:
+        return grid_trajectory_costs([model], x)[0]
+    t = _as_points(model, x, ndim)
+    out = model._eval_flat(t.reshape(-1, model.config.dim)).reshape(t.shape[:-1])
     if ndim is not None:
         out = out.amax(dim=-1)
-    return out if is_tensor else out.numpy()
+    return out if isinstance(x, torch.Tensor) else out.numpy()
+
+
+def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> list[Points]:
+    """[S_i(xi) for each model], xi (N, H, d) -> (N,) each, for models of one config evaluated
+    by grid interpolation: the same values as the max over each trajectory of the
+    interpolated means, with the interpolation weights of the points computed once for all
+    models and only the points that can hold a trajectory's maximum interpolated
+    (:meth:`SpatialCostModel._row_max`). Steering scores every candidate against all tasks
+    concurrent with the robot's. Chunks hold whole trajectories of at most ``config.chunk``
+    points (at least one trajectory)."""
+    first = models[0]
+    if first.config.use_surrogate or any(m.config != first.config for m in models):
+        raise ValueError("grid_trajectory_costs needs models of one config without surrogate")
+    t = _as_points(first, xi, ndim=3)
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError("points contain NaN or infinite coordinates")
+    n, h, d = t.shape
+    step = max(1, first.config.chunk // h)
+    parts: list[list[torch.Tensor]] = [[] for _ in models]
+    with torch.no_grad():
+        for s in range(0, n, step):
+            rows = t[s:s + step]
+            stencil = first._stencil(rows.reshape(-1, d))
+            for part, m in zip(parts, models, strict=True):
+                part.append(m._row_max(*stencil, rows=rows.shape[0]))
+    outs = [torch.cat(p) if p else t.new_zeros(0) for p in parts]
+    return outs if isinstance(xi, torch.Tensor) else [o.numpy() for o in outs]

@@ -16,7 +16,7 @@ from pydantic import BaseModel, StrictStr, ValidationError
 from rapidds.errors import StateError
 from rapidds.fileio import atomic_write_text
 from rapidds.human.spatial.config import SpatialConfig
-from rapidds.human.spatial.grid import Points, SpatialCostModel
+from rapidds.human.spatial.grid import Points, SpatialCostModel, grid_trajectory_costs
 from rapidds.human.spatial.surrogate import FitReport
 from rapidds.settings import error_line
 
@@ -100,7 +100,11 @@ class SpatialModel:
                 dtype = arr.dtype if arr.is_floating_point() else torch.float32
                 return torch.zeros(arr.shape[0], dtype=dtype, device=arr.device)
             return np.zeros(arr.shape[0])
-        costs = [self[tid].trajectory_cost(xi) for tid in ids]
+        models = [self[tid] for tid in ids]
+        if not self.config.use_surrogate:
+            costs = grid_trajectory_costs(models, xi)
+        else:
+            costs = [m.trajectory_cost(xi) for m in models]
         if isinstance(costs[0], torch.Tensor):
             return torch.stack(costs).amax(dim=0)
         return np.max(np.stack(costs), axis=0)

@@ -461,11 +461,12 @@ class PaintingWorld:
         tool = np.zeros(p.shape[1:-1], dtype=bool)
         tool[..., TOOL] = True
         tool = tool.reshape(-1)
-        hit = ((flat[..., 2] - radius) < 0.0).any(axis=1)
+        bottom = flat[..., 2] - radius                     # lowest z of each point's sphere
+        hit = (bottom < 0.0).any(axis=1)
         lows, highs, open_to_tool = self._obstacle_arrays
-        # Only points low enough to reach an object need the box test.
-        near = flat[..., 2] - radius < highs[:, 2].max()
-        rows, cols = np.nonzero(near)
+        # Only points low enough to reach an object need the box test, and only in rows not
+        # already touching the table.
+        rows, cols = np.nonzero((bottom < highs[:, 2].max()) & ~hit[:, None])
         if rows.size:
             c = flat[rows, cols]                                              # (M, 3)
             r = radius[cols]
@@ -473,7 +474,7 @@ class PaintingWorld:
                                                                         0.0)  # (M, B, 3)
             touch = (gap * gap).sum(axis=-1) <= (r * r)[:, None]
             touch &= ~(tool[cols][:, None] & open_to_tool[None])
-            hit[np.unique(rows[touch.any(axis=1)])] = True
+            hit[rows[touch.any(axis=1)]] = True
         return hit
 
     # -- internals ------------------------------------------------------------------------------
