@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rapidds.bridge.link import Link, StampGate, log
+from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     SPEED_SCALING_TOPIC,
@@ -49,6 +49,7 @@ from rapidds.bridge.ros2 import (
     MessageError,
     float64_message,
     joint_trajectory,
+    stamp_ns,
     string_message,
 )
 from rapidds.errors import RapiddsError
@@ -179,15 +180,23 @@ class LiveCell:
 
     def _take(self, live: LivePlan, obs: CycleObservation, wait: float = 0.02,
               monitor: SpeedMonitor | None = None) -> None:
-        """Read one message (or wait ``wait`` s) and file it."""
+        """Wait up to ``wait`` s for a message and file it; with a ``monitor``, every other
+        one queued too: it acts on the latest state, never on a backlog (joint states come
+        hundreds a second)."""
         rec = self.link.receive(wait)
         if rec is None:
             return
+        for r in (rec, *(self.link.drain() if monitor is not None else ())):
+            self._file(live, obs, r, monitor)
+
+    def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
+              monitor: SpeedMonitor | None) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
             self._robot_seen = time.monotonic()
             rows = joint_rows(rec.msg.name, self.joints)
             if monitor is not None and rows is not None:
-                monitor.joint_state(np.asarray(rec.msg.position, float)[rows])
+                monitor.joint_state(np.asarray(rec.msg.position, float)[rows],
+                                    live.cell_seconds(stamp_ns(rec.msg.header)))
         elif rec.topic == CONTACTS_TOPIC:
             obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
                                  "touch": rec.msg.data})

@@ -185,11 +185,21 @@ class CycleObservation:
         elif rec.topic.startswith(TRACKING_PREFIX):
             self.track(rec)
 
-    def latest(self) -> np.ndarray | None:
-        """Each body point's last tracked position (P, 3); None until every one is tracked."""
+    def latest(self) -> tuple[np.ndarray, float, float] | None:
+        """Each body point's last tracked position (P, 3), the person's speed (the fastest
+        point between its last two samples, by their stamps: the tracker's rate, not the
+        reader's) and the cell time of the oldest point's last sample; None until every
+        point is tracked."""
         if not all(self._tracks.get(n) for n in self.points):
             return None
-        return np.stack([self._tracks[n][-1][1] for n in self.points])
+        speed = 0.0
+        for n in self.points:
+            track = self._tracks[n]
+            if len(track) > 1 and track[-1][0] > track[-2][0]:
+                step = float(np.linalg.norm(track[-1][1] - track[-2][1]))
+                speed = max(speed, step / (track[-1][0] - track[-2][0]))
+        return (np.stack([self._tracks[n][-1][1] for n in self.points]), speed,
+                min(self._tracks[n][-1][0] for n in self.points))
 
     def tracked_past(self, t: float) -> bool:
         """Every body point has a sample stamped at cell time ``t`` or later."""
