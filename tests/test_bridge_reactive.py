@@ -111,3 +111,31 @@ def test_an_unknown_execution_is_one_line_and_exit_2(capsys) -> None:
     err = stderr.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("rapidds: error: ")
     assert "--execution" in err[0]
+
+
+def test_the_reference_robot_holds_on_its_path_at_scaling_0_and_resumes() -> None:
+    from rapidds.bridge.link import Received
+    from rapidds.bridge.nodes.sim_robot import SimRobot
+
+    world = make_world("painting")
+
+    class _Quiet:  # the node's link: this test reads the node's state, not its messages
+        def publish(self, topic: str, msg: object) -> None:
+            pass
+
+    robot = SimRobot(world, _Quiet())  # type: ignore[arg-type]
+    rest = np.asarray(world.robot_rest(), float)
+    goal = rest + 0.3
+    robot.arm.follow(np.stack([rest, goal]), np.array([0.0, 1.0]))
+    robot.arm.step(0.3)
+    left = robot.arm.remaining()
+    robot.handle(Received(SPEED_SCALING_TOPIC, ros2.float64_message(-2.0), 0))
+    assert robot.arm.speed == 0.0  # clipped to [0, 1]
+    before = robot.arm.target()[0]
+    robot.arm.step(0.5)
+    np.testing.assert_allclose(robot.arm.target()[0], before)  # held on its path
+    assert robot.arm.remaining() > left - 1e-9  # its clock stood still
+    robot.handle(Received(SPEED_SCALING_TOPIC, ros2.float64_message(0.5), 0))
+    robot.arm.step(0.4)
+    assert robot.arm.remaining() < left - 0.15  # resumed, at half the planned pace
+    assert robot.arm.remaining() > left - 0.25
