@@ -9,6 +9,11 @@ realised from what was observed: the person's durations and paths, and the robot
 from its start and end events (its trajectories stay the planned ones: the loop scores and
 stores those).
 
+Reactive execution (``execution="reactive"``): while the cycle runs, a
+:class:`~rapidds.bridge.reactive.SpeedMonitor` ticks at ``scaling_rate`` Hz of the cell clock and
+publishes the robot's speed scaling on ``/rapidds/robot/speed_scaling``; the robot driver obeys
+it. Its pauses and protective check go into the cycle's record, as a simulated reactive cycle's.
+
 Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds) or the
 cycle overruns (``cycle_timeout`` cell seconds): a stop goes out on ``/rapidds/stop``, nothing
 is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last recorded cycle.
@@ -23,23 +28,28 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rapidds.bridge.link import Link, StampGate, log
+from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
+    SPEED_SCALING_TOPIC,
     STOP_TOPIC,
     TRACKING_PREFIX,
     CycleObservation,
     LivePlan,
+    joint_rows,
     live_plan_payload,
     tracking_topic,
 )
+from rapidds.bridge.reactive import SpeedMonitor, planned_speeds
 from rapidds.bridge.ros2 import (
     EVENTS_TOPIC,
     JOINT_STATE_TOPIC,
     PLAN_TOPIC,
     TRAJECTORY_TOPIC,
     MessageError,
+    float64_message,
     joint_trajectory,
+    stamp_ns,
     string_message,
 )
 from rapidds.errors import RapiddsError
@@ -60,13 +70,17 @@ class CellOptions:
     """time_scale: cell seconds per wall second. robot_timeout: wall s without a JointState
     before the robot counts as silent. startup_timeout: wall s to wait for the nodes.
     cycle_timeout: cell s a cycle may take. lead: wall s between publishing a plan and its
-    start (the nodes' time to read it)."""
+    start (the nodes' time to read it). execution: ``planned`` (the robot follows its plan) or
+    ``reactive`` (speed and separation monitoring); scaling_rate: the monitor's ticks per cell
+    second."""
 
     time_scale: float = 1.0
     robot_timeout: float = 2.0
     startup_timeout: float = 60.0
     cycle_timeout: float = 120.0
     lead: float = 0.3
+    execution: str = "planned"
+    scaling_rate: float = 20.0
 
 
 class LinkTeammate:
@@ -164,13 +178,25 @@ class LiveCell:
             sent.add(task)
             log.info("cycle %d: dispatched %s (%d rows)", plan.cycle, task, rows)
 
-    def _take(self, live: LivePlan, obs: CycleObservation) -> None:
-        """Read one message (or wait 20 ms) and file it."""
-        rec = self.link.receive(0.02)
+    def _take(self, live: LivePlan, obs: CycleObservation, wait: float = 0.02,
+              monitor: SpeedMonitor | None = None) -> None:
+        """Wait up to ``wait`` s for a message and file it; with a ``monitor``, every other
+        one queued too: it acts on the latest state, never on a backlog (joint states come
+        hundreds a second)."""
+        rec = self.link.receive(wait)
         if rec is None:
             return
+        for r in (rec, *(self.link.drain() if monitor is not None else ())):
+            self._file(live, obs, r, monitor)
+
+    def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
+              monitor: SpeedMonitor | None) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
             self._robot_seen = time.monotonic()
+            rows = joint_rows(rec.msg.name, self.joints)
+            if monitor is not None and rows is not None:
+                monitor.joint_state(np.asarray(rec.msg.position, float)[rows],
+                                    live.cell_seconds(stamp_ns(rec.msg.header)))
         elif rec.topic == CONTACTS_TOPIC:
             obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
                                  "touch": rec.msg.data})
@@ -178,15 +204,43 @@ class LiveCell:
         else:
             obs.handle(rec)
 
-    def observe(self, plan: CyclePlan) -> CycleObservation:
-        """Run one cycle on the link and return what was observed; CellFault on a fault."""
+    def _monitor(self, plan: CyclePlan) -> SpeedMonitor | None:
+        if self.options.execution != "reactive":
+            return None
+        trajectories = {t: m.trajectory for t, m in plan.best.motions.items()
+                        if m.trajectory is not None}
+        return SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories))
+
+    def _scale(self, live: LivePlan, obs: CycleObservation, sent: set[str],
+               monitor: SpeedMonitor, tick: float) -> float:
+        """Run the monitor's ticks that are due (the latest one, if several are: a slow pass
+        does not replay the past); the next tick's cell time."""
+        now = live.cell_seconds(time.time_ns())
+        if now < tick:
+            return tick
+        running = next((t for t in live.order["robot"] if t in sent and t not in obs.end), None)
+        rate = monitor.tick(now, obs.latest(), running)
+        self.link.publish(SPEED_SCALING_TOPIC, float64_message(rate))
+        period = 1.0 / self.options.scaling_rate
+        return (np.floor(now / period + 1e-9) + 1) * period
+
+    def observe(self, plan: CyclePlan,
+                monitor: SpeedMonitor | None = None) -> CycleObservation:
+        """Run one cycle on the link and return what was observed; CellFault on a fault.
+        ``monitor``: reactive execution's, ticked while the cycle runs."""
         live = self._publish_plan(plan)
         obs = CycleObservation(live, self.points, gate=self._gate)
         sent: set[str] = set()
         self._robot_seen = time.monotonic()
+        tick = 0.0
         while not obs.done:
             self._dispatch(plan, live, obs, sent)
-            self._take(live, obs)
+            wait = 0.02
+            if monitor is not None:
+                tick = self._scale(live, obs, sent, monitor, tick)
+                left = (live.wall_ns(tick) - time.time_ns()) / 1e9
+                wait = min(wait, max(left, 0.0))
+            self._take(live, obs, wait, monitor)
             if time.monotonic() - self._robot_seen > self.options.robot_timeout:
                 raise self._stop(plan.cycle, f"the robot has been silent for "
                                              f"{self.options.robot_timeout:g} s")
@@ -213,14 +267,21 @@ class LiveCell:
 
         run = self.run
         plan = run.plan()
-        obs = self.observe(plan)
+        monitor = self._monitor(plan)
+        obs = self.observe(plan, monitor)
+        reacted = None
+        if monitor is not None:
+            monitor.close(max(obs.end.values(), default=0.0))
+            self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
+            reacted = {"pauses": monitor.pauses, "replans": [],
+                       "protective": monitor.protective()}
         try:
             human = obs.human_executions(run.world.dt)
         except MessageError as exc:
             raise self._stop(plan.cycle, str(exc)) from None
         planned = {t: float(m.duration) for t, m in plan.best.motions.items()}
         plan = _as_executed(plan, obs.durations("robot"))
-        dep = run.execute(plan, observed=human)
+        dep = run.execute(plan, observed=human, reacted=reacted)
         run.learn(plan, dep)
         live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
                 "contacts": obs.contacts}

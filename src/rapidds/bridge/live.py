@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CONTACTS_TOPIC",
+    "SPEED_SCALING_TOPIC",
     "STOP_TOPIC",
     "TRACKING_PREFIX",
     "CycleObservation",
@@ -43,6 +44,10 @@ STOP_TOPIC = "/rapidds/stop"
 """``std_msgs/msg/String`` JSON ``{"cycle", "reason"}``: every node stops the cycle now."""
 CONTACTS_TOPIC = "/rapidds/robot/contacts"
 """``std_msgs/msg/String`` JSON ``{"robot", "person", "depth"}``: the arm touched the person."""
+SPEED_SCALING_TOPIC = "/rapidds/robot/speed_scaling"
+"""``std_msgs/msg/Float64`` in [0, 1]: the fraction of its trajectory's planned speed the robot
+may move at now (0 holds it where it is on its path, 1 is as planned); sent by a hub under
+reactive execution at a fixed rate of the cell clock (see docs/design-notes.md)."""
 TRACKING_PREFIX = "/rapidds/human/"
 """``geometry_msgs/msg/PointStamped`` per body point on ``/rapidds/human/<body point>``."""
 
@@ -179,6 +184,22 @@ class CycleObservation:
             self.event(rec)
         elif rec.topic.startswith(TRACKING_PREFIX):
             self.track(rec)
+
+    def latest(self) -> tuple[np.ndarray, float, float] | None:
+        """Each body point's last tracked position (P, 3), the person's speed (the fastest
+        point between its last two samples, by their stamps: the tracker's rate, not the
+        reader's) and the cell time of the oldest point's last sample; None until every
+        point is tracked."""
+        if not all(self._tracks.get(n) for n in self.points):
+            return None
+        speed = 0.0
+        for n in self.points:
+            track = self._tracks[n]
+            if len(track) > 1 and track[-1][0] > track[-2][0]:
+                step = float(np.linalg.norm(track[-1][1] - track[-2][1]))
+                speed = max(speed, step / (track[-1][0] - track[-2][0]))
+        return (np.stack([self._tracks[n][-1][1] for n in self.points]), speed,
+                min(self._tracks[n][-1][0] for n in self.points))
 
     def tracked_past(self, t: float) -> bool:
         """Every body point has a sample stamped at cell time ``t`` or later."""

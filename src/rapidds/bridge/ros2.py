@@ -36,6 +36,7 @@ __all__ = [
     "TrackedPoint",
     "deserialize",
     "event_message",
+    "float64_message",
     "header",
     "joint_state",
     "joint_trajectory",
@@ -150,6 +151,11 @@ def joint_state(joint_names: Sequence[str], position: np.ndarray,
         position=np.asarray(position, dtype=np.float64),
         velocity=empty if velocity is None else np.asarray(velocity, dtype=np.float64),
         effort=empty)
+
+
+def float64_message(value: float) -> Any:
+    """``std_msgs/msg/Float64`` holding ``value``."""
+    return _type("std_msgs/msg/Float64")(data=float(value))
 
 
 def string_message(payload: Any) -> Any:

@@ -48,6 +48,9 @@ def deploy_cmd(
     samples: int = typer.Option(_D["samples"].default, help="Monte-Carlo duration samples K."),
     particles: int = typer.Option(_D["particles"].default, help="Steered samples per request."),
     candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
+    execution: str = typer.Option("planned", help="planned: the robot follows its plan; "
+                                  "reactive: the hub monitors speed and separation and sends "
+                                  "the robot a speed scaling on /rapidds/robot/speed_scaling."),
     time_scale: float = typer.Option(1.0, help="Cell seconds per wall second, sent to the "
                                      "nodes (> 1 runs simulated nodes faster; a real cell: 1)."),
     robot_timeout: float = typer.Option(2.0, help="Wall seconds without joint states before "
@@ -65,6 +68,8 @@ def deploy_cmd(
     not recorded and the hub exits with code 3; --resume continues the run."""
     if bridge != "zenoh":
         fail(f"unknown --bridge {bridge!r}; the live link is zenoh")
+    if execution not in ("planned", "reactive"):
+        fail(f"unknown --execution {execution!r}; one of planned, reactive")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
         fail("--time-scale and the timeouts must be > 0")
     from rapidds.bridge.cell import CellFault, CellOptions, LinkTeammate, LiveCell, hub_topics
@@ -80,7 +85,8 @@ def deploy_cmd(
     set_threads(threads)
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
                     seed=seed, population=population, generations=generations,
-                    samples=samples, particles=particles, candidates=candidates)
+                    samples=samples, particles=particles, candidates=candidates,
+                    execution=execution)
     w = make_world(cfg.world, cfg.variant)
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
     run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
@@ -92,7 +98,8 @@ def deploy_cmd(
                    f"({run.config.cycles} cycles); nothing to run", err=True)
         return
     options = CellOptions(time_scale=time_scale, robot_timeout=robot_timeout,
-                          startup_timeout=startup_timeout, cycle_timeout=cycle_timeout)
+                          startup_timeout=startup_timeout, cycle_timeout=cycle_timeout,
+                          execution=execution)
 
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record

@@ -398,12 +398,16 @@ class AdaptiveRun:
 
     # -- execute ------------------------------------------------------------------------------
     def execute(self, plan: CyclePlan,
-                observed: Mapping[str, HumanExecution] | None = None) -> Deployment:
+                observed: Mapping[str, HumanExecution] | None = None,
+                reacted: Mapping[str, Any] | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
         live person did), and the cycle is realised with the robot's planned motions by the
         clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
         reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
-        (the robot reacts to them as they move) and hands back the whole of it."""
+        (the robot reacts to them as they move) and hands back the whole of it. ``reacted``:
+        what a live cell's own reactive layer did (``pauses``, ``replans``, ``protective``):
+        the robot's reactions already are in the durations it took, so the cycle is realised
+        open loop from what happened and these are its in-cycle record."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
@@ -420,19 +424,25 @@ class AdaptiveRun:
         missing = set(tasks) - set(human)
         if missing:
             raise ValueError(f"no observation of human task(s) {sorted(missing)}")
-        steering = replan_steering(self.world, self.problem, self.config, plan.cycle,
-                                   self.policy, self._spatial())
+        cfg = (self.config if reacted is None
+               else self.config.model_copy(update={"execution": "planned"}))
+        steering = replan_steering(self.world, self.problem, cfg, plan.cycle, self.policy,
+                                   self._spatial())
         dep, self._deviations[plan.cycle] = execute_cycle(
-            self.world, self.problem, self.config, plan.cycle, plan.best.schedule,
+            self.world, self.problem, cfg, plan.cycle, plan.best.schedule,
             plan.best.motions, human, self.teammate, self._reaction,
             (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
             beta=self.model.spatial.config.beta,
-            spare=contingency_motions(self.world, self.problem, self.config, plan.cycle,
+            spare=contingency_motions(self.world, self.problem, cfg, plan.cycle,
                                       self.policy, self._spatial(), plan.best.motions),
             order=(self.teammate.played_order(plan.cycle)
                    if isinstance(self.teammate, FreeOrderTeammate) else None),
             steering=steering, memory=None if steering is None else valid_plans(
                 plan.motions, spatial_stamps(self._spatial())))
+        if reacted is not None:
+            dep = dataclasses.replace(dep, pauses=tuple(reacted["pauses"]),
+                                      replans=tuple(reacted["replans"]),
+                                      protective=reacted["protective"])
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 

@@ -60,6 +60,11 @@ class PhysicsArm:
         self.compensate, self.tolerance, self.still = compensate, tolerance, still
         self.settle_max = settle_max
         self._traj: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # speed scaling: the fraction of its trajectory's timing the arm advances at (a hub's
+        # speed and separation monitoring); lag: trajectory seconds it has fallen behind so.
+        # At 1 the lag stays exactly 0, so an unscaled arm moves as it always did.
+        self.speed = 1.0
+        self._lag = 0.0
         self._person = {b for b in range(model.nbody) if model.body_mocapid[b] >= 0}
         self._robot = {b for b in range(model.nbody)
                        if model.body_weldid[b] != 0 and b not in self._person}
@@ -81,6 +86,7 @@ class PhysicsArm:
         self._mj.mj_resetData(self.model, self.data)
         self.data.qpos[self._qadr] = q
         self._traj = (0.0, np.zeros(1), np.asarray(q, float)[None], np.zeros((1, len(q))))
+        self._lag = 0.0
         self._mj.mj_forward(self.model, self.data)
 
     def follow(self, positions: np.ndarray, times: np.ndarray) -> None:
@@ -90,20 +96,22 @@ class PhysicsArm:
         vel = np.gradient(q, t, axis=0) if len(t) > 1 else np.zeros_like(q)
         vel[-1] = 0.0
         self._traj = (self.time, t, q, vel)
+        self._lag = 0.0
 
     def hold(self) -> None:
         """Stop where the arm is now (a stop command)."""
         self._traj = (self.time, np.zeros(1), self.q[None], np.zeros((1, len(self._qadr))))
+        self._lag = 0.0
 
     def target(self, when: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(position, velocity) the arm is to be at, at sim time ``when`` (default: now)."""
         assert self._traj is not None, "reset() first"
         t0, t, q, v = self._traj
-        s = (self.time if when is None else when) - t0
+        s = (self.time if when is None else when) - t0 - self._lag
         if s >= t[-1]:
             return q[-1], np.zeros(q.shape[1])
         pos = np.array([np.interp(s, t, q[:, j]) for j in range(q.shape[1])])
-        vel = v[min(int(np.searchsorted(t, s, side="right")) - 1, len(t) - 1)]
+        vel = v[min(int(np.searchsorted(t, s, side="right")) - 1, len(t) - 1)] * self.speed
         return pos, vel
 
     def step(self, seconds: float) -> None:
@@ -119,12 +127,13 @@ class PhysicsArm:
                 d.qfrc_applied[:] = d.qfrc_bias
                 d.qfrc_applied[self._dadr] += m.dof_damping[self._dadr] * vel
             self._mj.mj_step(m, d)
+            self._lag += m.opt.timestep * (1.0 - self.speed)
 
     def remaining(self) -> float:
         """Seconds until the trajectory's last point is due (<= 0 once it is)."""
         assert self._traj is not None
         t0, t, _, _ = self._traj
-        return t0 + float(t[-1]) - self.time
+        return t0 + float(t[-1]) + self._lag - self.time
 
     def settled(self) -> bool:
         """The trajectory is over and the arm has come to rest on its end (or settle_max s

@@ -7,7 +7,11 @@ publishes ``sensor_msgs/JointState`` after each pass (every period while the mac
 up), the robot's task events (the k-th trajectory of a cycle is the
 k-th robot task of its plan) and every new touch of the arm on the person's bodies, whom it
 places where the tracking says. ``/rapidds/stop`` holds the arm where it is and drops the
-cycle's queue. Simulated time runs ``time_scale`` (from the plan) times faster than the wall.
+cycle's queue. ``/rapidds/robot/speed_scaling`` (``std_msgs/Float64`` in [0, 1]) sets the rate
+at which the arm advances along its trajectory, as a speed slider does on a scaled trajectory
+controller: at 0 it holds where it is on its path, it resumes when the value rises; a new plan
+sets it back to 1 (a hub that does not monitor sends none). Simulated time runs
+``time_scale`` (from the plan) times faster than the wall.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
+    SPEED_SCALING_TOPIC,
     STOP_TOPIC,
     LivePlan,
     joint_rows,
@@ -87,6 +92,7 @@ class SimRobot:
     def topics(points: tuple[str, ...]) -> dict[str, str]:
         string = "std_msgs/msg/String"
         return {PLAN_TOPIC: string, STOP_TOPIC: string,
+                SPEED_SCALING_TOPIC: "std_msgs/msg/Float64",
                 TRAJECTORY_TOPIC: "trajectory_msgs/msg/JointTrajectory",
                 **{tracking_topic(p): "geometry_msgs/msg/PointStamped" for p in points}}
 
@@ -108,6 +114,13 @@ class SimRobot:
                 return
             self._tasks = deque(self.plan.order["robot"])
             self._queue.clear()
+            self.arm.speed = 1.0
+        elif rec.topic == SPEED_SCALING_TOPIC:
+            value = float(rec.msg.data)
+            if not np.isfinite(value):
+                log.warning("sim-robot dropped a speed scaling that is not finite")
+                return
+            self.arm.speed = min(max(value, 0.0), 1.0)
         elif rec.topic == STOP_TOPIC:
             log.warning("sim-robot: stop (%s)", rec.msg.data[:120])
             self.plan, self._current = None, None

@@ -1,0 +1,139 @@
+"""Speed and separation monitoring in a live cell: the hub's reactive layer.
+
+At a fixed rate of the cell clock the layer takes the person's body points (their last tracked
+positions), the robot's (its last ``JointState`` through the world's forward kinematics) and
+asks the executor's :class:`~rapidds.execution.SpeedSeparation` policy for the robot's rate,
+which goes out as the speed scaling (:data:`~rapidds.bridge.live.SPEED_SCALING_TOPIC`). The
+math is the executor's: the same policy and :func:`~rapidds.execution.protective_distance`,
+the person's speed the fastest body point's (here between its last two tracked samples, by
+their stamps); what a live robot changes is the robot's side: its points are measured, not
+replayed (its speed measured over ``WINDOW`` cell s of joint states), and its speed
+at full rate is the planned one of the running task at its fastest (the layer does not know
+how far along its path a held robot is, so it takes the bound, never the lower value).
+
+A person not tracked for ``STALE`` cell s (a tracker that stalls, a lost link) holds the robot,
+as a missing sensor does in a safety controller: their last position says nothing of now. Such
+a pause's reason is ``no tracking (stop)``.
+
+Pauses are kept as the executor keeps them (``{"agent": "robot", "task", "start", "end",
+"reason": "protective distance (stop|slow)"}``), and ``protective`` checks every tick at which
+the robot moved against the protective distance at its measured speed. Moved: it was allowed
+to (the last tick's rate was above 0) and its points went faster than :data:`MOVING` over the
+tick; a held arm that the person's body pushes is no robot motion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rapidds.execution.policies import SpeedSeparation, protective_distance
+from rapidds.worlds.base import World
+from rapidds.worlds.reactions import SafetyLimits, cell_reactions
+
+__all__ = ["SpeedMonitor", "planned_speeds"]
+
+WINDOW = 0.1
+"""Cell seconds of joint states the robot's measured speed spans (one state to the next is
+too short: a node that catches up sends several at once)."""
+STALE = 0.5
+"""Cell seconds after which the person's last tracked sample no longer counts."""
+MOVING = 0.01
+"""Workspace units per second below which the measured robot counts as still (a held arm's
+servo jitter, sensor noise)."""
+
+
+def planned_speeds(world: World, trajectories: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Each robot task's fastest body-point speed along its planned trajectory (units/s)."""
+    out = {}
+    for task, traj in trajectories.items():
+        pts = world.robot_points(np.asarray(traj, float))
+        step = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max() if len(pts) > 1 else 0.0
+        out[task] = float(step / world.dt)
+    return out
+
+
+@dataclass
+class SpeedMonitor:
+    """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks."""
+
+    world: World
+    speeds: Mapping[str, float]
+    limits: SafetyLimits = field(init=False)
+    rate: float = 1.0
+    pauses: list[dict[str, Any]] = field(default_factory=list)
+    # every tick while a robot task ran: (t, separation, person's speed, robot's measured speed
+    # over the tick, the rate in force over the tick); the record's ``protective`` comes from it
+    trace: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    _robot_seen: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (t, q)
+    _held: tuple[float, str, str] | None = None  # since, reason, task
+
+    def __post_init__(self) -> None:
+        _, self.limits = cell_reactions(self.world)
+        self.policy = SpeedSeparation(self.limits)
+
+    def joint_state(self, q: np.ndarray, at: float) -> None:
+        """The robot's joint positions at cell time ``at`` (its state's stamp). Kept as they
+        come (hundreds a second); the forward kinematics run at the ticks only."""
+        seen = self._robot_seen
+        seen.append((at, np.asarray(q, float)))
+        while len(seen) > 2 and seen[1][0] <= at - WINDOW:
+            seen.pop(0)
+
+    def _robot(self) -> tuple[np.ndarray, float] | None:
+        """The robot's points now and its fastest point's speed over the last ``WINDOW`` of
+        joint states (units/s); None before its first state."""
+        seen = self._robot_seen
+        if not seen:
+            return None
+        pts = self.world.robot_points(np.stack([seen[0][1], seen[-1][1]]))
+        span = seen[-1][0] - seen[0][0]
+        speed = float(np.linalg.norm(pts[1] - pts[0], axis=-1).max() / span) if span > 0 else 0.0
+        return pts[1], speed
+
+    def tick(self, now: float, person: tuple[np.ndarray, float, float] | None,
+             task: str | None) -> float:
+        """The rate at cell time ``now`` with the person's body points, speed and the time of
+        their oldest sample ``person`` (None: not tracked yet) while robot task ``task`` runs
+        (None: idle, full rate). Untracked or stale: held."""
+        robot = self._robot()
+        why = "protective distance"
+        if task is None:
+            rate = 1.0
+        elif person is None or robot is None or now - person[2] > STALE:
+            rate, why = 0.0, "no tracking"
+        else:
+            (human, vh, _), (points, vr) = person, robot
+            sep = float(np.linalg.norm(human[:, None] - points[None], axis=-1).min())
+            rate = self.policy.rate(sep, vh, self.speeds.get(task, 0.0))
+            self.trace.append((now, sep, vh, vr, self.rate))
+        self._log(now, rate, task, why)
+        self.rate = rate
+        return rate
+
+    def _log(self, now: float, rate: float, task: str | None, why: str) -> None:
+        kind = "" if rate >= 1.0 or task is None else "stop" if rate <= 0.0 else "slow"
+        reason = f"{why} ({kind})"
+        if self._held is not None and (self._held[1] != reason or self._held[2] != task):
+            since, was, held = self._held
+            self.pauses.append({"agent": "robot", "task": held, "start": since, "end": now,
+                                "reason": was})
+            self._held = None
+        if kind and self._held is None and task is not None:
+            self._held = (now, reason, task)
+
+    def close(self, now: float) -> None:
+        """The cycle is over at ``now``: a pause still open ends there."""
+        self._log(now, 1.0, None, "")
+
+    def protective(self) -> dict[str, Any]:
+        """As the executor reports it: ticks watched, those at which the robot moved, those
+        of them inside the protective distance at its measured speed, the closest margin."""
+        margins = [sep - protective_distance(self.limits, vh, vr)
+                   for _, sep, vh, vr, allowed in self.trace if allowed > 0.0 and vr > MOVING]
+        return {"watched": len(self.trace), "moving": len(margins),
+                "moving_inside": sum(m < -1e-9 for m in margins),
+                "closest_margin": min(margins, default=None)}

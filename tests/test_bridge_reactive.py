@@ -1,0 +1,141 @@
+"""Reactive execution in a live painting cell on localhost: the hub (``rapidds deploy
+--execution reactive``) and the MuJoCo robot run as processes, the person is the reference
+node with one change: for the cycle's first cell seconds they stand at the arm's tool. The
+hub's speed scaling drops to 0, stays below full speed while they stand there, and returns to
+1 once they step back; the robot node obeys it (its task takes the hold longer) and the record
+has the robot's pauses.
+
+Simulated time runs 4x faster than the wall clock (``--time-scale 4``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from cli_helpers import run_main
+from test_bridge_e2e import CLI, SEARCH, _endpoint, _start, _stop
+
+from rapidds.bridge import ros2
+from rapidds.bridge.link import Link
+from rapidds.bridge.live import SPEED_SCALING_TOPIC, LivePlan
+from rapidds.bridge.nodes.sim_human import SimHuman
+from rapidds.worlds.registry import make_world
+
+STAND = 3.0  # cell seconds the person stands beside the tool
+
+
+class _Intruder(SimHuman):
+    """The reference person, tracked beside the arm's tool at rest for the cycle's first
+    STAND cell seconds (their tasks and events are the reference node's)."""
+
+    def _publish(self, pose: np.ndarray, stamp: int) -> None:
+        plan = self.plan
+        if plan is not None and 0.0 <= plan.cell_seconds(stamp) < STAND:
+            tool = self.world.kinematics.tool(np.asarray(self.world.robot_rest())[None])[0]
+            hands = tool + np.array([0.0, -0.06, 0.0])
+            elbows = np.array([[-0.1, -0.2, 0.0], [0.1, -0.2, 0.0]])
+            there = np.concatenate([[hands, hands], hands + elbows])
+            super()._publish(there, stamp)
+            self.pose = pose  # where the person goes back to
+        else:
+            super()._publish(pose, stamp)
+
+
+def test_the_robot_holds_while_the_person_stands_in_its_path(tmp_path: Path) -> None:
+    world = make_world("painting")
+    teammate = world.teammate("left-slow")
+    # the first draw of a path sets up the teammate's model (a stall of the tracker in a
+    # test process that is busy reading the link); done here, before the cycle
+    teammate.at(0).perform(world.problem().ids[0], np.random.default_rng(0))
+    ep, out = _endpoint(), tmp_path / "run"
+    robot = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot.log")
+    watch = {SPEED_SCALING_TOPIC: "std_msgs/msg/Float64", ros2.PLAN_TOPIC: "std_msgs/msg/String",
+             ros2.JOINT_STATE_TOPIC: "sensor_msgs/msg/JointState"}
+    stop = threading.Event()
+    hub_out, hub_err = tmp_path / "hub.out", tmp_path / "hub.err"
+    with open(hub_out, "wb") as o, open(hub_err, "wb") as e:  # a node connects to a hub
+        hub = subprocess.Popen(
+            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
+             "--json", "--time-scale", "4", "--execution", "reactive",
+             "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
+            env={**os.environ, "RAPIDDS_LOG": "info"})
+    try:
+        with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:
+            person = _Intruder(world, teammate, plink, seed=1)
+            def act() -> None:
+                while not stop.is_set():
+                    person.spin(until=time.monotonic() + 0.2)
+
+            t = threading.Thread(target=act, daemon=True)
+            t.start()
+            code = hub.wait(240)
+            stop.set()
+            t.join(5)
+            seen = wlink.drain()
+    finally:
+        stop.set()
+        _stop(robot, hub)
+    assert code == 0, hub_err.read_text()[-3000:]
+    (rec,) = [json.loads(x) for x in hub_out.read_text().splitlines()]
+    plan = LivePlan.parse(next(r for r in seen if r.topic == ros2.PLAN_TOPIC).msg.data)
+    first = plan.order["robot"][0]
+    # the scaling dropped to 0 once the person stood there, stayed below full speed while they
+    # stood (held or creeping along a path that leads away from them, as speed and separation
+    # monitoring allows), and went back to 1 after
+    scaling = [(plan.cell_seconds(r.received_ns), float(r.msg.data)) for r in seen
+               if r.topic == SPEED_SCALING_TOPIC]
+    assert any(v == 0.0 and s < STAND for s, v in scaling), scaling[:20]
+    standing = [v for s, v in scaling if 0.5 < s < STAND - 0.5]
+    assert len(standing) > 5 and max(standing) < 1.0, standing
+    assert any(v == 1.0 and s > STAND for s, v in scaling)
+    # the record: the robot's pauses span the time the person stood there
+    held = [(p["start"], p["end"]) for p in rec["pauses"]
+            if p["agent"] == "robot" and p["task"] == first]
+    covered = sum(max(0.0, min(e, STAND - 0.5) - max(s, 0.5)) for s, e in held)
+    assert covered > STAND - 1.0 - 0.1, rec["pauses"]
+    assert any(p["reason"] == "protective distance (stop)" for p in rec["pauses"])
+    prot = rec["protective"]
+    assert prot["watched"] > 0 and prot["moving"] > 0
+    live = rec["live"]
+    assert live["robot_durations"][first] > live["planned_robot_durations"][first] + 1.0
+
+
+def test_an_unknown_execution_is_one_line_and_exit_2(capsys) -> None:
+    code, _, stderr = run_main(capsys, "deploy", "painting", "--execution", "sideways",
+                               "--out", "x")
+    err = stderr.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("rapidds: error: ")
+    assert "--execution" in err[0]
+
+
+def test_the_reference_robot_holds_on_its_path_at_scaling_0_and_resumes() -> None:
+    from rapidds.bridge.link import Received
+    from rapidds.bridge.nodes.sim_robot import SimRobot
+
+    world = make_world("painting")
+
+    class _Quiet:  # the node's link: this test reads the node's state, not its messages
+        def publish(self, topic: str, msg: object) -> None:
+            pass
+
+    robot = SimRobot(world, _Quiet())  # type: ignore[arg-type]
+    rest = np.asarray(world.robot_rest(), float)
+    goal = rest + 0.3
+    robot.arm.follow(np.stack([rest, goal]), np.array([0.0, 1.0]))
+    robot.arm.step(0.3)
+    left = robot.arm.remaining()
+    robot.handle(Received(SPEED_SCALING_TOPIC, ros2.float64_message(-2.0), 0))
+    assert robot.arm.speed == 0.0  # clipped to [0, 1]
+    before = robot.arm.target()[0]
+    robot.arm.step(0.5)
+    np.testing.assert_allclose(robot.arm.target()[0], before)  # held on its path
+    assert robot.arm.remaining() > left - 1e-9  # its clock stood still
+    robot.handle(Received(SPEED_SCALING_TOPIC, ros2.float64_message(0.5), 0))
+    robot.arm.step(0.4)
+    assert robot.arm.remaining() < left - 0.15  # resumed, at half the planned pace
+    assert robot.arm.remaining() > left - 0.25
