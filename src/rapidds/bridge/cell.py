@@ -53,6 +53,7 @@ from rapidds.bridge.ros2 import (
     string_message,
 )
 from rapidds.errors import RapiddsError
+from rapidds.execution.deployment import Reactions
 from rapidds.worlds.base import body_point_names, joint_names
 
 if TYPE_CHECKING:
@@ -273,8 +274,7 @@ class LiveCell:
         if monitor is not None:
             monitor.close(max(obs.end.values(), default=0.0))
             self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
-            reacted = {"pauses": monitor.pauses, "replans": [],
-                       "protective": monitor.protective()}
+            reacted = Reactions(tuple(monitor.pauses), (), monitor.protective())
         try:
             human = obs.human_executions(run.world.dt)
         except MessageError as exc:

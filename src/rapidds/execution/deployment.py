@@ -20,7 +20,8 @@ from rapidds.problem import Problem
 from rapidds.schedule import Timeline
 from rapidds.worlds.base import HumanExecution, World, body_points
 
-__all__ = ["Deployment", "cycle_positions", "min_separation", "realise", "separations"]
+__all__ = ["Deployment", "Reactions", "cycle_positions", "min_separation", "realise",
+           "separations"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,16 @@ class Deployment:
     replans: tuple[dict[str, Any], ...] = ()  # reactive execution: re-plans inside the cycle
     # instants the executor watched with the robot on a task, those at which it moved while a
     # person was inside the protective distance, and the smallest (separation - S_p) moving
+    protective: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Reactions:
+    """What a reactive layer outside the executor did in a cycle (a live cell's monitor): the
+    robot's pauses, its re-plans, and the protective-distance check, as a Deployment keeps them."""
+
+    pauses: tuple[dict[str, Any], ...] = ()
+    replans: tuple[dict[str, Any], ...] = ()
     protective: dict[str, Any] | None = None
 
 

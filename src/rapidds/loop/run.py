@@ -24,6 +24,7 @@ import numpy as np
 
 from rapidds.errors import CheckpointError, RapiddsError, StateError
 from rapidds.execution import CycleExecutor, HumanSource
+from rapidds.execution.deployment import Reactions
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
@@ -399,13 +400,13 @@ class AdaptiveRun:
     # -- execute ------------------------------------------------------------------------------
     def execute(self, plan: CyclePlan,
                 observed: Mapping[str, HumanExecution] | None = None,
-                reacted: Mapping[str, Any] | None = None) -> Deployment:
+                reacted: Reactions | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
         live person did), and the cycle is realised with the robot's planned motions by the
         clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
         reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
         (the robot reacts to them as they move) and hands back the whole of it. ``reacted``:
-        what a live cell's own reactive layer did (``pauses``, ``replans``, ``protective``):
+        what a live cell's own reactive layer did (pauses, re-plans, protective check):
         the robot's reactions already are in the durations it took, so the cycle is realised
         open loop from what happened and these are its in-cycle record."""
         self._check_current(plan)
@@ -440,9 +441,8 @@ class AdaptiveRun:
             steering=steering, memory=None if steering is None else valid_plans(
                 plan.motions, spatial_stamps(self._spatial())))
         if reacted is not None:
-            dep = dataclasses.replace(dep, pauses=tuple(reacted["pauses"]),
-                                      replans=tuple(reacted["replans"]),
-                                      protective=reacted["protective"])
+            dep = dataclasses.replace(dep, pauses=reacted.pauses, replans=reacted.replans,
+                                      protective=reacted.protective)
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 
