@@ -127,9 +127,26 @@ class BrowserPlayer:
         """Show ``plan`` with a robot that reacts live (driven by the executor ``executor``
         builds around the avatar) and block until the cycle is over, robot included; what
         happened. Raises :class:`PlayerGone` when :meth:`close` is called first."""
-        self._show(_Shown(self, plan, executor))
+        self.show_live(plan, executor)
         game = self._wait(self._deployed, plan.cycle, "the cycle was played")
         return game.deployment()  # over: nothing moves it any more, so read it here
+
+    def show_live(self, plan: CyclePlan,
+                  executor: Callable[[HumanSource], CycleExecutor]) -> None:
+        """:meth:`play` without waiting: put ``plan`` on screen with the reactive robot; the
+        cycle comes back from :meth:`deployed` once it is over."""
+        self._show(_Shown(self, plan, executor))
+
+    def deployed(self, cycle: int) -> Deployment | None:
+        """What :meth:`play` returns, without blocking: the whole of live cycle ``cycle`` once
+        it is over, else None (for a caller on an event loop: the study's game rounds)."""
+        while True:
+            try:
+                c, game = self._deployed.get_nowait()
+            except queue.Empty:
+                return None
+            if c == cycle:
+                return game.deployment()
 
     def _wait(self, q: queue.Queue[tuple[int, _T]], cycle: int, what: str) -> _T:
         """The next item ``q`` gets for ``cycle`` (an item of another cycle is stale: that
