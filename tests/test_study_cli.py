@@ -207,6 +207,7 @@ def test_tiny_simulated_study_on_dask_resumes_and_is_analysed(tmp_path, capsys):
         none = st.records(st.run_id("P01", "none"))
         assert none[0]["belief"] == none[1]["belief"]
         assert full[0]["belief"] != none[0]["belief"]
+        assert "executed" not in full[0]  # the paper's planned robot: no in-cycle record
     code, stdout, err = _main(capsys, *args)  # resume: nothing left to run
     assert code == 0, err
     assert json.loads(stdout)["simulated"]["ran"] == 0
@@ -217,6 +218,27 @@ def test_tiny_simulated_study_on_dask_resumes_and_is_analysed(tmp_path, capsys):
     assert "simulated participants rank nothing" in summary["ranking"]["skipped"]
     assert "simulated participants answer nothing" in summary["survey"]["skipped"]
     assert (out / "report.md").read_text().startswith("# User study analysis")
+
+
+def test_a_simulated_study_under_reactive_execution_runs_on_the_executor(tmp_path, capsys):
+    """The study's stored execution settings reach the simulated participants' runs: every
+    round is a reactive cycle (the executor's record of it), the people react and deviate."""
+    out = tmp_path / "re"
+    code, stdout, err = _main(capsys, "study", "simulate", "--participants", "2", "--systems",
+                              "full,none", "--rounds", "1", "--allow-unbalanced", "--workers",
+                              "1", "--execution", "reactive", "--reacts", "--deviate", "1",
+                              "--out", str(out), "--json", *TINY)
+    assert code == 0, err
+    assert json.loads(stdout)["execution"] == "reactive"
+    with StudyStore.open_readonly(study_path(out)) as st:
+        runs = st.study_runs()
+        assert len(runs) == 4
+        for rid in runs["run_id"]:
+            assert "-reactive-reacts-dev1-" in rid
+            (rec,) = st.records(rid)
+            assert {"executed", "pauses", "replans", "protective"} <= set(rec)
+            assert rec["protective"] is not None
+            assert rec["deviation"] is not None  # --deviate 1: every round deviates
 
 
 def _planted_store(out: Path, spatial_effect: float, seed: int = 0) -> None:
