@@ -140,13 +140,8 @@ class BrowserPlayer:
     def deployed(self, cycle: int) -> Deployment | None:
         """What :meth:`play` returns, without blocking: the whole of live cycle ``cycle`` once
         it is over, else None (for a caller on an event loop: the study's game rounds)."""
-        while True:
-            try:
-                c, game = self._deployed.get_nowait()
-            except queue.Empty:
-                return None
-            if c == cycle:
-                return game.deployment()
+        game = self._take(self._deployed, cycle)
+        return None if game is None else game.deployment()
 
     def _wait(self, q: queue.Queue[tuple[int, _T]], cycle: int, what: str) -> _T:
         """The next item ``q`` gets for ``cycle`` (an item of another cycle is stale: that
@@ -180,13 +175,19 @@ class BrowserPlayer:
     def played(self, cycle: int, tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
         """:meth:`execute` without blocking: what the person did in ``cycle`` once they have
         done ``tasks``, else None (for a caller on an event loop: the study's game rounds)."""
+        obs = self._take(self._observed, cycle)
+        return None if obs is None else self._checked(cycle, tasks, obs)
+
+    @staticmethod
+    def _take(q: queue.Queue[tuple[int, _T]], cycle: int) -> _T | None:
+        """:meth:`_wait` without blocking: the item ``q`` holds for ``cycle``, else None."""
         while True:
             try:
-                c, obs = self._observed.get_nowait()
+                c, item = q.get_nowait()
             except queue.Empty:
                 return None
             if c == cycle:
-                return self._checked(cycle, tasks, obs)
+                return item
 
     def played_order(self, cycle: int) -> list[str] | None:
         """The person's tasks of cycle ``cycle`` in the order they fetched them (any order
