@@ -15,11 +15,13 @@ FACTORS = {"speed": ("fast", "slow"), "route": ("middle", "outside")}
 
 
 def make_study(folder: Path, world: World, participants: int = 1, seed: int = 3,
-               comfort: bool = False) -> Path:
+               comfort: bool = False, execution: str = "planned") -> Path:
     """A study in ``folder`` (design.csv, study.sqlite); returns the folder. comfort: the
-    round pages ask the comfort item and the runs learn each person's gamma from it."""
+    round pages ask the comfort item and the runs learn each person's gamma from it.
+    execution: the robot inside the rounds (reactive: the game's robot reacts live)."""
     design = StudyDesign(participants=participants, systems=("full", "none"), rounds=2,
                          factors=FACTORS, seed=seed, require_balance=False, comfort=comfort)
-    cfg = RunConfig(world=world.name, gamma_learn=comfort, **SEARCH).resolved(world)
+    cfg = RunConfig(world=world.name, gamma_learn=comfort, execution=execution,
+                    **SEARCH).resolved(world)
     create_study(folder, design, cfg).close()
     return folder

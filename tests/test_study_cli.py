@@ -65,6 +65,9 @@ def test_design_writes_csv_and_store_and_never_mixes_designs(tmp_path, capsys):
     (["--items", "missing.yaml"], "missing.yaml: no such file"),
     (["--gamma", "-1"], "--gamma"),
     (["--learn-gamma"], "--learn-gamma needs --comfort-item"),
+    (["--execution", "sideways"], "--execution: Input should be 'planned' or 'reactive'"),
+    (["--deviate", "1.5"], "--deviate: Input should be less than or equal to 1"),
+    (["--deviate", "-0.1"], "--deviate: Input should be greater than or equal to 0"),
 ])
 def test_design_bad_input_is_one_line(tmp_path, capsys, args, needle):
     code, _, err = _main(capsys, "study", "design", "--out", str(tmp_path / "s"), *args)
@@ -100,6 +103,38 @@ def test_a_design_with_the_comfort_item_learns_gamma_when_asked(tmp_path, capsys
     assert code == 0, err
     with StudyStore.open_readonly(study_path(tmp_path / "d")) as st:
         assert st.design.comfort and not st.base_config.gamma_learn
+
+
+def test_a_design_stores_the_execution_inside_the_round(tmp_path, capsys):
+    """--execution/--reacts/--deviate are run settings of the study: stored with the design,
+    so every run of it (served or simulated) has them; the default is the paper's planned robot,
+    and a store written without them reads as planned."""
+    out = tmp_path / "r"
+    code, stdout, err = _main(capsys, "study", "design", "--participants", "16", "--execution",
+                              "reactive", "--reacts", "--deviate", "0.25", "--out", str(out),
+                              "--json")
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert (summary["execution"], summary["reacts"], summary["deviate"]) == ("reactive", True,
+                                                                           0.25)
+    with StudyStore.open_readonly(study_path(out)) as st:
+        cfg = st.config_for("P03", "none")
+        assert (cfg.execution, cfg.reacts, cfg.deviate) == ("reactive", True, 0.25)
+        assert "-reactive-reacts-dev0.25-" in cfg.run_id
+    code, _, err = _main(capsys, "study", "design", "--participants", "16", "--out", str(out))
+    _one_line(code, err, "already holds a different study (run differs)")  # planned != reactive
+    code, stdout, err = _main(capsys, "study", "design", "--participants", "16", "--out",
+                              str(tmp_path / "p"), "--json")
+    assert code == 0, err
+    assert json.loads(stdout)["execution"] == "planned"
+    path = study_path(tmp_path / "p")
+    with sqlite3.connect(path) as con:  # a store from before these settings existed
+        run = json.loads(con.execute("SELECT value FROM meta WHERE key='run'").fetchone()[0])
+        assert run["execution"] == "planned"
+        old = {k: v for k, v in run.items() if k not in ("execution", "reacts", "deviate")}
+        con.execute("UPDATE meta SET value=? WHERE key='run'", (json.dumps(old),))
+    with StudyStore.open_readonly(path) as st:
+        assert st.config_for("P01", "full").execution == "planned"
 
 
 def test_design_with_own_items_and_foreign_store(tmp_path, capsys):
@@ -172,6 +207,7 @@ def test_tiny_simulated_study_on_dask_resumes_and_is_analysed(tmp_path, capsys):
         none = st.records(st.run_id("P01", "none"))
         assert none[0]["belief"] == none[1]["belief"]
         assert full[0]["belief"] != none[0]["belief"]
+        assert "executed" not in full[0]  # the paper's planned robot: no in-cycle record
     code, stdout, err = _main(capsys, *args)  # resume: nothing left to run
     assert code == 0, err
     assert json.loads(stdout)["simulated"]["ran"] == 0
@@ -182,6 +218,27 @@ def test_tiny_simulated_study_on_dask_resumes_and_is_analysed(tmp_path, capsys):
     assert "simulated participants rank nothing" in summary["ranking"]["skipped"]
     assert "simulated participants answer nothing" in summary["survey"]["skipped"]
     assert (out / "report.md").read_text().startswith("# User study analysis")
+
+
+def test_a_simulated_study_under_reactive_execution_runs_on_the_executor(tmp_path, capsys):
+    """The study's stored execution settings reach the simulated participants' runs: every
+    round is a reactive cycle (the executor's record of it), the people react and deviate."""
+    out = tmp_path / "re"
+    code, stdout, err = _main(capsys, "study", "simulate", "--participants", "2", "--systems",
+                              "full,none", "--rounds", "1", "--allow-unbalanced", "--workers",
+                              "1", "--execution", "reactive", "--reacts", "--deviate", "1",
+                              "--out", str(out), "--json", *TINY)
+    assert code == 0, err
+    assert json.loads(stdout)["execution"] == "reactive"
+    with StudyStore.open_readonly(study_path(out)) as st:
+        runs = st.study_runs()
+        assert len(runs) == 4
+        for rid in runs["run_id"]:
+            assert "-reactive-reacts-dev1-" in rid
+            (rec,) = st.records(rid)
+            assert {"executed", "pauses", "replans", "protective"} <= set(rec)
+            assert rec["protective"] is not None
+            assert rec["deviation"] is not None  # --deviate 1: every round deviates
 
 
 def _planted_store(out: Path, spatial_effect: float, seed: int = 0) -> None:

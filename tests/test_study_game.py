@@ -3,7 +3,9 @@ TestClient, the real session, store, planner and game on a small study): offered
 the game page plays the plan the round page shows, one page per round, a closed tab restarts the
 round, and a round the study has moved past is refused with a message. Rounds played through the
 game in a browser are tests/test_study_browser.py's second test. With the comfort item on, the
-game asks it once the round is over and the round is recorded with the answer and the presses."""
+game asks it once the round is over and the round is recorded with the answer and the presses.
+Under reactive execution the round's robot is driven live by the run's executor and the round
+is recorded with what happened inside it."""
 
 from __future__ import annotations
 
@@ -195,3 +197,40 @@ def test_a_game_round_asks_the_comfort_item_and_is_stored_with_it(
     assert pressed_at is not None and len(said["too_close"]) == 1
     assert said["too_close"][0] == pytest.approx(pressed_at, abs=0.1)  # the game's clock
     assert rec["gamma_belief"]["evidence"] == 1
+
+
+def test_a_reactive_game_round_runs_on_the_executor_and_is_stored_with_it(
+        tmp_path: Path, fetch_world: FetchWorld, fetch_policy: DiffusionPolicy) -> None:
+    """A study designed with the reactive robot: the game round's robot is the executor's (the
+    one ``rapidds play --execution reactive`` drives), and the stored round is the whole live
+    cycle with its in-cycle record: who did what as executed, pauses, re-plans, protective."""
+    folder = make_study(tmp_path, fetch_world, execution="reactive")
+    bot, seq = RouteBot(fetch_world), iter(range(1, 10**6))
+    with _serve(folder, fetch_world, fetch_policy) as (client, pid):
+        step = _step(client, pid)
+        held = client.app.state.worker.run(lambda s: s.plan(pid))[1]  # type: ignore[attr-defined]
+        assert client.get(f"/p/{pid}/play").status_code == 200
+        with client.websocket_connect(f"{WS}/p/{pid}/ws?step={step}") as ws:
+            assert until(ws, "phase")["phase"] == "ready"
+            ws.send_text(json.dumps({"type": "start", "cycle": 0, "seq": next(seq)}))
+            move = (0, 0)
+            while not (st := until(ws, "state"))["over"]:
+                assert st.get("execution") == "reactive", st  # the executor drives the robot
+                if (want := bot.move(st)) != move:
+                    ws.send_text(json.dumps({"type": "move", "dx": want[0], "dy": want[1],
+                                             "seq": next(seq)}))
+                    move = want
+            while (phase := until(ws, "phase"))["phase"] != "done":
+                assert phase["phase"] != "error", phase
+        assert _step(client, pid).endswith(":1")  # the study moved on to the next round
+    with StudyStore.open_readonly(study_path(folder)) as s:
+        rid = s.run_id(pid, s.participant(pid).systems[0])
+        assert "-reactive-" in rid
+        (rec,) = s.records(rid)
+    assert sorted(rec["executed"]["human"]) == sorted(held.human)
+    assert sorted(rec["executed"]["robot"]) == sorted(held.robot)
+    assert isinstance(rec["pauses"], list)
+    # the re-plans stored are the ones the game showed live (the same executor's)
+    assert [r["reason"] for r in rec["replans"]] == [r["reason"] for r in st["replans"]]
+    assert rec["protective"] is not None  # the executor's separation monitoring ran
+    assert rec["deviation"] is None  # what a live person did: no simulated deviation

@@ -69,6 +69,15 @@ _COMFORT = typer.Option(False, "--comfort-item", help="Ask on every round page h
 _LEARN = typer.Option(False, "--learn-gamma", help="Runs plan with each person's learned gamma "
                       "(--gamma learn, prior about --gamma) from the comfort item's evidence; "
                       "needs --comfort-item.")
+_EXECUTION = typer.Option("planned", help="The robot inside each round: planned (the paper: "
+                          "it follows its plan) or reactive (speed and separation monitoring, "
+                          "re-planning when the person deviates); the browser game's rounds "
+                          "play it live. Stored with the design.")
+_REACTS = typer.Option(False, help="Simulated participants slow down or pause near the moving "
+                       "robot. Stored with the design.")
+_DEVIATE = typer.Option(0.0, help="Probability per round that a simulated participant "
+                        "deviates from the plan (another order, a pause, a robot task taken). "
+                        "Stored with the design.")
 
 
 def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
@@ -76,7 +85,8 @@ def _build(participants: int, systems: str, world: str, variant: str | None, rou
            unbalanced: bool = False, max_task_s: float | None = None,
            comfort: bool = False, learn: bool = False
            ) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
-    """Validate every option before anything is written: design, world, run settings, items.
+    """Validate every option before anything is written: design, world, run settings (``search``:
+    the search sizes and the execution inside the cycle), items.
     The priming groups are the world's (painting hand x speed, fetch speed x route)."""
     from rapidds.experiments.study.design import StudyDesign, priming_factors
     from rapidds.experiments.study.store import SurveyItems
@@ -101,6 +111,7 @@ def _summary(store: StudyStore, out: Path) -> dict[str, Any]:
     return {"out": str(out), "participants": design.participants, "systems": design.systems,
             "rounds": design.rounds, "seed": design.seed, "world": run.world,
             "variant": run.variant, "gamma": run.gamma, "balanced": design.balanced,
+            "execution": run.execution, "reacts": run.reacts, "deviate": run.deviate,
             "items": list(store.items.ids),
             "runs_finished": sum(store.rounds_done(p.id, s) >= design.rounds
                                  for p in store.participants() for s in p.systems),
@@ -116,7 +127,8 @@ def design_cmd(
     generations: int = _GEN, samples: int = _SAMPLES, particles: int = _PARTICLES,
     candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED,
     max_task_seconds: float | None = _MAX_TASK, comfort_item: bool = _COMFORT,
-    learn_gamma: bool = _LEARN, as_json: bool = _JSON,
+    learn_gamma: bool = _LEARN, execution: str = _EXECUTION, reacts: bool = _REACTS,
+    deviate: float = _DEVIATE, as_json: bool = _JSON,
 ) -> None:
     """Counterbalanced design (Williams squares, priming groups balanced across orders) written
     to DIR/design.csv and DIR/study.sqlite. The same design again changes nothing; a different
@@ -126,7 +138,8 @@ def design_cmd(
     design, run, survey = _build(participants, systems, world, variant, rounds, gamma, seed,
                                  items, dict(population=population, generations=generations,
                                              samples=samples, particles=particles,
-                                             candidates=candidates), allow_unbalanced,
+                                             candidates=candidates, execution=execution,
+                                             reacts=reacts, deviate=deviate), allow_unbalanced,
                                  max_task_seconds, comfort_item, learn_gamma)
     with create_study(out, design, run, survey, lock_as="rapidds study design") as store:
         summary = _summary(store, out)
@@ -136,7 +149,8 @@ def design_cmd(
     table = design.assign()
     typer.echo(table.assign(order=table["order"].map(" > ".join)).to_string(index=False))
     typer.echo(f"{design.participants} participants x {len(design.systems)} systems x "
-               f"{design.rounds} rounds on {run.world} ({run.variant}), gamma {run.gamma:g}; "
+               f"{design.rounds} rounds on {run.world} ({run.variant}), gamma {run.gamma:g}"
+               f"{', reactive robot' if run.execution == 'reactive' else ''}; "
                f"wrote {out / 'design.csv'} and {out / 'study.sqlite'}")
 
 
@@ -154,12 +168,7 @@ def simulate_cmd(
     scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
                                          "e.g. tcp://host:8786, instead of a local cluster."),
     as_json: bool = _JSON,
-    execution: str = typer.Option("planned", help="Inside the cycle: planned (the paper) or "
-                                  "reactive (speed and separation monitoring, re-planning)."),
-    reacts: bool = typer.Option(False, help="Simulated participants slow down or pause near "
-                                "the moving robot."),
-    deviate: float = typer.Option(0.0, help="Probability per round that a simulated "
-                                  "participant deviates from the plan."),
+    execution: str = _EXECUTION, reacts: bool = _REACTS, deviate: float = _DEVIATE,
 ) -> None:
     """The study's protocol with simulated participants drawn around their priming group, each
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""

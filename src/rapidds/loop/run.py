@@ -400,24 +400,30 @@ class AdaptiveRun:
     # -- execute ------------------------------------------------------------------------------
     def execute(self, plan: CyclePlan,
                 observed: Mapping[str, HumanExecution] | None = None,
-                reacted: Reactions | None = None) -> Deployment:
+                reacted: Reactions | None = None, *,
+                played: Deployment | None = None) -> Deployment:
         """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
         live person did), and the cycle is realised with the robot's planned motions by the
         clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
         reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
-        (the robot reacts to them as they move) and hands back the whole of it. ``reacted``:
-        what a live cell's own reactive layer did (pauses, re-plans, protective check):
-        the robot's reactions already are in the durations it took, so the cycle is realised
-        open loop from what happened and these are its in-cycle record."""
+        (the robot reacts to them as they move) and hands back the whole of it; ``played`` is
+        such a cycle already over, played on :meth:`live_executor` by a caller that waited for
+        it without blocking (the study's game rounds, on the server's event loop).
+        ``reacted``: what a live cell's own reactive layer did (pauses, re-plans, protective
+        check): the robot's reactions already are in the durations it took, so the cycle is
+        realised open loop from what happened and these are its in-cycle record."""
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
-        if (observed is None and self.config.execution == "reactive"
+        if played is not None and self.config.execution != "reactive":
+            raise ValueError("a cycle played live on the executor needs reactive execution")
+        if (played is None and observed is None and self.config.execution == "reactive"
                 and isinstance(self.teammate, ReactiveTeammate)):
-            dep = self.teammate.play(plan, self._live_executor(plan))
+            played = self.teammate.play(plan, self.live_executor(plan))
+        if played is not None:
             self._deviations[plan.cycle] = None  # what a live person did is in the record
             self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
-            return dep
+            return played
         if observed is None and isinstance(self.teammate, LiveTeammate):
             self.teammate.show(plan)
         human = (dict(observed) if observed is not None
@@ -446,7 +452,7 @@ class AdaptiveRun:
         self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
         return dep
 
-    def _live_executor(self, plan: CyclePlan) -> Callable[[HumanSource], CycleExecutor]:
+    def live_executor(self, plan: CyclePlan) -> Callable[[HumanSource], CycleExecutor]:
         """What builds the executor of ``plan`` around a live person (every restart of the
         cycle builds a fresh one): the robot's spare motions are steered once, here, before
         the cycle is shown; its re-plans steer where the concurrency changed as a simulated

@@ -127,9 +127,21 @@ class BrowserPlayer:
         """Show ``plan`` with a robot that reacts live (driven by the executor ``executor``
         builds around the avatar) and block until the cycle is over, robot included; what
         happened. Raises :class:`PlayerGone` when :meth:`close` is called first."""
-        self._show(_Shown(self, plan, executor))
+        self.show_live(plan, executor)
         game = self._wait(self._deployed, plan.cycle, "the cycle was played")
         return game.deployment()  # over: nothing moves it any more, so read it here
+
+    def show_live(self, plan: CyclePlan,
+                  executor: Callable[[HumanSource], CycleExecutor]) -> None:
+        """:meth:`play` without waiting: put ``plan`` on screen with the reactive robot; the
+        cycle comes back from :meth:`deployed` once it is over."""
+        self._show(_Shown(self, plan, executor))
+
+    def deployed(self, cycle: int) -> Deployment | None:
+        """What :meth:`play` returns, without blocking: the whole of live cycle ``cycle`` once
+        it is over, else None (for a caller on an event loop: the study's game rounds)."""
+        game = self._take(self._deployed, cycle)
+        return None if game is None else game.deployment()
 
     def _wait(self, q: queue.Queue[tuple[int, _T]], cycle: int, what: str) -> _T:
         """The next item ``q`` gets for ``cycle`` (an item of another cycle is stale: that
@@ -163,13 +175,19 @@ class BrowserPlayer:
     def played(self, cycle: int, tasks: Sequence[str]) -> dict[str, HumanExecution] | None:
         """:meth:`execute` without blocking: what the person did in ``cycle`` once they have
         done ``tasks``, else None (for a caller on an event loop: the study's game rounds)."""
+        obs = self._take(self._observed, cycle)
+        return None if obs is None else self._checked(cycle, tasks, obs)
+
+    @staticmethod
+    def _take(q: queue.Queue[tuple[int, _T]], cycle: int) -> _T | None:
+        """:meth:`_wait` without blocking: the item ``q`` holds for ``cycle``, else None."""
         while True:
             try:
-                c, obs = self._observed.get_nowait()
+                c, item = q.get_nowait()
             except queue.Empty:
                 return None
             if c == cycle:
-                return self._checked(cycle, tasks, obs)
+                return item
 
     def played_order(self, cycle: int) -> list[str] | None:
         """The person's tasks of cycle ``cycle`` in the order they fetched them (any order

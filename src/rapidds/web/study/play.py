@@ -43,9 +43,13 @@ from rapidds.web.study.runner import OutOfTurn, StudySession, step_token
 from rapidds.worlds.fetch.world import FetchWorld
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from rapidds.execution import CycleExecutor, Deployment, HumanSource
     from rapidds.loop.run import CyclePlan
     from rapidds.web.study.app import StudyWorker
     from rapidds.web.study.runner import View
+    from rapidds.worlds.base import HumanExecution
 
 __all__ = ["GameRound", "open_round"]
 
@@ -61,11 +65,15 @@ class GameRound:
     summary_version = 0
 
     def __init__(self, worker: StudyWorker, world: FetchWorld, pid: str, token: str,
-                 plan: CyclePlan, view: View, ask_comfort: bool = False):
+                 plan: CyclePlan, view: View, ask_comfort: bool = False,
+                 live: Callable[[HumanSource], CycleExecutor] | None = None):
         self.worker, self.world, self.pid, self.token = worker, world, pid, token
-        self.plan, self.view = plan, view
+        self.plan, self.view, self.live = plan, view, live
         self.player = BrowserPlayer(world, name=pid, ask_comfort=ask_comfort)
-        self.player.show(plan)
+        if live is None:
+            self.player.show(plan)
+        else:  # reactive: the robot is driven live by the run's executor
+            self.player.show_live(plan, live)
         self.hub = Hub(self)
         self.stored = 0  # 1 once the round is in the store
         self.error: str | None = None
@@ -116,10 +124,8 @@ class GameRound:
                 await task
 
     async def _wait(self) -> None:
-        tasks = self.plan.best.schedule.tasks("human")
         try:
-            while (observed := self.player.played(self.plan.cycle, tasks)) is None:
-                await asyncio.sleep(_POLL)
+            observed, dep = await self._played()
             said = await self._said()
         except Exception as exc:
             log.exception("the game round of %s failed", self.pid)
@@ -129,7 +135,7 @@ class GameRound:
         pid, token = self.pid, self.token
         try:
             await self.worker.call(lambda s: s.submit_round(pid, token, "game", said,
-                                                            played=observed))
+                                                            played=observed, live=dep))
         except OutOfTurn as exc:
             self.error = str(exc)
             return
@@ -151,6 +157,19 @@ class GameRound:
                  pid, token, self.timing["record"], state.get("t", 0.0),
                  "over" if state.get("over") else "still running", self.timing["next_plan"])
 
+
+    async def _played(self) -> tuple[dict[str, HumanExecution] | None, Deployment | None]:
+        """What the person did once they are done (planned: their tasks; the robot's part the
+        run replays), or under reactive execution the whole live cycle once it is over."""
+        cycle = self.plan.cycle
+        if self.live is not None:
+            while (dep := self.player.deployed(cycle)) is None:
+                await asyncio.sleep(_POLL)
+            return None, dep
+        tasks = self.plan.best.schedule.tasks("human")
+        while (observed := self.player.played(cycle, tasks)) is None:
+            await asyncio.sleep(_POLL)
+        return observed, None
 
     async def _said(self) -> dict[str, str]:
         """The comfort item's fields once the person has answered (none when not asked). The
@@ -174,7 +193,8 @@ async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
         if held is None or step_token(step) != token:
             raise OutOfTurn(f"{pid}'s next step is {step.describe()}, not this round: reload "
                             f"/p/{pid}", step)
-        return GameRound(worker, world, pid, token, *held, ask_comfort=s.store.design.comfort)
+        return GameRound(worker, world, pid, token, *held, ask_comfort=s.store.design.comfort,
+                         live=s.live_executor(pid))
 
     game = await worker.call(make)
     game.start()

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -48,6 +48,7 @@ from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
 from rapidds.worlds.registry import make_world
 
 if TYPE_CHECKING:
+    from rapidds.execution import CycleExecutor, Deployment, HumanSource
     from rapidds.loop.model import HumanModel
     from rapidds.loop.run import AdaptiveRun, CyclePlan
     from rapidds.motion.policy import DiffusionPolicy
@@ -283,6 +284,17 @@ class StudySession:
             self._runs[rid] = run
         return run
 
+    def live_executor(self, pid: str) -> Callable[[HumanSource], CycleExecutor] | None:
+        """What builds the executor that drives the robot of ``pid``'s held round in the game
+        under reactive execution (the one ``rapidds play --execution reactive`` uses); None
+        under planned execution, or when their next step is not a round."""
+        held = self.plan(pid)
+        if held is None or self.store.base_config.execution != "reactive":
+            return None
+        step = self.store.next_step(pid)
+        assert step.system is not None
+        return self._run(pid, step.system).live_executor(held[0])
+
     def _forget(self, pid: str, system: str) -> None:
         rid = self.store.run_id(pid, system)
         self._runs.pop(rid, None)
@@ -337,10 +349,12 @@ class StudySession:
 
     def submit_round(self, pid: str, token: str, source: str, fields: Mapping[str, str],
                      tracker: str | None = None,
-                     played: Mapping[str, HumanExecution] | None = None) -> CycleRecord:
+                     played: Mapping[str, HumanExecution] | None = None,
+                     live: Deployment | None = None) -> CycleRecord:
         """Record what the person did in their current round (one transaction) and return the
         cycle's (typed) record. played: what they did in the game (source "game"), as the
-        :class:`~rapidds.web.player.BrowserPlayer` observed it."""
+        :class:`~rapidds.web.player.BrowserPlayer` observed it; live: the whole game round
+        under reactive execution, played on the run's executor (:meth:`live_executor`)."""
         step = self._turn(pid, token, "round")
         assert step.system is not None
         held = self.plan(pid)
@@ -350,14 +364,14 @@ class StudySession:
         said = self._comfort(source, fields)
         if self.store.design.comfort:  # else they stay, and are refused as unknown fields
             fields = {k: v for k, v in fields.items() if k not in COMFORT_FIELDS}
-        observed = self._observed(pid, source, fields, tracker, tasks, played)
+        observed = self._observed(pid, source, fields, tracker, tasks, played, live)
         run = self._run(pid, step.system)
         mate = run.teammate
         assert isinstance(mate, _Says)
         if said is not None:
             mate.said[plan.cycle] = said
         try:
-            dep = run.execute(plan, observed)
+            dep = run.execute(plan, observed, played=live)
             run.learn(plan, dep)
             return run.record(plan, dep)
         finally:  # recorded or not, the next plan starts from the store
@@ -380,8 +394,8 @@ class StudySession:
         return int(answer), parse_presses(str(fields.get("too_close", "")))
 
     def _observed(self, pid: str, source: str, fields: Mapping[str, str], tracker: str | None,
-                  tasks: Sequence[str], played: Mapping[str, HumanExecution] | None
-                  ) -> dict[str, HumanExecution] | None:
+                  tasks: Sequence[str], played: Mapping[str, HumanExecution] | None,
+                  live: Deployment | None = None) -> dict[str, HumanExecution] | None:
         if source not in SOURCES:
             raise InputError(f"choose where the round's data come from: {', '.join(SOURCES)}")
         unknown = sorted(set(fields) - {f"d:{t}" for t in tasks} - {"bag"})
@@ -389,7 +403,7 @@ class StudySession:
             raise InputError(f"unknown field(s) in the round: {', '.join(unknown[:5])[:200]} (the "
                              f"person's tasks: {', '.join(tasks) or 'none'})")
         if source == "game":
-            return self._played(pid, tasks, played)
+            return self._played(pid, tasks, played, live)
         if not tasks:
             return {}
         if source == "bag":
@@ -449,10 +463,17 @@ class StudySession:
         return isinstance(self.world, FetchWorld)
 
     def _played(self, pid: str, tasks: Sequence[str],
-                played: Mapping[str, HumanExecution] | None) -> dict[str, HumanExecution]:
+                played: Mapping[str, HumanExecution] | None,
+                live: Deployment | None) -> dict[str, HumanExecution] | None:
+        """What the game observed of the person (None: a live round, ``live`` holds it all)."""
         if not self.has_game:
             raise InputError(f"the game source is offered for fetch studies only; this study "
                              f"runs on {self.world.name}: choose {', '.join(SOURCES[:-1])}")
+        if live is not None:
+            if set(live.human) != set(tasks):
+                raise InputError(f"the game played {sorted(live.human)}, the plan gave the "
+                                 f"person {sorted(tasks)}")
+            return None
         if played is None:
             raise InputError(f"a game round is recorded by the game itself: open /p/{pid}/play "
                              "and play the round there")
