@@ -94,6 +94,11 @@ class CliServer:
             if found(line):
                 return line
 
+    def kill(self) -> None:
+        """In a test's ``finally``: whatever failed, no server outlives it."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+
     def stop(self, sig: int = signal.SIGINT, timeout: float = 60) -> int:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
@@ -103,3 +108,11 @@ class CliServer:
         while not self.lines.empty():
             self.out_lines.append(self.lines.get())
         return rc
+
+
+def close_and_stop(page: Any, server: CliServer) -> None:
+    """The end of a browser test: the page saw no script error, and the server stops on Ctrl-C
+    with exit 0 (what a person's Ctrl-C does)."""
+    assert page.errors == []
+    page.close()
+    assert server.stop(signal.SIGINT) == 0

@@ -10,12 +10,11 @@ hand-made plans, in tests/test_play_reactive.py).
 
 from __future__ import annotations
 
-import signal
 from pathlib import Path
 from typing import Any
 
 import pytest
-from browser_helpers import NEEDS_CHROMIUM, CliServer, open_page
+from browser_helpers import NEEDS_CHROMIUM, CliServer, close_and_stop, open_page
 from play_bot import RouteBot, human_tasks, play_cycle
 
 from rapidds.store import RunStore
@@ -45,12 +44,9 @@ def test_the_robot_reacts_live_in_the_browser_and_the_cycle_is_stored(
         assert line.startswith("Robot") and "re-planned at" in line and "ran long" in line
         # the cycle is stored (and the run finished) before the server is stopped
         page.wait_for_function("window.rapidds.phase === 'done'", timeout=60_000)
-        assert page.errors == []
-        page.close()
-        assert server.stop(signal.SIGINT) == 0
+        close_and_stop(page, server)
     finally:
-        if server.proc.poll() is None:
-            server.proc.kill()
+        server.kill()
     with RunStore(tmp_path / "run.sqlite") as store:
         (rec,) = store.records(RUN_ID)
     took = sorted((t for t in end["times"] if end["owner"][t] == "human"),

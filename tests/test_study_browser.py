@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer, open_page
+from browser_helpers import NEEDS_CHROMIUM, ROOT, SHOTS, CliServer, close_and_stop, open_page
 from play_bot import RouteBot, check_planned_with, check_played, play_cycle
 from study_helpers import make_study
 
@@ -229,12 +229,9 @@ def test_two_rounds_played_in_the_game_are_stored_as_the_study_rounds(
             page.wait_for_url(f"**/p/{pid}", timeout=WAIT)
             page.wait_for_selector("#survey" if rnd else "#input", timeout=WAIT)
             waits.append(time.monotonic() - over)
-        assert page.errors == []
-        page.close()
-        assert server.stop(signal.SIGINT) == 0
+        close_and_stop(page, server)
     finally:
-        if server.proc.poll() is None:
-            server.proc.kill()
+        server.kill()
     print(f"from the end of a game round to the next study page: "
           f"{', '.join(f'{w:.2f}' for w in waits)} s")
 
