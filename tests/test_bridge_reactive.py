@@ -1,8 +1,8 @@
 """Reactive execution in a live painting cell on localhost: the hub (``rapidds deploy
 --execution reactive``) and the MuJoCo robot run as processes, the person is the reference
-node with one change: for the cycle's first cell seconds they stand at the arm's tool. The
-hub's speed scaling drops to 0, stays below full speed while they stand there, and returns to
-1 once they step back; the robot node obeys it (its task takes the hold longer) and the record
+node with one change: for the cycle's first cell seconds they walk to the arm's tool and stand
+there. The hub's speed scaling drops to 0, stays below full speed while they stand there, and
+returns to 1 once they step back; the robot node obeys it (its task takes the hold longer) and the record
 has the robot's pauses.
 
 Simulated time runs 4x faster than the wall clock (``--time-scale 4``)."""

@@ -10,6 +10,8 @@ their stamps); what a live robot changes is the robot's side: its points are mea
 replayed (its speed measured over ``WINDOW`` cell s of joint states), and its speed
 at full rate is the planned one of the running task at its fastest (the layer does not know
 how far along its path a held robot is, so it takes the bound, never the lower value).
+Its T_r is the whole reaction time of this safety function (ISO/TS 15066): the world's plus
+the live latencies, the person's sample age, a tick period and the scaling's ``DELIVERY``.
 
 A person not tracked for ``STALE`` cell s (a tracker that stalls, a lost link) holds the robot,
 as a missing sensor does in a safety controller: their last position says nothing of now. Such
