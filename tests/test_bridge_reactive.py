@@ -2,8 +2,8 @@
 --execution reactive``) and the MuJoCo robot run as processes, the person is the reference
 node with one change: for the cycle's first cell seconds they walk to the arm's tool and stand
 there. The hub's speed scaling drops to 0, stays below full speed while they stand there, and
-returns to 1 once they step back; the robot node obeys it (its task takes the hold longer) and the record
-has the robot's pauses.
+returns to 1 once they step back; the robot node obeys it (its task takes the hold longer) and
+the record has the robot's pauses and protective checks.
 
 Simulated time runs 4x faster than the wall clock (``--time-scale 4``)."""
 
