@@ -210,7 +210,8 @@ class LiveCell:
             return None
         trajectories = {t: m.trajectory for t, m in plan.best.motions.items()
                         if m.trajectory is not None}
-        return SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories))
+        return SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
+                            period=1.0 / self.options.scaling_rate)
 
     def _scale(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                monitor: SpeedMonitor, tick: float) -> float:

@@ -10,6 +10,8 @@ their stamps); what a live robot changes is the robot's side: its points are mea
 replayed (its speed measured over ``WINDOW`` cell s of joint states), and its speed
 at full rate is the planned one of the running task at its fastest (the layer does not know
 how far along its path a held robot is, so it takes the bound, never the lower value).
+Its T_r is the whole reaction time of this safety function (ISO/TS 15066): the world's plus
+the live latencies, the person's sample age, a tick period and the scaling's ``DELIVERY``.
 
 A person not tracked for ``STALE`` cell s (a tracker that stalls, a lost link) holds the robot,
 as a missing sensor does in a safety controller: their last position says nothing of now. Such
@@ -25,7 +27,7 @@ tick; a held arm that the person's body pushes is no robot motion.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -41,6 +43,9 @@ WINDOW = 0.1
 too short: a node that catches up sends several at once)."""
 STALE = 0.5
 """Cell seconds after which the person's last tracked sample no longer counts."""
+DELIVERY = 0.05
+"""Cell seconds a speed scaling may take to act on the robot: the reference robot reads the
+link between 50 ms passes of its physics (a real driver's own figure belongs here)."""
 MOVING = 0.01
 """Workspace units per second below which the measured robot counts as still (a held arm's
 servo jitter, sensor noise)."""
@@ -58,10 +63,12 @@ def planned_speeds(world: World, trajectories: Mapping[str, np.ndarray]) -> dict
 
 @dataclass
 class SpeedMonitor:
-    """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks."""
+    """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks;
+    ``period``: cell seconds between its ticks."""
 
     world: World
     speeds: Mapping[str, float]
+    period: float = 0.05
     limits: SafetyLimits = field(init=False)
     rate: float = 1.0
     pauses: list[dict[str, Any]] = field(default_factory=list)
@@ -73,7 +80,6 @@ class SpeedMonitor:
 
     def __post_init__(self) -> None:
         _, self.limits = cell_reactions(self.world)
-        self.policy = SpeedSeparation(self.limits)
 
     def joint_state(self, q: np.ndarray, at: float) -> None:
         """The robot's joint positions at cell time ``at`` (its state's stamp). Kept as they
@@ -108,11 +114,21 @@ class SpeedMonitor:
         else:
             (human, vh, _), (points, vr) = person, robot
             sep = float(np.linalg.norm(human[:, None] - points[None], axis=-1).min())
-            rate = self.policy.rate(sep, vh, self.speeds.get(task, 0.0))
+            rate = self.policy_now(now - person[2]).rate(sep, vh, self.speeds.get(task, 0.0))
             self.trace.append((now, sep, vh, vr, self.rate))
         self._log(now, rate, task, why)
         self.rate = rate
         return rate
+
+    def policy_now(self, age: float) -> SpeedSeparation:
+        """The policy with ISO/TS 15066's T_r as the whole reaction time of this safety
+        function: the world's (the robot's own) plus the latencies the live monitor adds, the
+        age of the person's sample, up to a tick period until it looks again, and the
+        scaling's delivery. The arm's T_s stays the world's: the reference arm stops well
+        within it (docs/design-notes.md). The protective check keeps the world's limits."""
+        late = max(age, 0.0) + self.period + DELIVERY
+        return SpeedSeparation(replace(self.limits,
+                                       reaction_time=self.limits.reaction_time + late))
 
     def _log(self, now: float, rate: float, task: str | None, why: str) -> None:
         kind = "" if rate >= 1.0 or task is None else "stop" if rate <= 0.0 else "slow"
