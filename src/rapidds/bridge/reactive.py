@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from rapidds.execution.policies import SpeedSeparation, protective_distance
+from rapidds.execution.policies import SpeedSeparation, protective_check, separation
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import SafetyLimits, cell_reactions
 
@@ -113,7 +113,7 @@ class SpeedMonitor:
             rate, why = 0.0, "no tracking"
         else:
             (human, vh, _), (points, vr) = person, robot
-            sep = float(np.linalg.norm(human[:, None] - points[None], axis=-1).min())
+            sep = separation(human, points)
             rate = self.policy_now(now - person[2]).rate(sep, vh, self.speeds.get(task, 0.0))
             self.trace.append((now, sep, vh, vr, self.rate))
         self._log(now, rate, task, why)
@@ -148,8 +148,6 @@ class SpeedMonitor:
     def protective(self) -> dict[str, Any]:
         """As the executor reports it: ticks watched, those at which the robot moved, those
         of them inside the protective distance at its measured speed, the closest margin."""
-        margins = [sep - protective_distance(self.limits, vh, vr)
-                   for _, sep, vh, vr, allowed in self.trace if allowed > 0.0 and vr > MOVING]
-        return {"watched": len(self.trace), "moving": len(margins),
-                "moving_inside": sum(m < -1e-9 for m in margins),
-                "closest_margin": min(margins, default=None)}
+        return protective_check(self.limits, len(self.trace),
+                                ((sep, vh, vr) for _, sep, vh, vr, allowed in self.trace
+                                 if allowed > 0.0 and vr > MOVING))

@@ -27,7 +27,7 @@ import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Deployment, realise
-from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_distance
+from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_check, separation
 from rapidds.execution.replan import MotionSupply, Remainder, replan_remainder, robot_concurrency
 from rapidds.execution.sources import (
     HumanSource,
@@ -200,7 +200,7 @@ class CycleExecutor:
         self._last = (now, h_pts)
         if self.running["robot"] is None:
             return 1.0, RobotView(r_pts, False)
-        sep = float(np.linalg.norm(h_pts[:, None] - r_pts[None], axis=-1).min())
+        sep = separation(h_pts, r_pts)
         v_r = self.robot.speed()
         rate = self.policy.rate(sep, self._vh, v_r)
         self.trace.append((now, sep, self._vh, v_r, rate))
@@ -386,8 +386,6 @@ class CycleExecutor:
     def _protective(self) -> dict[str, Any] | None:
         if self.limits is None or not self.watching:
             return None
-        margins = [sep - protective_distance(self.limits, vh, rate * vr)
-                   for _, sep, vh, vr, rate in self.trace if rate > 0.0 and vr > 0.0]
-        return {"watched": len(self.trace), "moving": len(margins),
-                "moving_inside": sum(m < -1e-9 for m in margins),
-                "closest_margin": min(margins, default=None)}
+        return protective_check(self.limits, len(self.trace),
+                                ((sep, vh, rate * vr) for _, sep, vh, vr, rate in self.trace
+                                 if rate > 0.0 and vr > 0.0))

@@ -18,12 +18,21 @@ Re-planning the rest of the cycle is the third policy, in :mod:`.replan`.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
+
+import numpy as np
 
 from rapidds.worlds.reactions import SafetyLimits
 
-__all__ = ["OpenLoop", "RobotPolicy", "SpeedSeparation", "protective_distance"]
+__all__ = ["OpenLoop", "RobotPolicy", "SpeedSeparation", "protective_check",
+           "protective_distance", "separation"]
+
+
+def separation(a: np.ndarray, b: np.ndarray) -> float:
+    """d: the smallest distance between any of the points ``a`` (n, k) and ``b`` (m, k)."""
+    return float(np.linalg.norm(a[:, None] - b[None], axis=-1).min())
 
 
 def protective_distance(limits: SafetyLimits, human_speed: float, robot_speed: float) -> float:
@@ -31,6 +40,17 @@ def protective_distance(limits: SafetyLimits, human_speed: float, robot_speed: f
     t_r, t_s = limits.reaction_time, limits.stopping_time
     return (human_speed * (t_r + t_s) + robot_speed * t_r + robot_speed * t_s / 2.0
             + limits.margin)
+
+
+def protective_check(limits: SafetyLimits, watched: int,
+                     moving: Iterable[tuple[float, float, float]]) -> dict[str, Any]:
+    """A cycle's check against the protective distance: of ``watched`` instants, those at which
+    the robot moved, given as (separation, person's speed, robot's speed), how many of them were
+    inside S_p and the closest margin (separation - S_p)."""
+    margins = [sep - protective_distance(limits, vh, vr) for sep, vh, vr in moving]
+    return {"watched": watched, "moving": len(margins),
+            "moving_inside": sum(m < -1e-9 for m in margins),
+            "closest_margin": min(margins, default=None)}
 
 
 class RobotPolicy(Protocol):

@@ -19,6 +19,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from rapidds.execution.policies import separation
 from rapidds.motion.interface import MotionPlan
 from rapidds.worlds.base import HumanExecution, World, body_points
 from rapidds.worlds.reactions import Deviation, Reaction
@@ -282,8 +283,7 @@ class SimulatedHuman:
             return 0.0, "deviation"
         if self.reaction is None:
             return 1.0, ""
-        sep = float(np.linalg.norm(self.points()[:, None] - robot.points[None], axis=-1).min())
-        pace = self.reaction.pace(sep, robot.moving)
+        pace = self.reaction.pace(separation(self.points(), robot.points), robot.moving)
         return pace, ("robot within stop distance" if pace == 0.0 else "robot within comfort")
 
     def next_event(self, now: float, robot: RobotView) -> float:

@@ -49,7 +49,7 @@ from rapidds.worlds.fetch.map import DESCRIPTIONS
 from rapidds.worlds.fetch.world import FetchWorld
 from rapidds.worlds.geometry import segments_hit_rects
 
-__all__ = ["AVATAR_RADIUS", "HUMAN_SPEED", "MAX_SIGNALS", "FetchGame", "TaskStatus"]
+__all__ = ["AVATAR_RADIUS", "HUMAN_SPEED", "MAX_SIGNALS", "FetchGame", "TaskStatus", "along"]
 
 HUMAN_SPEED = 4.5  # m/s
 MAX_SIGNALS = 120  # "too close" signals kept per cycle: a stuck key cannot grow the record
@@ -61,6 +61,16 @@ TaskStatus = Literal["locked", "queued", "active", "carried", "done"]
 
 def _r(x: float) -> float:
     return round(float(x), 3)
+
+
+def along(trajectory: Any, s: float, dt: float) -> np.ndarray:
+    """Where a trajectory sampled every ``dt`` is ``s`` seconds along it: linear between its
+    rows, held at its ends (what the page draws between ticks)."""
+    traj = np.asarray(trajectory, dtype=float)
+    u = s / dt
+    k = int(np.clip(math.floor(u), 0, len(traj) - 1))
+    a = float(np.clip(u - k, 0.0, 1.0))
+    return (1 - a) * traj[k] + a * traj[min(k + 1, len(traj) - 1)]
 
 
 @dataclass
@@ -207,12 +217,8 @@ class FetchGame:
         last = self._lanes["robot"].last
         if last is None:
             return self.world.robot_rest().astype(float)
-        traj = np.asarray(self.motions[last].trajectory, dtype=float)
-        u = (self.now - self.start_time[last]) / self.world.dt
-        k = int(np.clip(math.floor(u), 0, len(traj) - 1))
-        k1 = min(k + 1, len(traj) - 1)
-        a = float(np.clip(u - k, 0.0, 1.0))
-        return (1 - a) * traj[k] + a * traj[k1]
+        return along(self.motions[last].trajectory, self.now - self.start_time[last],
+                     self.world.dt)
 
     def status(self, task: str) -> TaskStatus:
         """Where ``task`` stands: locked (waiting for predecessors or a wait), queued (a robot

@@ -34,7 +34,7 @@ from rapidds.execution.deployment import realise
 from rapidds.motion.interface import MotionPlan
 from rapidds.problem import Agent, Problem
 from rapidds.schedule import Schedule, Timeline, Wait
-from rapidds.web.game import HUMAN_SPEED, FetchGame, TaskStatus
+from rapidds.web.game import HUMAN_SPEED, FetchGame, TaskStatus, along
 from rapidds.worlds.base import HumanExecution, body_points
 from rapidds.worlds.fetch.world import FetchWorld
 
@@ -244,11 +244,7 @@ class ReactiveFetchGame(FetchGame):
         at = self._robot.progress()
         if at is None:
             return self.world.robot_rest().astype(float)
-        traj = np.asarray(self._robot.motions[at[0]].trajectory, dtype=float)
-        u = at[1] / self.world.dt
-        k = int(np.clip(math.floor(u), 0, len(traj) - 1))
-        a = float(np.clip(u - k, 0.0, 1.0))
-        return (1 - a) * traj[k] + a * traj[min(k + 1, len(traj) - 1)]
+        return along(self._robot.motions[at[0]].trajectory, at[1], self.world.dt)
 
     def robot_state(self) -> str:
         """idle, moving (full speed), slowed or stopped (speed and separation monitoring)."""
