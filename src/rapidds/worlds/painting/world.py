@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     import mujoco
     from matplotlib.axes import Axes
 
+    from rapidds.motion.timing import JointLimits
     from rapidds.worlds.painting.kinematics import ArmKinematics
     from rapidds.worlds.painting.motions import Motion
     from rapidds.worlds.painting.teammates import PaintingTeammate
@@ -246,6 +247,16 @@ class PaintingWorld:
         (``robot:panda0_joint1..7``); franka_ros2 calls the same joints ``fr3_joint1..7``, in
         this order (README, "In a real cell")."""
         return ARM_JOINTS
+
+    @property
+    def robot_limits(self) -> JointLimits:
+        """The arm's joint limits: the MJCF's ranges and the Panda datasheet's velocity,
+        acceleration and jerk (what :mod:`rapidds.motion.timing` parameterizes within)."""
+        from rapidds.motion.timing import JointLimits
+        from rapidds.worlds.painting.kinematics import FRANKA_ACCELERATION, FRANKA_JERK
+
+        kin = self.kinematics
+        return JointLimits(kin.lower, kin.upper, kin.velocity, FRANKA_ACCELERATION, FRANKA_JERK)
 
     @property
     def body_point_names(self) -> tuple[str, ...]:
