@@ -24,14 +24,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from rapidds.bridge.faults import FaultLog, size_limit
 from rapidds.bridge.ros2 import MessageError, deserialize, serialize, zenoh_key
 from rapidds.errors import RapiddsError
 
-__all__ = ["DEFAULT_ENDPOINT", "Link", "LinkError", "Received", "StampGate", "check_endpoint",
-           "log"]
+__all__ = ["ALIVE_PREFIX", "DEFAULT_ENDPOINT", "Link", "LinkError", "Received", "StampGate",
+           "check_endpoint", "log"]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 log = logging.getLogger("rapidds.bridge")
+ALIVE_PREFIX = "/rapidds/alive/"
+"""A node's liveliness token (``/rapidds/alive/<node>``, Zenoh liveliness): a hub that watches
+(``watch=True``) receives ``Received(ALIVE_PREFIX + node, True | False, ...)`` when the node
+joins or leaves the link (its process ends, its connection drops)."""
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-]+):(\d{1,5})$")
 
 
@@ -66,7 +71,7 @@ class Link:
     """
 
     def __init__(self, topics: Mapping[str, str], *, listen: str | None = None,
-                 connect: str | None = None):
+                 connect: str | None = None, alive: str | None = None, watch: bool = False):
         try:
             import zenoh
         except ImportError:
@@ -92,22 +97,40 @@ class Link:
                             f"{str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") \
                 from None
         self._inbox: queue.Queue[Received] = queue.Queue()
+        self.faults = FaultLog()
         self._types = {zenoh_key(t): (t, kind) for t, kind in topics.items()}
         self._subs = [self._session.declare_subscriber(key, self._on_sample)
                       for key in self._types]
+        if watch:  # history: the nodes already on the link are announced too
+            self._subs.append(self._session.liveliness().declare_subscriber(
+                zenoh_key(ALIVE_PREFIX) + "/*", self._on_alive, history=True))
+        self._token = (None if alive is None else
+                       self._session.liveliness().declare_token(zenoh_key(ALIVE_PREFIX + alive)))
         self._closed = False
+
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        topic = "/" + str(sample.key_expr)
+        self._inbox.put(Received(topic, sample.kind == zenoh.SampleKind.PUT, time.time_ns()))
 
     def _on_sample(self, sample: Any) -> None:
         key = str(sample.key_expr)
         known = self._types.get(key)
         if known is None:
-            log.warning("dropped a message on unknown key %s", key)
+            self.faults.warn("unknown key", "dropped a message on unknown key %s", key[:160])
             return
         topic, kind = known
+        size = len(sample.payload)
+        if size > size_limit(topic, kind):  # measured before a byte of it is decoded
+            self.faults.warn("oversized", "dropped a message of %d bytes on %s: at most %d",
+                             size, topic, size_limit(topic, kind))
+            return
         try:
             msg = deserialize(sample.payload.to_bytes(), kind)
         except MessageError as exc:
-            log.warning("dropped a malformed message on %s: %s", topic, str(exc)[:160])
+            self.faults.warn("malformed", "dropped a malformed message on %s: %s", topic,
+                             str(exc)[:160])
             return
         self._inbox.put(Received(topic, msg, time.time_ns()))
 
@@ -140,6 +163,8 @@ class Link:
             self._closed = True
             for s in self._subs:
                 s.undeclare()
+            if self._token is not None:
+                self._token.undeclare()
             self._session.close()
 
     def __enter__(self) -> Link:
@@ -153,14 +178,18 @@ class StampGate:
     """Drops a stamped message older than the last one accepted from the same source (a topic,
     or a TF child frame): a late or replayed sample would rewrite the past. Logged in one line."""
 
-    def __init__(self) -> None:
+    def __init__(self, faults: FaultLog | None = None) -> None:
         self._last: dict[str, int] = {}
+        self.faults = faults
 
     def accept(self, source: str, stamp_ns: int) -> bool:
         last = self._last.get(source)
         if last is not None and stamp_ns < last:
-            log.warning("dropped a message on %s stamped %.3f s before the last one", source,
-                        (last - stamp_ns) / 1e9)
+            text = "dropped a message on %s stamped %.3f s before the last one"
+            if self.faults is None:
+                log.warning(text, source, (last - stamp_ns) / 1e9)
+            else:
+                self.faults.warn("out of order", text, source, (last - stamp_ns) / 1e9)
             return False
         self._last[source] = stamp_ns
         return True

@@ -11,11 +11,17 @@ import logging
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from rapidds.cli import app, fail
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+
+if TYPE_CHECKING:
+    from rapidds.bridge.cell import CellOptions
+    from rapidds.bridge.link import Link
+    from rapidds.worlds.base import World
 
 _D = RunConfig.model_fields
 _ENDPOINT = "tcp/127.0.0.1:7447"
@@ -72,11 +78,9 @@ def deploy_cmd(
         fail(f"unknown --execution {execution!r}; one of planned, reactive")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
         fail("--time-scale and the timeouts must be > 0")
-    from rapidds.bridge.cell import CellFault, CellOptions, LinkTeammate, LiveCell, hub_topics
+    from rapidds.bridge.cell import CellOptions, hub_topics
     from rapidds.bridge.link import Link, check_endpoint
     from rapidds.cli.run import set_threads
-    from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
-    from rapidds.store import RunStore
     from rapidds.worlds.base import body_point_names
     from rapidds.worlds.registry import make_world
 
@@ -88,6 +92,20 @@ def deploy_cmd(
                     samples=samples, particles=particles, candidates=candidates,
                     execution=execution)
     w = make_world(cfg.world, cfg.variant)
+    # the link first: a busy port is said before the store exists (no empty run.sqlite)
+    with Link(hub_topics(body_point_names(w)), listen=listen, watch=True) as link:
+        _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
+            time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
+            cycle_timeout=cycle_timeout, execution=execution))
+
+
+def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None, resume: bool,
+            as_json: bool, options: CellOptions) -> None:
+    """The hub's run on an open ``link``: the store, the loop, a line or a record per cycle."""
+    from rapidds.bridge.cell import CellFault, LinkTeammate, LiveCell
+    from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
+    from rapidds.store import RunStore
+
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
     run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
     if run.next_cycle and not resume:
@@ -97,9 +115,6 @@ def deploy_cmd(
         typer.echo(f"run '{run.config.run_id}' in {out} is already finished "
                    f"({run.config.cycles} cycles); nothing to run", err=True)
         return
-    options = CellOptions(time_scale=time_scale, robot_timeout=robot_timeout,
-                          startup_timeout=startup_timeout, cycle_timeout=cycle_timeout,
-                          execution=execution)
 
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record
@@ -111,12 +126,11 @@ def deploy_cmd(
             typer.echo(f"cycle {rec.cycle}: makespan {rec.realised.makespan:.2f} s; "
                        f"person {human}; robot {robot}; contacts {len(live['contacts'])}")
 
-    with Link(hub_topics(body_point_names(w)), listen=listen) as link:
-        try:
-            LiveCell(run, link, options).run_all(on_cycle)
-        except CellFault as exc:
-            typer.echo(f"rapidds: error: {exc}", err=True)
-            raise typer.Exit(3) from None
+    try:
+        LiveCell(run, link, options).run_all(on_cycle)
+    except CellFault as exc:
+        typer.echo(f"rapidds: error: {exc}", err=True)
+        raise typer.Exit(3) from None
 
 
 @app.command("sim-robot")
@@ -139,7 +153,7 @@ def sim_robot_cmd(
     if getattr(w, "physics_model", None) is None:  # before waiting for the hub
         fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
              "(painting)")
-    with Link(SimRobot.topics(body_point_names(w)), connect=connect) as link:
+    with Link(SimRobot.topics(body_point_names(w)), connect=connect, alive="robot") as link:
         SimRobot(w, link, rate=rate).spin()
 
 
@@ -162,5 +176,5 @@ def sim_human_cmd(
     w = make_world(world)
     if human not in w.teammate_names:
         fail(f"unknown human '{human}' for world {w.name}; one of {', '.join(w.teammate_names)}")
-    with Link(SimHuman.topics(), connect=connect) as link:
+    with Link(SimHuman.topics(), connect=connect, alive="person") as link:
         SimHuman(w, w.teammate(human), link, seed=seed).spin()
