@@ -5,7 +5,8 @@ nodes (a robot driver, a tracker, the reference simulators) connect to it as Zen
 wait for it when it is not up yet and reconnect when it restarts (``--resume``). Multicast
 scouting is off, so nothing is found or reached that was not named: the link stays on localhost
 unless told otherwise. A ROS 2 graph joins through zenoh-bridge-ros2dds (topic ``/a/b`` <->
-key ``a/b``).
+key ``a/b``). Across machines, ``config`` (``--zenoh-config``, :mod:`.zenoh_config`) puts the
+link under Zenoh's mutual TLS and access control.
 
 Received samples are decoded on Zenoh's thread and queued; the owner reads them in its own
 thread with :meth:`Link.receive`, so no handler ever runs concurrently with the loop. A sample
@@ -26,6 +27,7 @@ from typing import Any
 
 from rapidds.bridge.faults import FaultLog, size_limit
 from rapidds.bridge.ros2 import MessageError, deserialize, serialize, zenoh_key
+from rapidds.bridge.zenoh_config import LinkConfig, session_config
 from rapidds.errors import RapiddsError
 
 __all__ = ["ALIVE_PREFIX", "DEFAULT_ENDPOINT", "Link", "LinkError", "Received", "StampGate",
@@ -71,13 +73,14 @@ class Link:
     """
 
     def __init__(self, topics: Mapping[str, str], *, listen: str | None = None,
-                 connect: str | None = None, alive: str | None = None, watch: bool = False):
+                 connect: str | None = None, alive: str | None = None, watch: bool = False,
+                 config: LinkConfig | None = None):
         try:
             import zenoh
         except ImportError:
             raise LinkError("the live link needs eclipse-zenoh; pip install eclipse-zenoh") \
                 from None
-        conf = zenoh.Config()
+        conf = session_config(config, listen or connect or "")  # --zenoh-config: TLS, ACL
         # The hub routes between its nodes (two peers behind a third do not hear each other);
         # a node is a client that waits for the hub and reconnects when it comes back.
         conf.insert_json5("mode", '"router"' if listen else '"client"')

@@ -11,7 +11,7 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -21,6 +21,7 @@ from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 if TYPE_CHECKING:
     from rapidds.bridge.cell import CellOptions
     from rapidds.bridge.link import Link
+    from rapidds.bridge.zenoh_config import LinkConfig
     from rapidds.worlds.base import World
 
 _D = RunConfig.model_fields
@@ -32,6 +33,18 @@ def _logging(quiet: bool) -> None:
     level = "ERROR" if quiet else os.environ.get("RAPIDDS_LOG", "WARNING").upper()
     logging.basicConfig(level=getattr(logging, level, logging.WARNING), stream=sys.stderr,
                         format="rapidds %(name)s: %(message)s")
+
+
+def _zenoh_config_option() -> Any:
+    return typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5, Zenoh's keys): "
+                        "mutual TLS (transport/link/tls) and, on the hub, access control; "
+                        "README 'In a real cell'. Default: plain TCP, localhost.")
+
+
+def _link_config(path: Path | None, role: str, endpoint: str) -> LinkConfig | None:
+    from rapidds.bridge.zenoh_config import checked_link_config
+
+    return checked_link_config(path, role, endpoint)
 
 
 @app.command("deploy")
@@ -65,6 +78,7 @@ def deploy_cmd(
     cycle_timeout: float = typer.Option(120.0, help="Cell seconds a cycle may take."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
+    zenoh_config: Path | None = _zenoh_config_option(),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
     cycle is planned here, executed by the robot and the person, observed, learned, recorded.
@@ -85,6 +99,7 @@ def deploy_cmd(
     from rapidds.worlds.registry import make_world
 
     check_endpoint(listen)
+    config = _link_config(zenoh_config, "hub", listen)
     _logging(quiet)
     set_threads(threads)
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
@@ -93,7 +108,8 @@ def deploy_cmd(
                     execution=execution)
     w = make_world(cfg.world, cfg.variant)
     # the link first: a busy port is said before the store exists (no empty run.sqlite)
-    with Link(hub_topics(body_point_names(w)), listen=listen, watch=True) as link:
+    with Link(hub_topics(body_point_names(w)), listen=listen, watch=True,
+              config=config) as link:
         _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
             time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
             cycle_timeout=cycle_timeout, execution=execution))
@@ -139,6 +155,7 @@ def sim_robot_cmd(
     connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
     quiet: bool = typer.Option(False, help="Log faults only."),
+    zenoh_config: Path | None = _zenoh_config_option(),
 ) -> None:
     """The reference robot: runs received joint trajectories in MuJoCo under physics, publishes
     joint states, its task events and touches on the person. Waits for the hub, follows it
@@ -153,7 +170,8 @@ def sim_robot_cmd(
     if getattr(w, "physics_model", None) is None:  # before waiting for the hub
         fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
              "(painting)")
-    with Link(SimRobot.topics(body_point_names(w)), connect=connect, alive="robot") as link:
+    with Link(SimRobot.topics(body_point_names(w)), connect=connect, alive="robot",
+              config=_link_config(zenoh_config, "node", connect)) as link:
         SimRobot(w, link, rate=rate).spin()
 
 
@@ -164,6 +182,7 @@ def sim_human_cmd(
     connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
+    zenoh_config: Path | None = _zenoh_config_option(),
 ) -> None:
     """The reference person: does their tasks of each received plan in real time, publishing
     task events and tracked body points. Waits for the hub, follows it across restarts, runs
@@ -176,5 +195,6 @@ def sim_human_cmd(
     w = make_world(world)
     if human not in w.teammate_names:
         fail(f"unknown human '{human}' for world {w.name}; one of {', '.join(w.teammate_names)}")
-    with Link(SimHuman.topics(), connect=connect, alive="person") as link:
+    with Link(SimHuman.topics(), connect=connect, alive="person",
+              config=_link_config(zenoh_config, "node", connect)) as link:
         SimHuman(w, w.teammate(human), link, seed=seed).spin()
