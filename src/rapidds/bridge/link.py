@@ -5,8 +5,9 @@ nodes (a robot driver, a tracker, the reference simulators) connect to it as Zen
 wait for it when it is not up yet and reconnect when it restarts (``--resume``). Multicast
 scouting is off, so nothing is found or reached that was not named: the link stays on localhost
 unless told otherwise. A ROS 2 graph joins through zenoh-bridge-ros2dds (topic ``/a/b`` <->
-key ``a/b``). Across machines, ``config`` (``--zenoh-config``, :mod:`.zenoh_config`) puts the
-link under Zenoh's mutual TLS and access control.
+key ``a/b``), or a ROS 2 node on rmw_zenoh directly (``wire``, :mod:`.wire`). Across
+machines, ``config`` (``--zenoh-config``, :mod:`.zenoh_config`) puts the link under Zenoh's
+mutual TLS and access control.
 
 Received samples are decoded on Zenoh's thread and queued; the owner reads them in its own
 thread with :meth:`Link.receive`, so no handler ever runs concurrently with the loop. A sample
@@ -27,6 +28,7 @@ from typing import Any
 
 from rapidds.bridge.faults import FaultLog, size_limit
 from rapidds.bridge.ros2 import MessageError, deserialize, serialize, zenoh_key
+from rapidds.bridge.wire import Wire
 from rapidds.bridge.zenoh_config import LinkConfig, session_config
 from rapidds.errors import RapiddsError
 
@@ -74,7 +76,7 @@ class Link:
 
     def __init__(self, topics: Mapping[str, str], *, listen: str | None = None,
                  connect: str | None = None, alive: str | None = None, watch: bool = False,
-                 config: LinkConfig | None = None):
+                 config: LinkConfig | None = None, wire: Wire | None = None):
         try:
             import zenoh
         except ImportError:
@@ -101,7 +103,9 @@ class Link:
                 from None
         self._inbox: queue.Queue[Received] = queue.Queue()
         self.faults = FaultLog()
-        self._types = {zenoh_key(t): (t, kind) for t, kind in topics.items()}
+        self._wire = Wire() if wire is None else wire  # --wire: whose keys, attachments
+        self._wire.start(self._session)
+        self._types = {self._wire.subscribe(t, kind): (t, kind) for t, kind in topics.items()}
         self._subs = [self._session.declare_subscriber(key, self._on_sample)
                       for key in self._types]
         if watch:  # history: the nodes already on the link are announced too
@@ -124,6 +128,8 @@ class Link:
             self.faults.warn("unknown key", "dropped a message on unknown key %s", key[:160])
             return
         topic, kind = known
+        if not self._wire.accept(sample, topic):
+            return
         size = len(sample.payload)
         if size > size_limit(topic, kind):  # measured before a byte of it is decoded
             self.faults.warn("oversized", "dropped a message of %d bytes on %s: at most %d",
@@ -139,11 +145,13 @@ class Link:
 
     def publish(self, topic: str, msg: Any) -> None:
         """Send a message built with :mod:`rapidds.bridge.ros2` on ``topic`` (CDR)."""
-        self._session.put(zenoh_key(topic), serialize(msg))
+        key, options = self._wire.publication(topic, msg.__msgtype__)
+        self._session.put(key, serialize(msg), **options)
 
-    def publish_raw(self, topic: str, payload: bytes) -> None:
+    def publish_raw(self, topic: str, payload: bytes, msgtype: str | None = None) -> None:
         """Send raw bytes on ``topic`` (what a faulty peer might send; for tests of the gate)."""
-        self._session.put(zenoh_key(topic), payload)
+        key, options = self._wire.publication(topic, msgtype)
+        self._session.put(key, payload, **options)
 
     def receive(self, timeout: float) -> Received | None:
         """The next decoded message, or None after ``timeout`` seconds without one."""
@@ -168,6 +176,7 @@ class Link:
                 s.undeclare()
             if self._token is not None:
                 self._token.undeclare()
+            self._wire.close()
             self._session.close()
 
     def __enter__(self) -> Link:

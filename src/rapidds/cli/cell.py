@@ -21,6 +21,7 @@ from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 if TYPE_CHECKING:
     from rapidds.bridge.cell import CellOptions
     from rapidds.bridge.link import Link
+    from rapidds.bridge.wire import Wire
     from rapidds.bridge.zenoh_config import LinkConfig
     from rapidds.worlds.base import World
 
@@ -39,6 +40,18 @@ def _zenoh_config_option() -> Any:
     return typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5, Zenoh's keys): "
                         "mutual TLS (transport/link/tls) and, on the hub, access control; "
                         "README 'In a real cell'. Default: plain TCP, localhost.")
+
+
+def _wire_option() -> Any:
+    return typer.Option("ros2dds", "--wire", help="Keys and framing on the link: ros2dds "
+                        "(zenoh-bridge-ros2dds's keys) or rmw-zenoh (rmw_zenoh's keys, "
+                        "attachments and liveliness tokens, domain ROS_DOMAIN_ID).")
+
+
+def _wire(name: str, node: str) -> Wire:
+    from rapidds.bridge.wire import make_wire
+
+    return make_wire(name, node)
 
 
 def _link_config(path: Path | None, role: str, endpoint: str) -> LinkConfig | None:
@@ -79,6 +92,7 @@ def deploy_cmd(
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
     zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
     cycle is planned here, executed by the robot and the person, observed, learned, recorded.
@@ -100,6 +114,7 @@ def deploy_cmd(
 
     check_endpoint(listen)
     config = _link_config(zenoh_config, "hub", listen)
+    hub_wire = _wire(wire, "rapidds_hub")
     _logging(quiet)
     set_threads(threads)
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
@@ -109,7 +124,7 @@ def deploy_cmd(
     w = make_world(cfg.world, cfg.variant)
     # the link first: a busy port is said before the store exists (no empty run.sqlite)
     with Link(hub_topics(body_point_names(w)), listen=listen, watch=True,
-              config=config) as link:
+              config=config, wire=hub_wire) as link:
         _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
             time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
             cycle_timeout=cycle_timeout, execution=execution))
@@ -156,6 +171,7 @@ def sim_robot_cmd(
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
     quiet: bool = typer.Option(False, help="Log faults only."),
     zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """The reference robot: runs received joint trajectories in MuJoCo under physics, publishes
     joint states, its task events and touches on the person. Waits for the hub, follows it
@@ -171,7 +187,8 @@ def sim_robot_cmd(
         fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
              "(painting)")
     with Link(SimRobot.topics(body_point_names(w)), connect=connect, alive="robot",
-              config=_link_config(zenoh_config, "node", connect)) as link:
+              config=_link_config(zenoh_config, "node", connect),
+              wire=_wire(wire, "rapidds_robot")) as link:
         SimRobot(w, link, rate=rate).spin()
 
 
@@ -183,6 +200,7 @@ def sim_human_cmd(
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
     zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """The reference person: does their tasks of each received plan in real time, publishing
     task events and tracked body points. Waits for the hub, follows it across restarts, runs
@@ -196,5 +214,6 @@ def sim_human_cmd(
     if human not in w.teammate_names:
         fail(f"unknown human '{human}' for world {w.name}; one of {', '.join(w.teammate_names)}")
     with Link(SimHuman.topics(), connect=connect, alive="person",
-              config=_link_config(zenoh_config, "node", connect)) as link:
+              config=_link_config(zenoh_config, "node", connect),
+              wire=_wire(wire, "rapidds_person")) as link:
         SimHuman(w, w.teammate(human), link, seed=seed).spin()
