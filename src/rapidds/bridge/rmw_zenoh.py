@@ -33,8 +33,8 @@ from typing import Any
 from rapidds.errors import RapiddsError
 
 __all__ = ["ADMIN_SPACE", "GID_SIZE", "Attachment", "WireError", "attachment_bytes",
-           "data_key", "dds_type_name", "domain_id", "entity_token", "mangle", "node_token",
-           "parse_attachment", "qos_key", "type_hash"]
+           "data_key", "dds_type_name", "domain_id", "entity_token", "gid_of", "mangle",
+           "node_token", "parse_attachment", "qos_key", "type_hash"]
 
 ADMIN_SPACE = "@ros2_lv"
 """rmw_zenoh's hermetic namespace of liveliness tokens (``*`` and ``**`` never match it)."""
