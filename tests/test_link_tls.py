@@ -100,15 +100,15 @@ def test_a_node_publishes_and_reads_only_the_keys_its_certificate_may(cell: Path
         assert json.loads(got[0].msg.data) == {"cycle": 0}
 
 
-def _raw_client(ep: str, tls: dict[str, Any] | None) -> Any:
-    """An attacker's session: Zenoh itself, no rapidds checks, giving up after 2 s."""
+def _raw_client(ep: str, tls: dict[str, Any] | None, timeout_ms: int = 2000) -> Any:
+    """An attacker's session: Zenoh itself, no rapidds checks, giving up after ``timeout_ms``."""
     import zenoh
 
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([ep]))
-    conf.insert_json5("connect/timeout_ms", "2000")
+    conf.insert_json5("connect/timeout_ms", str(timeout_ms))
     conf.insert_json5("connect/exit_on_failure", "true")
     if tls:
         conf.insert_json5("transport/link/tls", json.dumps(tls))
@@ -138,7 +138,8 @@ def test_a_peer_without_the_cells_certificate_gets_no_session(cell: Path,
         # the cell's own robot certificate, through Zenoh alone, does get a session
         good = _raw_client(ep, {"root_ca_certificate": ca, "enable_mtls": True,
                                 "connect_certificate": str(cell / "certs" / "robot.pem"),
-                                "connect_private_key": str(cell / "certs" / "robot.key")})
+                                "connect_private_key": str(cell / "certs" / "robot.key")},
+                           timeout_ms=30000)
         assert list(good.info.routers_zid())
         good.close()
 
@@ -252,3 +253,13 @@ def test_a_tls_and_acl_cell_runs_its_three_processes_end_to_end(cell: Path,
         t for t in record["robot"] if not t.startswith("wait:")}
     with RunStore.open_readonly(out / "run.sqlite") as st:
         assert [r["cycle"] for r in st.records(st.run_ids()[0])] == [0]
+
+
+def test_a_hubs_file_is_no_nodes_and_the_reverse(cell: Path) -> None:
+    with pytest.raises(LinkConfigError, match="a node needs transport/link/tls/connect_cert"):
+        load_link_config(cell / "hub.json5", "node")
+    with pytest.raises(LinkConfigError, match="a hub needs transport/link/tls/listen_cert"):
+        load_link_config(cell / "robot.json5", "hub")
+    hub = load_link_config(cell / "hub.json5", "hub")
+    assert hub.secure and hub.acl
+    assert hub.tls_files["listen_certificate"] == str((cell / "certs" / "hub.pem").resolve())
