@@ -128,7 +128,9 @@ class Link:
             self.faults.warn("unknown key", "dropped a message on unknown key %s", key[:160])
             return
         topic, kind = known
-        if not self._wire.accept(sample, topic):
+        if not self._wire.accept(sample):  # rmw_zenoh's attachment missing or malformed
+            self.faults.warn("no attachment", "dropped a message on %s without rmw_zenoh's "
+                             "attachment", topic)
             return
         size = len(sample.payload)
         if size > size_limit(topic, kind):  # measured before a byte of it is decoded

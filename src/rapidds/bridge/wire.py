@@ -8,7 +8,6 @@ rmw_zenoh's liveliness tokens, so a ROS 2 graph on rmw_zenoh lists them (``ros2 
 from __future__ import annotations
 
 import itertools
-import logging
 import time
 from typing import Any
 
@@ -19,7 +18,6 @@ __all__ = ["WIRES", "RmwZenohWire", "Wire", "make_wire"]
 
 WIRES = ("ros2dds", "rmw-zenoh")
 """The wires ``--wire`` takes: zenoh-bridge-ros2dds keys (default), rmw_zenoh's format."""
-log = logging.getLogger("rapidds.bridge")
 
 
 class Wire:
@@ -39,7 +37,7 @@ class Wire:
         """The key of a sample on ``topic`` and the keyword arguments of its ``put``."""
         return zenoh_key(topic), {}
 
-    def accept(self, sample: Any, topic: str) -> bool:
+    def accept(self, sample: Any) -> bool:
         """Whether to decode a received sample (its framing is the wire's)."""
         return True
 
@@ -60,7 +58,6 @@ class RmwZenohWire(Wire):
         self._ids = itertools.count(1)  # entity ids within the node (the node itself is 0)
         self._tokens: list[Any] = []
         self._publishers: dict[str, tuple[str, bytes, itertools.count[int]]] = {}
-        self._dropped = 0
 
     def _announce(self, key: str) -> None:
         self._tokens.append(self._session.liveliness().declare_token(key))
@@ -89,14 +86,9 @@ class RmwZenohWire(Wire):
         att = rmw_zenoh.Attachment(next(seq), time.time_ns(), gid)
         return key, {"attachment": rmw_zenoh.attachment_bytes(att)}
 
-    def accept(self, sample: Any, topic: str) -> bool:
-        if rmw_zenoh.parse_attachment(sample.attachment) is not None:
-            return True
-        self._dropped += 1
-        if self._dropped == 1 or self._dropped % 1000 == 0:  # rate-limited: a peer may flood
-            log.warning("dropped a message on %s without rmw_zenoh's attachment (%d so far)",
-                        topic, self._dropped)
-        return False
+    def accept(self, sample: Any) -> bool:
+        """Only a sample carrying rmw_zenoh's attachment, as rmw_zenoh itself takes."""
+        return rmw_zenoh.parse_attachment(sample.attachment) is not None
 
     def close(self) -> None:
         for token in self._tokens:
