@@ -28,6 +28,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -142,7 +143,7 @@ and ``watch=True``: the nodes' liveliness)."""
         self.task_bound = world_task_bound(self.run.world)
         self._plausible = Plausibility(self.run.world)  # the run's: last plausible samples
         self._gate.faults = self.link.faults
-        self._nodes: set[str] = set()  # nodes whose liveliness token the hub has seen
+        self._nodes: set[str] = set()  # liveliness tokens (node/session) the hub has seen
 
     def wait_ready(self) -> None:
         """Until the robot streams its joint states and the tracker the person's body points."""
@@ -175,12 +176,13 @@ and ``watch=True``: the nodes' liveliness)."""
         seen leaving stops the cycle at once."""
         if not rec.topic.startswith(ALIVE_PREFIX):
             return
-        node = rec.topic[len(ALIVE_PREFIX):]
+        token = rec.topic[len(ALIVE_PREFIX):]
+        node = PurePosixPath(token).parts[0]  # node/session id
         if rec.msg:
-            self._nodes.add(node)
+            self._nodes.add(token)
             log.info("node %s is on the link", node)
-        elif node in self._nodes:
-            self._nodes.discard(node)
+        elif token in self._nodes:
+            self._nodes.discard(token)
             if cycle is not None:
                 raise self._stop(cycle, f"the {node} node left the link")
             log.warning("node %s left the link", node)

@@ -38,9 +38,10 @@ __all__ = ["ALIVE_PREFIX", "DEFAULT_ENDPOINT", "Link", "LinkError", "Received", 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 log = logging.getLogger("rapidds.bridge")
 ALIVE_PREFIX = "/rapidds/alive/"
-"""A node's liveliness token (``/rapidds/alive/<node>``, Zenoh liveliness): a hub that watches
-(``watch=True``) receives ``Received(ALIVE_PREFIX + node, True | False, ...)`` when the node
-joins or leaves the link (its process ends, its connection drops)."""
+"""A node's liveliness token (``/rapidds/alive/<node>/<session id>``, Zenoh liveliness): a hub
+that watches (``watch=True``) receives ``Received(ALIVE_PREFIX + node/id, True | False, ...)``
+when the node joins or leaves the link (its process ends, its connection drops). The session
+id tells a restarted node from the one it replaces."""
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-]+):(\d{1,5})$")
 
 
@@ -110,9 +111,9 @@ class Link:
                       for key in self._types]
         if watch:  # history: the nodes already on the link are announced too
             self._subs.append(self._session.liveliness().declare_subscriber(
-                zenoh_key(ALIVE_PREFIX) + "/*", self._on_alive, history=True))
-        self._token = (None if alive is None else
-                       self._session.liveliness().declare_token(zenoh_key(ALIVE_PREFIX + alive)))
+                zenoh_key(ALIVE_PREFIX) + "/**", self._on_alive, history=True))
+        self._token = (None if alive is None else self._session.liveliness().declare_token(
+            f"{zenoh_key(ALIVE_PREFIX + alive)}/{self._session.zid()}"))
         self._closed = False
 
     def _on_alive(self, sample: Any) -> None:

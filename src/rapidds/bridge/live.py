@@ -198,7 +198,7 @@ class CycleObservation:
             self._drop_event("event not in the plan", "an event of %s task %r: not in cycle "
                              "%d's plan for that agent", ev.agent, ev.task[:80], self.plan.cycle)
         elif (why := self._outside(stamp, rec.received_ns, t)) is not None:
-            self._drop_event("event out of window", "a %s of %r: %s", ev.event, ev.task, why)
+            self._drop_event("event out of window", "the %s of %r: %s", ev.event, ev.task, why)
         elif ev.event == "start" and ev.task in self.start:
             self._drop_event("event out of order", "a second start of %r", ev.task)
         elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end
