@@ -263,3 +263,35 @@ def test_a_hubs_file_is_no_nodes_and_the_reverse(cell: Path) -> None:
     hub = load_link_config(cell / "hub.json5", "hub")
     assert hub.secure and hub.acl
     assert hub.tls_files["listen_certificate"] == str((cell / "certs" / "hub.pem").resolve())
+
+
+def _alive(hub: Link, name: str) -> list[str]:
+    """The nodes whose tokens the hub heard join, until ``name`` is among them (then 1 s more,
+    so that a token sent before it has come too)."""
+    from rapidds.bridge.link import ALIVE_PREFIX
+
+    seen: list[str] = []
+    deadline = time.monotonic() + 30
+    while name not in seen:
+        assert time.monotonic() < deadline, seen
+        rec = hub.receive(0.2)
+        if rec is not None and rec.msg is True:
+            seen.append(rec.topic.removeprefix(ALIVE_PREFIX).split("/")[0])
+    time.sleep(1.0)
+    return seen + [r.topic.removeprefix(ALIVE_PREFIX).split("/")[0] for r in hub.drain()
+                   if r.msg is True]
+
+
+def test_a_node_announces_only_its_own_liveliness(cell: Path) -> None:
+    """The hub hears the robot's liveliness token through the access control; the tracker's
+    certificate cannot pass itself off as the robot."""
+    ep = _endpoint()
+    hub_config = checked_link_config(cell / "hub.json5", "hub", ep)
+    tracker = load_link_config(cell / "tracker.json5", "node")
+    robot = load_link_config(cell / "robot.json5", "node")
+    with Link({}, listen=ep, watch=True, config=hub_config) as hub, \
+            Link({}, connect=ep, alive="robot", config=robot):
+        assert _alive(hub, "robot") == ["robot"]
+        with Link({}, connect=ep, alive="robot", config=tracker), \
+                Link({}, connect=ep, alive="person", config=tracker):
+            assert _alive(hub, "person") == ["person"]  # no second "robot"
