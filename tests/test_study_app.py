@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import urllib.error
@@ -177,7 +178,18 @@ def test_a_tracker_file_round_is_stored_as_the_file_says(study: Study) -> None:
     ({"source": "tracker"}, {"tracker": "task,point,t,x,y," + ",".join(
         f"c{i}" for i in range(100_000)) + "\n*,0,0,1,1\n"}, "100005 columns"),
     ({"source": "tracker"}, {"tracker": json.dumps([{f"c{i}": 1 for i in range(40)}])},
-     "has 40 fields"),
+     "more than 32 distinct fields"),
+    # issue 35: JSON objects with different fields (pandas built objects x all fields), their
+    # variants, and numbers too long for int()
+    ({"source": "tracker"}, {"tracker": json.dumps(
+        [{f"k{i}_{j}": 1 for j in range(30)} for i in range(2000)])},
+     "more than 32 distinct fields"),
+    ({"source": "tracker"}, {"tracker": json.dumps([{f"c{i}": 1} for i in range(60_000)])},
+     "more than 32 distinct fields"),
+    ({"source": "tracker"}, {"tracker": '[{"task": "*", "point": 0, "t": 1' + "1" * 5000
+                                        + ', "x": 1, "y": 1}]'}, "not a finite number"),
+    ({"source": "tracker"}, {"tracker": "task,point,t,x,y\n*,0," + "1" * 5000 + ",1,1\n"},
+     "not a finite number"),
     ({"source": "simulated", "d:mix_r": "3"}, {}, "unknown field(s) in the round: d:mix_r"),
     ({"source": "tracker", "launch": "1"}, {}, "unknown field(s) in the round: launch"),
     # a design without the comfort item knows none of its fields
@@ -479,3 +491,51 @@ def test_study_serve_on_the_ipv6_loopback_prints_addresses_that_work(
         assert status == 200 and "order of systems" in page
     finally:
         assert server.stop() == 0, "".join(server.err)[-2000:]
+
+
+def test_a_number_too_long_for_int_in_the_body_is_400(study: Study) -> None:
+    pid = _pid(study)
+    body = b'{"step": "x", "fields": {}, "n": ' + b"1" * 5000 + b"}"
+    r = study.client.post(f"/api/p/{pid}/round", content=body,
+                          headers={"content-type": "application/json"})
+    assert r.status_code == 400 and "number too long" in r.json()["error"]
+
+
+def test_a_big_tracker_file_is_measured_unescaped_and_never_echoed(study: Study) -> None:
+    """A 7.6 MiB file (JSON escaping makes its body past 8 MiB) is read, not refused for its
+    size; what is wrong with it comes back in a line, never the file."""
+    pid = _pid(study)
+    step = study.step(pid)
+    row = '"zz",0,1.000,1.000,1.000\n'
+    text = "task,point,t,x,y\n" + row * int(7.6 * 2**20 / len(row))
+    r = study.post(pid, "round", step, {"source": "tracker"}, tracker=text)
+    assert r.status_code == 400 and "larger than" not in r.json()["error"], r.text[:300]
+    assert "does not do this round" in r.json()["error"] and len(r.content) < 1000
+    huge = "task,point,t,x,y\n" + "a" * (7 * 2**20) + ",0,0,1,1\n"
+    r = study.post(pid, "round", step, {"source": "tracker"}, tracker=huge)
+    assert r.status_code == 400 and len(r.content) < 1000, r.text[:300]
+    assert study.stored() == (0, 0, 0, 0)
+
+
+def test_a_bad_bag_is_named_without_the_servers_folder(study: Study) -> None:
+    pid = _pid(study)
+    (study.folder / "bags").mkdir()
+    (study.folder / "bags" / "round1.bag").write_bytes(b"not a bag")
+    for name in ("round1.bag", "missing.bag"):
+        r = study.post(pid, "round", study.step(pid), {"source": "bag", "bag": name})
+        assert r.status_code == 400, r.text
+        said = r.json()["error"]
+        assert name in said and str(study.folder) not in said and "/tmp" not in said, said
+
+
+def test_study_serve_stops_on_sigterm_as_on_ctrl_c(tmp_path: Path,
+                                                   fetch_world: FetchWorld) -> None:
+    """A service manager's stop (SIGTERM): exit 0 with the closing summary, as Ctrl-C."""
+    folder = make_study(tmp_path, fetch_world)
+    server = CliServer("study", "serve", str(folder), "--port", "0", "--json")
+    try:
+        json.loads(server.wait_for(lambda line: True, timeout=300))
+        assert server.stop(signal.SIGTERM) == 0, "".join(server.err)[-2000:]
+        assert json.loads(server.out_lines[-1])["stopped"] is True
+    finally:
+        server.kill()

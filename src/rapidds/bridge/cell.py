@@ -15,9 +15,13 @@ Reactive execution (``execution="reactive"``): while the cycle runs, a
 publishes the robot's speed scaling on ``/rapidds/robot/speed_scaling``; the robot driver obeys
 it. Its pauses and protective check go into the cycle's record, as a simulated reactive cycle's.
 
-Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds) or the
+Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds), a node
+leaves the link (its liveliness token goes: its process ended, its connection dropped) or the
 cycle overruns (``cycle_timeout`` cell seconds): a stop goes out on ``/rapidds/stop``, nothing
 is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last recorded cycle.
+A stop the hub did not send ends the cycle the same way at once, with the stop's stated reason
+and sender. Input is bounded before it is kept (:mod:`rapidds.bridge.faults`,
+:class:`~rapidds.bridge.live.CycleObservation`); what was dropped is summed up per cycle.
 """
 
 from __future__ import annotations
@@ -25,11 +29,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import PurePosixPath
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rapidds.bridge.link import Link, Received, StampGate, log
+from rapidds.bridge.link import ALIVE_PREFIX, Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     SPEED_SCALING_TOPIC,
@@ -39,6 +44,8 @@ from rapidds.bridge.live import (
     LivePlan,
     joint_rows,
     live_plan_payload,
+    stop_payload,
+    stop_words,
     tracking_topic,
 )
 from rapidds.bridge.profiles import DEFAULT_PROFILE, RobotProfile, robot_profile
@@ -56,6 +63,7 @@ from rapidds.bridge.ros2 import (
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Reactions
 from rapidds.worlds.base import body_point_names
+from rapidds.worlds.bounds import Plausibility, world_task_bound
 
 if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
@@ -64,7 +72,14 @@ __all__ = ["CellFault", "CellOptions", "LinkTeammate", "LiveCell"]
 
 
 class CellFault(RapiddsError):
-    """The cell stopped mid-cycle (a silent robot, an overrun); the cycle was not recorded."""
+    """The cell stopped mid-cycle (a silent robot, a node gone, an overrun, a stop from
+    elsewhere); the cycle was not recorded."""
+
+
+MAX_CONTACTS = 1000
+"""Contacts a cycle keeps (a robot that touches the person stops; a flood is counted only)."""
+HUB = "hub"
+"""The sender the hub names in its own stops."""
 
 
 @dataclass(frozen=True)
@@ -107,14 +122,15 @@ def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
 
 def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
     string = "std_msgs/msg/String"
-    return {EVENTS_TOPIC: string, CONTACTS_TOPIC: string,
+    return {EVENTS_TOPIC: string, CONTACTS_TOPIC: string, STOP_TOPIC: string,
             JOINT_STATE_TOPIC: "sensor_msgs/msg/JointState",
             **{tracking_topic(p): "geometry_msgs/msg/PointStamped" for p in points}}
 
 
 @dataclass
 class LiveCell:
-    """Runs an :class:`AdaptiveRun`'s cycles over ``link`` (opened with :func:`hub_topics`)."""
+    """Runs an :class:`AdaptiveRun`'s cycles over ``link`` (opened with :func:`hub_topics`
+and ``watch=True``: the nodes' liveliness)."""
 
     run: AdaptiveRun
     link: Link
@@ -126,6 +142,10 @@ class LiveCell:
     def __post_init__(self) -> None:
         self.joints = self.profile.joint_names(self.run.world)  # the driver's names
         self.points = body_point_names(self.run.world)
+        self.task_bound = world_task_bound(self.run.world)
+        self._plausible = Plausibility(self.run.world)  # the run's: last plausible samples
+        self._gate.faults = self.link.faults
+        self._nodes: set[str] = set()  # liveliness tokens (node/session) the hub has seen
 
     def wait_ready(self) -> None:
         """Until the robot streams its joint states and the tracker the person's body points."""
@@ -141,6 +161,7 @@ class LiveCell:
                                 "--connect to this hub's endpoint")
             rec = self.link.receive(min(left, 0.2))
             if rec is not None:
+                self._liveness(rec, None)
                 robot |= rec.topic == JOINT_STATE_TOPIC
                 tracker |= rec.topic.startswith(TRACKING_PREFIX)
         self._robot_seen = time.monotonic()
@@ -148,9 +169,25 @@ class LiveCell:
         self.link.drain()
 
     def _stop(self, cycle: int, reason: str) -> CellFault:
-        self.link.publish(STOP_TOPIC, string_message({"cycle": cycle, "reason": reason}))
+        self.link.publish(STOP_TOPIC, string_message(stop_payload(cycle, reason, HUB)))
         return CellFault(f"cycle {cycle} stopped, not recorded: {reason}; continue with "
                          "--resume once the cell is back")
+
+    def _liveness(self, rec: Received, cycle: int | None) -> None:
+        """A node joined (kept) or left the link: during a cycle (``cycle``) a node it had
+        seen leaving stops the cycle at once."""
+        if not rec.topic.startswith(ALIVE_PREFIX):
+            return
+        token = rec.topic[len(ALIVE_PREFIX):]
+        node = PurePosixPath(token).parts[0]  # node/session id
+        if rec.msg:
+            self._nodes.add(token)
+            log.info("node %s is on the link", node)
+        elif token in self._nodes:
+            self._nodes.discard(token)
+            if cycle is not None:
+                raise self._stop(cycle, f"the {node} node left the link")
+            log.warning("node %s left the link", node)
 
     def _publish_plan(self, plan: CyclePlan) -> LivePlan:
         run, best = self.run, plan.best
@@ -196,6 +233,11 @@ class LiveCell:
 
     def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
               monitor: SpeedMonitor | None) -> None:
+        if rec.topic == STOP_TOPIC:  # not the hub's own: it raises as it sends one
+            reason, sender = stop_words(rec.msg.data)
+            raise CellFault(f"cycle {live.cycle} stopped, not recorded: a stop from {sender}: "
+                            f"{reason}; continue with --resume once the cell is back")
+        self._liveness(rec, live.cycle)
         if rec.topic == JOINT_STATE_TOPIC:
             self._robot_seen = time.monotonic()
             rows = joint_rows(rec.msg.name, self.joints)
@@ -204,9 +246,13 @@ class LiveCell:
                                     - self.profile.offset(self.run.world),
                                     live.cell_seconds(stamp_ns(rec.msg.header)))
         elif rec.topic == CONTACTS_TOPIC:
+            if len(obs.contacts) >= MAX_CONTACTS:
+                obs.faults.warn("contact flood", "dropped a contact: over %d this cycle",
+                                MAX_CONTACTS)
+                return
             obs.contacts.append({"at": live.cell_seconds(rec.received_ns),
-                                 "touch": rec.msg.data})
-            log.warning("contact: %s", rec.msg.data)
+                                 "touch": rec.msg.data[:1000]})
+            log.warning("contact: %s", rec.msg.data[:200])
         else:
             obs.handle(rec)
 
@@ -236,7 +282,9 @@ class LiveCell:
         """Run one cycle on the link and return what was observed; CellFault on a fault.
         ``monitor``: reactive execution's, ticked while the cycle runs."""
         live = self._publish_plan(plan)
-        obs = CycleObservation(live, self.points, gate=self._gate)
+        obs = CycleObservation(live, self.points, gate=self._gate,
+                               window=self.options.cycle_timeout, task_bound=self.task_bound,
+                               plausible=self._plausible, faults=self.link.faults)
         sent: set[str] = set()
         self._robot_seen = time.monotonic()
         tick = 0.0
@@ -275,7 +323,10 @@ class LiveCell:
         run = self.run
         plan = run.plan()
         monitor = self._monitor(plan)
-        obs = self.observe(plan, monitor)
+        try:
+            obs = self.observe(plan, monitor)
+        finally:
+            self.link.faults.summary(f"cycle {plan.cycle}")
         reacted = None
         if monitor is not None:
             monitor.close(max(obs.end.values(), default=0.0))

@@ -15,14 +15,17 @@ the hub receives it (a bag's events are timed by its receive time, one clock wit
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rapidds.bridge.faults import CLOCK_SKEW, FaultLog
 from rapidds.bridge.link import Received, StampGate, log
 from rapidds.bridge.ros2 import EVENTS_TOPIC, MessageError, parse_event, plan_payload, stamp_ns
+from rapidds.worlds.bounds import Plausibility, mostly_implausible
 
 if TYPE_CHECKING:
     from rapidds.problem import Problem
@@ -37,23 +40,53 @@ __all__ = [
     "CycleObservation",
     "LivePlan",
     "live_plan_payload",
+    "stop_payload",
+    "stop_words",
     "tracking_topic",
 ]
 
 STOP_TOPIC = "/rapidds/stop"
-"""``std_msgs/msg/String`` JSON ``{"cycle", "reason"}``: every node stops the cycle now."""
+"""``std_msgs/msg/String`` JSON ``{"cycle", "reason", "sender"}``: every node stops the cycle now
+(any message on it stops: a stop is never dropped for its form); the hub too, when it did not
+send it: the cycle ends as a fault naming the stop's stated reason and sender."""
 CONTACTS_TOPIC = "/rapidds/robot/contacts"
 """``std_msgs/msg/String`` JSON ``{"robot", "person", "depth"}``: the arm touched the person."""
 SPEED_SCALING_TOPIC = "/rapidds/robot/speed_scaling"
 """``std_msgs/msg/Float64`` in [0, 1]: the fraction of its trajectory's planned speed the robot
 may move at now (0 holds it where it is on its path, 1 is as planned); sent by a hub under
 reactive execution at a fixed rate of the cell clock (see docs/design-notes.md)."""
+MAX_TRACKING_RATE = 1000.0
+"""Samples per cell second a body point may bring into a cycle (a tracker at 10x any real
+rate): the rest are dropped, so a flood cannot grow the hub's memory past
+``cycle_timeout x MAX_TRACKING_RATE`` samples per point."""
 TRACKING_PREFIX = "/rapidds/human/"
 """``geometry_msgs/msg/PointStamped`` per body point on ``/rapidds/human/<body point>``."""
 
 
 def tracking_topic(point: str) -> str:
     return TRACKING_PREFIX + point
+
+
+def stop_payload(cycle: int, reason: str, sender: str) -> dict[str, Any]:
+    """``/rapidds/stop``'s JSON: the cycle, why, who sends it (``hub``, a node's name)."""
+    return {"cycle": int(cycle), "reason": reason, "sender": sender}
+
+
+def stop_words(text: str) -> tuple[str, str]:
+    """The stated reason and sender of a stop message, each one short printable line ("no
+    reason given", "an unnamed peer" where the message does not say: it stops all the same)."""
+    try:
+        raw = json.loads(text)
+    except (ValueError, RecursionError):
+        raw = None
+    said = raw if isinstance(raw, dict) else {}
+
+    def line(value: object, default: str) -> str:
+        words = "".join(c if c.isprintable() else " " for c in str(value or "")).strip()
+        return (words[:120] + "..." if len(words) > 120 else words) or default
+
+    return line(said.get("reason"), "no reason given"), line(said.get("sender"),
+                                                             "an unnamed peer")
 
 
 def live_plan_payload(problem: Problem, cycle: int, human: Sequence[Item], robot: Sequence[Item],
@@ -122,11 +155,15 @@ class LivePlan:
 @dataclass
 class CycleObservation:
     """What the hub saw in one cycle: task starts and ends (cell s), the person's tracked body
-    points, the robot's contacts. Bad input is logged in one line and dropped: an event that is
-    malformed, names a task not in the plan or the wrong agent, or comes out of order (an end
-    before its start, a second start or end); a tracking sample older than its source's last.
-    ``gate``: the hub passes one for the whole run, so a sample from before the last one
-    accepted is dropped at a cycle's start too, not taken as its first."""
+    points, the robot's contacts. Bad input is dropped and counted in ``faults`` (one line
+    each, up to its limit per kind): an event that is malformed, names a task not in the plan
+    or the wrong agent, comes out of order (an end before its start, a second start or end), is
+    stamped outside the cycle's window (``-CLOCK_SKEW`` wall s .. ``window`` cell s, and never
+    more than ``CLOCK_SKEW`` ahead of its arrival) or ends a person's task longer than
+    ``task_bound`` cell s; a tracking sample older than its source's last, stamped ahead of
+    its arrival, or implausible (``plausible``: :mod:`rapidds.worlds.bounds`; one line per
+    body point). ``gate``: the hub passes one for the whole run, so a sample from before the
+    last one accepted is dropped at a cycle's start too, not taken as its first."""
 
     plan: LivePlan
     points: tuple[str, ...]
@@ -134,49 +171,94 @@ class CycleObservation:
     end: dict[str, float] = field(default_factory=dict)
     contacts: list[dict[str, Any]] = field(default_factory=list)
     gate: StampGate = field(default_factory=StampGate)
+    window: float = math.inf
+    task_bound: float = math.inf
+    plausible: Plausibility | None = None
+    faults: FaultLog = field(default_factory=FaultLog)
     _tracks: dict[str, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
+    _implausible: dict[str, list[float]] = field(default_factory=dict)  # cell s of drops
 
     @property
     def done(self) -> bool:
         return set(self.end) == set(self.plan.agent)
 
+    def _drop_event(self, kind: str, why: str, *args: object) -> None:
+        self.faults.warn(kind, "dropped " + why, *args)
+
     def event(self, rec: Received) -> None:
         try:
             ev = parse_event(rec.msg.data)
         except MessageError as exc:
-            log.warning("dropped an event: %s", exc)
+            self._drop_event("malformed event", "an event: %s", exc)
             return
         agent = self.plan.agent.get(ev.task)
-        t = self.plan.cell_seconds(rec.received_ns if ev.stamp_ns is None else ev.stamp_ns)
+        stamp = rec.received_ns if ev.stamp_ns is None else ev.stamp_ns
+        t = self.plan.cell_seconds(stamp)
         if agent is None or agent != ev.agent:
-            log.warning("dropped an event of %s task %r: not in cycle %d's plan for that agent",
-                        ev.agent, ev.task, self.plan.cycle)
+            self._drop_event("event not in the plan", "an event of %s task %r: not in cycle "
+                             "%d's plan for that agent", ev.agent, ev.task[:80], self.plan.cycle)
+        elif (why := self._outside(stamp, rec.received_ns, t)) is not None:
+            self._drop_event("event out of window", "the %s of %r: %s", ev.event, ev.task, why)
         elif ev.event == "start" and ev.task in self.start:
-            log.warning("dropped a second start of %r", ev.task)
+            self._drop_event("event out of order", "a second start of %r", ev.task)
         elif ev.event == "end" and (ev.task not in self.start or ev.task in self.end
                                     or t < self.start[ev.task]):
-            log.warning("dropped an end of %r: %s", ev.task,
-                        "it has ended" if ev.task in self.end else "it never started"
-                        if ev.task not in self.start else "stamped before its start")
+            self._drop_event("event out of order", "an end of %r: %s", ev.task,
+                             "it has ended" if ev.task in self.end else "it never started"
+                             if ev.task not in self.start else "stamped before its start")
+        elif ev.event == "end" and agent == "human" \
+                and t - self.start[ev.task] > self.task_bound:
+            self._drop_event("task too long", "an end of %r: %.3g s after its start, longer "
+                             "than any task of this world (%g s)", ev.task,
+                             t - self.start[ev.task], self.task_bound)
         else:
             (self.start if ev.event == "start" else self.end)[ev.task] = t
             log.info("cycle %d: %s %s %s at %.2f s", self.plan.cycle, ev.agent, ev.task,
                      ev.event, t)
 
+    def _outside(self, stamp: int, received: int, t: float) -> str | None:
+        """Why a stamp is outside the cycle's window (None: inside): ahead of its arrival, or
+        before the cycle's start, by more than ``CLOCK_SKEW``; past ``window``."""
+        if (stamp - received) / 1e9 > CLOCK_SKEW:
+            return f"stamped {(stamp - received) / 1e9:.3g} s ahead of its arrival"
+        if t < -CLOCK_SKEW * self.plan.time_scale:
+            return f"stamped {-t:.3g} s before the cycle's start"
+        if t > self.window:
+            return f"stamped at {t:.3g} s, after the cycle's {self.window:g} s"
+        return None
+
     def track(self, rec: Received) -> None:
         name = rec.topic[len(TRACKING_PREFIX):]
         if name not in self.points:
-            log.warning("dropped tracking of unknown body point %r", name)
+            self.faults.warn("unknown body point", "dropped tracking of unknown body point %r",
+                             name[:80])
             return
         ns = stamp_ns(rec.msg.header)
+        if (ns - rec.received_ns) / 1e9 > CLOCK_SKEW:  # before the gate: it would block the rest
+            self.faults.warn("tracking ahead", "dropped tracking of %r stamped %.3g s ahead of "
+                             "its arrival", name, (ns - rec.received_ns) / 1e9)
+            return
         if not self.gate.accept(rec.topic, ns):
             return
         p = rec.msg.point
         pos = np.array([p.x, p.y, p.z], dtype=float)
         if not np.isfinite(pos).all():
-            log.warning("dropped tracking of %r: not finite", name)
+            self.faults.warn("not finite", "dropped tracking of %r: not finite", name)
             return
-        self._tracks.setdefault(name, []).append((self.plan.cell_seconds(ns), pos))
+        track = self._tracks.setdefault(name, [])
+        drops = self._implausible.setdefault(name, [])
+        if len(track) + len(drops) >= max(self.window, 1.0) * MAX_TRACKING_RATE:
+            self.faults.warn("tracking flood", "dropped tracking of %r: over %g samples a "
+                             "second", name, MAX_TRACKING_RATE)
+            return
+        t = self.plan.cell_seconds(ns)
+        why = None if self.plausible is None else self.plausible.check(name, t, pos)
+        if why is not None:
+            self.faults.warn(f"implausible {name}", "dropped implausible tracking of %r at "
+                             "%.2f s: %s", name, t, why, lines=1)
+            drops.append(t)
+            return
+        track.append((t, pos))
 
     def handle(self, rec: Received) -> None:
         """Route a received message to its handler (events, tracking); others are ignored."""
@@ -216,10 +298,23 @@ class CycleObservation:
 
         out = {}
         for task, d in self.durations("human").items():
+            self._check_plausible(task)
             times = self.start[task] + np.minimum(
                 np.arange(int(np.ceil(d / dt - 1e-9)) + 1) * dt, d)
             out[task] = HumanExecution(task, float(d), self._path(task, times, dt))
         return out
+
+    def _check_plausible(self, task: str) -> None:
+        """MessageError when a body point's samples during ``task`` were mostly implausible:
+        the task would not be learned as the person did it."""
+        t0, t1 = self.start[task], self.end[task]
+        for name in self.points:
+            dropped = sum(t0 <= t <= t1 for t in self._implausible.get(name, ()))
+            kept = sum(t0 <= t <= t1 for t, _ in self._tracks.get(name, ()))
+            if dropped and mostly_implausible(kept, dropped):
+                raise MessageError(f"the tracking of {name} during {task} was mostly "
+                                   f"implausible ({dropped} of {dropped + kept} samples "
+                                   "dropped); the task cannot be learned")
 
     def _path(self, task: str, times: np.ndarray, dt: float) -> np.ndarray:
         path = np.empty((len(times), len(self.points), 3))

@@ -36,6 +36,7 @@ from rapidds.bridge.bag import BagMessage, read_bag
 from rapidds.errors import ConfigError, RapiddsError
 from rapidds.settings import Settings, read_yaml
 from rapidds.worlds.base import HumanExecution, World, body_point_names
+from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
 __all__ = [
     "RecordedCycle",
@@ -138,6 +139,7 @@ class RecordedCycle:
     joints: tuple[np.ndarray, np.ndarray] | None = None
     too_close: list[int] = field(default_factory=list)  # receive times, ns
     dropped: int = 0
+    implausible: dict[str, np.ndarray] = field(default_factory=dict)  # dropped samples' ns
 
     def too_close_times(self) -> list[float]:
         """The "too close" signals in seconds from the cycle's first task start, those within
@@ -215,6 +217,18 @@ class _Reader:
                                                   self.world.workspace_dim)))
         return None
 
+    def _plausible(self, name: str, times: np.ndarray, pos: np.ndarray,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """A body point's plausible samples (:mod:`rapidds.worlds.bounds`); the others are
+        dropped in one line and kept by time, to say which tasks they made unlearnable."""
+        keep, why = plausible_mask(self.world, times / _NS, pos)
+        if keep.all():
+            return times, pos
+        self.out.implausible[name] = times[~keep]
+        self.drop(f"{int((~keep).sum())} implausible sample(s) of body point {name!r} (the "
+                  f"first: {why})")
+        return times[keep], pos[keep]
+
     def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
         got = list(m.msg.name)
         pos = np.asarray(m.msg.position, float)
@@ -229,8 +243,9 @@ class _Reader:
         for task in self.started:
             self.drop(f"task {task!r} started but never ended")
         for name, rows in self.samples.items():
-            self.out.points[name] = (np.array([t for t, _ in rows], dtype=np.int64),
-                                     np.stack([p for _, p in rows]))
+            self.out.points[name] = self._plausible(
+                name, np.array([t for t, _ in rows], dtype=np.int64),
+                np.stack([p for _, p in rows]))
         if self.joint_rows:
             self.out.joints = (np.array([t for t, _ in self.joint_rows], dtype=np.int64),
                                np.stack([r for _, r in self.joint_rows]))
@@ -282,6 +297,9 @@ def human_executions(cycle: RecordedCycle, world: World,
         if agent != "human" or (wanted is not None and task not in wanted):
             continue
         duration = (end - start) / _NS
+        if (why := _unlearnable(cycle, world, names, start, end)) is not None:
+            log.warning("human task %r %s; task dropped", task, why)
+            continue
         rows = math.ceil(duration / dt - 1e-9) + 1
         at = start + np.round(np.minimum(np.arange(rows) * dt, duration) * _NS).astype(np.int64)
         missing = [n for n in names if n not in cycle.points
@@ -293,6 +311,24 @@ def human_executions(cycle: RecordedCycle, world: World,
         path = np.stack([resample(*cycle.points[n], at) for n in names], axis=1)
         out[task] = HumanExecution(task, duration, path)
     return out
+
+
+def _unlearnable(cycle: RecordedCycle, world: World, names: Sequence[str], start: int,
+                 end: int) -> str | None:
+    """Why a human task from ``start`` to ``end`` (ns) cannot be learned: longer than any task
+    of the world, or a body point mostly implausible through it; None if it can."""
+    if (end - start) / _NS > (bound := world_task_bound(world)):
+        return f"took {(end - start) / _NS:.3g} s, longer than any task of this world ({bound:g} s)"
+    for n in names:
+        bad = cycle.implausible.get(n)
+        if bad is None:
+            continue
+        dropped = int(((bad >= start) & (bad <= end)).sum())
+        kept = int(((cycle.points[n][0] >= start) & (cycle.points[n][0] <= end)).sum())
+        if dropped and mostly_implausible(kept, dropped):
+            return (f"had body point {n!r} mostly implausible ({dropped} of {dropped + kept} "
+                    "samples)")
+    return None
 
 
 def observed_for(cycle: RecordedCycle, world: World,

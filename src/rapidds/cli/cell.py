@@ -11,11 +11,20 @@ import logging
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app, fail
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+
+if TYPE_CHECKING:
+    from rapidds.bridge.cell import CellOptions
+    from rapidds.bridge.link import Link
+    from rapidds.bridge.profiles import RobotProfile
+    from rapidds.bridge.wire import Wire
+    from rapidds.bridge.zenoh_config import LinkConfig
+    from rapidds.worlds.base import World
 
 _D = RunConfig.model_fields
 _ENDPOINT = "tcp/127.0.0.1:7447"
@@ -26,6 +35,30 @@ def _logging(quiet: bool) -> None:
     level = "ERROR" if quiet else os.environ.get("RAPIDDS_LOG", "WARNING").upper()
     logging.basicConfig(level=getattr(logging, level, logging.WARNING), stream=sys.stderr,
                         format="rapidds %(name)s: %(message)s")
+
+
+def _zenoh_config_option() -> Any:
+    return typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5, Zenoh's keys): "
+                        "mutual TLS (transport/link/tls) and, on the hub, access control; "
+                        "README 'In a real cell'. Default: plain TCP, localhost.")
+
+
+def _wire_option() -> Any:
+    return typer.Option("ros2dds", "--wire", help="Keys and framing on the link: ros2dds "
+                        "(zenoh-bridge-ros2dds's keys) or rmw-zenoh (rmw_zenoh's keys, "
+                        "attachments and liveliness tokens, domain ROS_DOMAIN_ID).")
+
+
+def _wire(name: str, node: str) -> Wire:
+    from rapidds.bridge.wire import make_wire
+
+    return make_wire(name, node)
+
+
+def _link_config(path: Path | None, role: str, endpoint: str) -> LinkConfig | None:
+    from rapidds.bridge.zenoh_config import checked_link_config
+
+    return checked_link_config(path, role, endpoint)
 
 
 @app.command("deploy")
@@ -62,6 +95,8 @@ def deploy_cmd(
                               "joint names, offsets and limits (reference, franka-panda, "
                               "franka-fr3)."),
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
+    zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
     cycle is planned here, executed by the robot and the person, observed, learned, recorded.
@@ -75,17 +110,17 @@ def deploy_cmd(
         fail(f"unknown --execution {execution!r}; one of planned, reactive")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
         fail("--time-scale and the timeouts must be > 0")
-    from rapidds.bridge.cell import CellFault, CellOptions, LinkTeammate, LiveCell, hub_topics
+    from rapidds.bridge.cell import CellOptions, hub_topics
     from rapidds.bridge.link import Link, check_endpoint
     from rapidds.bridge.profiles import robot_profile
     from rapidds.cli.run import set_threads
     from rapidds.errors import RapiddsError
-    from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
-    from rapidds.store import RunStore
     from rapidds.worlds.base import body_point_names
     from rapidds.worlds.registry import make_world
 
     check_endpoint(listen)
+    config = _link_config(zenoh_config, "hub", listen)
+    hub_wire = _wire(wire, "rapidds_hub")
     _logging(quiet)
     set_threads(threads)
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
@@ -98,6 +133,21 @@ def deploy_cmd(
         profile.limits(w)  # one that does not fit the world: one line before anything starts
     except RapiddsError as exc:
         fail(str(exc))
+    # the link first: a busy port is said before the store exists (no empty run.sqlite)
+    with Link(hub_topics(body_point_names(w)), listen=listen, watch=True,
+              config=config, wire=hub_wire) as link:
+        _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
+            time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
+            cycle_timeout=cycle_timeout, execution=execution), profile)
+
+
+def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None, resume: bool,
+            as_json: bool, options: CellOptions, profile: RobotProfile) -> None:
+    """The hub's run on an open ``link``: the store, the loop, a line or a record per cycle."""
+    from rapidds.bridge.cell import CellFault, LinkTeammate, LiveCell
+    from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
+    from rapidds.store import RunStore
+
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
     run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
     if run.next_cycle and not resume:
@@ -107,9 +157,6 @@ def deploy_cmd(
         typer.echo(f"run '{run.config.run_id}' in {out} is already finished "
                    f"({run.config.cycles} cycles); nothing to run", err=True)
         return
-    options = CellOptions(time_scale=time_scale, robot_timeout=robot_timeout,
-                          startup_timeout=startup_timeout, cycle_timeout=cycle_timeout,
-                          execution=execution)
 
     def on_cycle(res: CycleResult, live: dict) -> None:
         rec = res.record
@@ -121,12 +168,11 @@ def deploy_cmd(
             typer.echo(f"cycle {rec.cycle}: makespan {rec.realised.makespan:.2f} s; "
                        f"person {human}; robot {robot}; contacts {len(live['contacts'])}")
 
-    with Link(hub_topics(body_point_names(w)), listen=listen) as link:
-        try:
-            LiveCell(run, link, options, profile).run_all(on_cycle)
-        except CellFault as exc:
-            typer.echo(f"rapidds: error: {exc}", err=True)
-            raise typer.Exit(3) from None
+    try:
+        LiveCell(run, link, options, profile).run_all(on_cycle)
+    except CellFault as exc:
+        typer.echo(f"rapidds: error: {exc}", err=True)
+        raise typer.Exit(3) from None
 
 
 @app.command("sim-robot")
@@ -137,6 +183,8 @@ def sim_robot_cmd(
     robot: str = typer.Option("reference", "--robot", help="Robot profile whose driver it "
                               "plays: joint names and offsets on the wire."),
     quiet: bool = typer.Option(False, help="Log faults only."),
+    zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """The reference robot: runs received joint trajectories in MuJoCo under physics, publishes
     joint states, its task events and touches on the person. Waits for the hub, follows it
@@ -158,7 +206,9 @@ def sim_robot_cmd(
         profile.joint_names(w)
     except RapiddsError as exc:
         fail(str(exc))
-    with Link(SimRobot.topics(body_point_names(w)), connect=connect) as link:
+    with Link(SimRobot.topics(body_point_names(w)), connect=connect, alive="robot",
+              config=_link_config(zenoh_config, "node", connect),
+              wire=_wire(wire, "rapidds_robot")) as link:
         SimRobot(w, link, rate=rate, profile=profile).spin()
 
 
@@ -169,6 +219,8 @@ def sim_human_cmd(
     connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
+    zenoh_config: Path | None = _zenoh_config_option(),
+    wire: str = _wire_option(),
 ) -> None:
     """The reference person: does their tasks of each received plan in real time, publishing
     task events and tracked body points. Waits for the hub, follows it across restarts, runs
@@ -181,5 +233,7 @@ def sim_human_cmd(
     w = make_world(world)
     if human not in w.teammate_names:
         fail(f"unknown human '{human}' for world {w.name}; one of {', '.join(w.teammate_names)}")
-    with Link(SimHuman.topics(), connect=connect) as link:
+    with Link(SimHuman.topics(), connect=connect, alive="person",
+              config=_link_config(zenoh_config, "node", connect),
+              wire=_wire(wire, "rapidds_person")) as link:
         SimHuman(w, w.teammate(human), link, seed=seed).spin()

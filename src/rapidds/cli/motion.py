@@ -304,6 +304,10 @@ def sample_cmd(
         if not (math.isfinite(v) and v >= 0):
             fail(f"{name} must be a finite number >= 0, got {v}")
     if world is not None:
+        given = [o for o, v in (("--steer-cost", steer_cost), ("--start", start)) if v]
+        if given:  # a world steers by its person's spatial model and starts at its own pose
+            fail(f"{' and '.join(given)} only without --world; with --world the person comes "
+                 "from --concurrent and --spatial")
         tasks = [t for t in (concurrent or "").split(",") if t]
         _sample_in_world(world, policy_dir, task, n, seed, tasks, spatial, gamma, candidates,
                          alpha, as_json, out)

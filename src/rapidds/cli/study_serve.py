@@ -9,6 +9,7 @@ import contextlib
 import json
 import logging
 import secrets
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +18,10 @@ import typer
 
 from rapidds.cli import fail
 from rapidds.cli.study import study_app
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _announce(as_json: bool, url: str, overview: str, store: Path, participants: int,
@@ -93,8 +98,15 @@ def serve_cmd(
 
             _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
                       host, hosts)
-            with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the normal stop
-                server.run(sockets=[sock])
+            # Ctrl-C or SIGTERM (a service manager's stop): the normal stop, exit 0 with the
+            # summary. uvicorn shuts down gracefully on either, then raises the signal again
+            # to the handler that was there before it: this one.
+            before = signal.signal(signal.SIGTERM, _interrupt)
+            try:
+                with contextlib.suppress(KeyboardInterrupt):
+                    server.run(sockets=[sock])
+            finally:
+                signal.signal(signal.SIGTERM, before)
             final = worker.run(lambda s: s.store.progress())
         finally:
             worker.close()

@@ -55,9 +55,11 @@ class Demonstrations:
                                      "(resample with Demonstrations.resample or --horizon)")
         if not (np.issubdtype(traj.dtype, np.integer) or np.issubdtype(traj.dtype, np.floating)):
             raise DemonstrationError(f"trajectories must be real numbers, got dtype {traj.dtype}")
-        if not np.all(np.isfinite(traj)):
-            bad = int(np.argwhere(~np.isfinite(traj))[0, 0])
-            raise DemonstrationError(f"trajectories contain NaN or infinity (first in demo {bad})")
+        finite = _finite32(traj)  # stored and trained in float32: 1e308 is infinity there
+        if not finite.all():
+            bad = int(np.argwhere(~finite)[0, 0])
+            raise DemonstrationError(f"trajectories contain NaN or infinity, or values past "
+                                     f"float32's 3.4e38 (first in demo {bad})")
         if not names:
             raise DemonstrationError("task_names is empty")
         if any(not n.strip() for n in names):
@@ -76,8 +78,9 @@ class Demonstrations:
         if start is not None:
             if start.shape != (n, d):
                 raise DemonstrationError(f"start must have shape ({n}, {d}), got {start.shape}")
-            if not np.issubdtype(start.dtype, np.number) or not np.all(np.isfinite(start)):
-                raise DemonstrationError("start must hold finite numbers")
+            if not np.issubdtype(start.dtype, np.number) or not _finite32(start).all():
+                raise DemonstrationError("start must hold finite numbers within float32's "
+                                         "range")
             start = start.astype(np.float32)
         object.__setattr__(self, "trajectories", traj.astype(np.float32))
         object.__setattr__(self, "task_index", idx.astype(np.int64))
@@ -181,6 +184,12 @@ class Demonstrations:
                        arrays.get("start"))
         except DemonstrationError as exc:
             raise DemonstrationError(f"{path}: {exc}") from None
+
+
+def _finite32(values: np.ndarray) -> np.ndarray:
+    """Which values are finite once cast to float32 (what the policy stores and trains on)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.isfinite(np.asarray(values).astype(np.float32))
 
 
 def _walk(amp: float, step: float, horizon: int) -> np.ndarray:

@@ -41,6 +41,7 @@ from rapidds.errors import StudyDesignError
 from rapidds.experiments.study.systems import SYSTEMS
 from rapidds.fileio import atomic_write_text
 from rapidds.settings import error_line
+from rapidds.worlds.bounds import world_task_bound
 
 if TYPE_CHECKING:
     from rapidds.worlds.base import World
@@ -63,15 +64,6 @@ def priming_factors(world: World) -> dict[str, tuple[str, ...]]:
     else one factor ``teammate`` whose levels are the world's simulated teammates."""
     own = getattr(world, "priming_factors", None)
     return dict(own if own else {"teammate": tuple(world.teammate_names)})
-
-
-def world_task_bound(world: World) -> float:
-    """Seconds no real task of ``world`` can take: 20 x the longest mean human duration of its
-    prior, rounded up to 10 s, at least 60 s (fetch 180 s, painting 120 s). A typed duration or
-    a tracked task longer than this is a typo or a wrong file (4500 for 4.5), and refusing it
-    also bounds the path the loop allocates (duration / dt rows)."""
-    means = [t.human_mean for t in world.problem().tasks if t.human_mean is not None]
-    return max(60.0, 10.0 * math.ceil(2.0 * max(means, default=0.0)))
 
 
 def williams_square(n: int) -> list[tuple[int, ...]]:

@@ -59,7 +59,10 @@ from rapidds.worlds.fetch.world import FetchWorld
 __all__ = ["MAX_BODY", "StudyWorker", "create_study_app"]
 
 log = logging.getLogger("rapidds.web")
-MAX_BODY = MAX_TRACKER_BYTES + 64 * 1024
+MAX_BODY = 2 * MAX_TRACKER_BYTES + 64 * 1024
+"""Largest submit body: a tracker file travels as a JSON string, and escaping its newlines and
+quotes can double it (a 7.6 MiB CSV made a body past 8 MiB); the file itself is measured after
+decoding against :data:`MAX_TRACKER_BYTES`."""
 _PID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
 T = TypeVar("T")
 _HEADERS = {"Cache-Control": "no-store", "X-Content-Type-Options": "nosniff",
@@ -336,6 +339,8 @@ async def _read_submit(request: Request) -> Submit | Response:
         return _error(422, f"the body is not valid JSON ({exc})")
     except UnicodeEncodeError:
         return _error(422, "the body holds text that is not valid Unicode (a lone surrogate)")
+    except ValueError:  # a whole number of over 4300 digits: Python's limit on int(text)
+        return _error(400, "the body holds a number too long to read (over 4300 digits)")
     except RecursionError:  # e.g. 100 000 '[': no page sends more than two levels
         return _error(422, "the body's JSON is nested too deeply")
     try:

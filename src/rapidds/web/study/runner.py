@@ -449,11 +449,13 @@ class StudySession:
         if not name or name != Path(name).name or name.startswith("."):
             raise InputError("type the file name of the round's bag, which lies in the study "
                              "folder's bags/")
+        folder = self.store.path.parent
         try:
-            cycle = read_cycle(self.store.path.parent / "bags" / name, self.world)
+            cycle = read_cycle(folder / "bags" / name, self.world)
             return observed_for(cycle, self.world, tasks)
-        except RapiddsError as exc:
-            raise InputError(str(exc)) from None
+        except RapiddsError as exc:  # the page names the bag as bags/NAME, never the server's
+            raise InputError(str(exc).replace(str(folder / "bags"), "bags")
+                             .replace(str(folder), "the study folder")) from None
 
     @property
     def has_game(self) -> bool:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 
@@ -39,8 +40,8 @@ import numpy as np
 import pandas as pd
 
 from rapidds.errors import RapiddsError
-from rapidds.experiments.study.design import world_task_bound
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
+from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
 __all__ = [
     "MAX_COLUMNS",
@@ -53,6 +54,7 @@ __all__ = [
     "typed_execution",
 ]
 
+log = logging.getLogger("rapidds.web")
 MAX_TRACKER_BYTES = 8 * 1024 * 1024
 """Largest tracker file accepted (about 200 000 rows of CSV)."""
 MAX_COLUMNS = 32
@@ -109,30 +111,66 @@ def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
     return HumanExecution(task, float(duration), resample(phase, path, rows / duration))
 
 
+class _TooWide(Exception):
+    """Raised from inside the JSON parser: the objects name too many distinct fields."""
+
+
+def _json_rows(text: str) -> pd.DataFrame:
+    """The rows of a JSON tracker file. Checked while it is parsed, before pandas sees it:
+    at most :data:`MAX_COLUMNS` distinct field names over all objects (objects with different
+    fields made pandas build objects x all fields: 139 KB stalled the server 8.3 s and took
+    1.5 GB), whole numbers kept as their text (a 5000-digit one is no int to convert), every
+    value a number, text or null."""
+    keys: dict[str, None] = {}
+
+    def pairs(items: list[tuple[str, object]]) -> dict[str, object]:
+        for k, _ in items:
+            if k not in keys:
+                keys[k] = None
+                if len(keys) > MAX_COLUMNS:
+                    raise _TooWide
+        return dict(items)
+
+    try:
+        obj = json.loads(text, parse_int=str, object_pairs_hook=pairs)
+    except json.JSONDecodeError as exc:
+        raise TrackerError(f"the tracker file is not valid JSON: {exc.msg} (line "
+                           f"{exc.lineno})") from None
+    except RecursionError:
+        raise TrackerError("the tracker file's JSON is nested too deeply; it must be a list "
+                           "of objects") from None
+    except _TooWide:
+        raise TrackerError(f"the tracker file's objects name more than {MAX_COLUMNS} distinct "
+                           "fields; each object needs task, point, t, x, y(, z)") from None
+    if isinstance(obj, dict) and isinstance(obj.get("rows"), list):
+        obj = obj["rows"]
+    if not isinstance(obj, list) or not all(isinstance(r, dict) for r in obj):
+        raise TrackerError("a JSON tracker file must be a list of objects with fields task, "
+                           "point, t, x, y(, z)")
+    for i, r in enumerate(obj):
+        bad = next((k for k, v in r.items() if not isinstance(v, str | float | bool | None)),
+                   None)
+        if bad is not None:
+            raise TrackerError(f"tracker file object {i + 1}: field {_show(bad)} is not a "
+                               "number or text")
+    names = list(dict.fromkeys(k for r in obj for k in r))
+    return pd.DataFrame({k: [r.get(k) for r in obj] for k in names}, dtype=object)
+
+
+def _show(value: object) -> str:
+    """A value of the file as a message shows it: its repr, at most 40 characters (an error
+    never echoes a big file back to the page)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _table(data: bytes) -> tuple[pd.DataFrame, int]:
     """The rows, and the number the first row has in messages (CSV: its line; JSON: 1)."""
     text = data.decode("utf-8-sig", errors="strict").strip()
     if not text:
         raise TrackerError("the tracker file is empty")
     if text[0] in "[{":
-        try:
-            obj = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise TrackerError(f"the tracker file is not valid JSON: {exc.msg} (line "
-                               f"{exc.lineno})") from None
-        except RecursionError:
-            raise TrackerError("the tracker file's JSON is nested too deeply; it must be a list "
-                               "of objects") from None
-        if isinstance(obj, dict) and isinstance(obj.get("rows"), list):
-            obj = obj["rows"]
-        if not isinstance(obj, list) or not all(isinstance(r, dict) for r in obj):
-            raise TrackerError("a JSON tracker file must be a list of objects with fields task, "
-                               "point, t, x, y(, z)")
-        wide = next((i for i, r in enumerate(obj) if len(r) > MAX_COLUMNS), None)
-        if wide is not None:
-            raise TrackerError(f"tracker file object {wide + 1} has {len(obj[wide])} fields; "
-                               f"at most {MAX_COLUMNS} (task, point, t, x, y, z are needed)")
-        return pd.DataFrame.from_records(obj), 1
+        return _json_rows(text), 1
     columns = text.partition("\n")[0].count(",") + 1  # before pandas reads every one of them
     if columns > MAX_COLUMNS:
         raise TrackerError(f"the tracker file's header has {columns} columns; at most "
@@ -140,16 +178,17 @@ def _table(data: bytes) -> tuple[pd.DataFrame, int]:
     try:
         return pd.read_csv(io.StringIO(text), dtype=str, skipinitialspace=True), 2
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        raise TrackerError(f"the tracker file is not valid CSV: {str(exc).strip()}") from None
+        raise TrackerError("the tracker file is not valid CSV: "
+                           f"{str(exc).strip().splitlines()[0][:160]}") from None
 
 
 def _numbers(table: pd.DataFrame, column: str, line0: int) -> np.ndarray:
-    values = pd.to_numeric(table[column], errors="coerce").to_numpy(dtype=float)
+    values = pd.to_numeric(table[column].astype(str), errors="coerce").to_numpy(dtype=float)
     bad = np.flatnonzero(~np.isfinite(values))
     if len(bad):
         i = int(bad[0])
-        raise TrackerError(f"tracker file row {i + line0}: {column} = {table[column].iloc[i]!r} "
-                           "is not a finite number")
+        raise TrackerError(f"tracker file row {i + line0}: {column} = "
+                           f"{_show(table[column].iloc[i])} is not a finite number")
     return values
 
 
@@ -159,7 +198,8 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     docstring); :class:`TrackerError` names the first problem. ``at_most``: the longest a task
     may take, s (default: the world's bound, :func:`world_task_bound`)."""
     if len(data) > MAX_TRACKER_BYTES:
-        raise TrackerError(f"the tracker file is larger than {MAX_TRACKER_BYTES // 2**20} MiB")
+        raise TrackerError(f"the tracker file is {len(data) / 2**20:.1f} MiB, larger than "
+                           f"{MAX_TRACKER_BYTES // 2**20} MiB")
     try:
         table, line0 = _table(data)
     except UnicodeDecodeError:
@@ -172,7 +212,8 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     wanted = list(dict.fromkeys(tasks))
     extra = sorted(set(names) - set(wanted))
     if extra:
-        raise TrackerError(f"the tracker file has task(s) {', '.join(extra)} that the person "
+        raise TrackerError(f"the tracker file has task(s) {', '.join(_show(x) for x in extra[:3])}"
+                           f"{' ...' if len(extra) > 3 else ''} that the person "
                            f"does not do this round (their tasks: {', '.join(wanted)})")
     limit = world_task_bound(world) if at_most is None else at_most
     return {task: _execution(world, task, names == task, point, t, xyz, k, limit, wanted)
@@ -209,8 +250,9 @@ def _samples(table: pd.DataFrame, world: World, k: int, axes: Sequence[str],
     bad = np.flatnonzero((point != np.round(point)) | (point < 0) | (point >= k))
     if len(bad):
         i = int(bad[0])
-        raise TrackerError(f"tracker file row {i + line0}: point = {table['point'].iloc[i]!r}; "
-                           f"this world's person has body points 0..{k - 1}")
+        raise TrackerError(f"tracker file row {i + line0}: point = "
+                           f"{_show(table['point'].iloc[i])}; this world's person has body "
+                           f"points 0..{k - 1}")
     t = _numbers(table, "t", line0)
     xyz = np.stack([_numbers(table, a, line0) for a in axes], axis=-1)
     lo, hi = (np.asarray(b, dtype=float) for b in world.workspace_bounds)
@@ -253,8 +295,27 @@ def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: 
         if np.any(np.diff(tj) <= 0):
             raise TrackerError(f"task {task}, point {j}: two samples at the same t; each "
                                "time once per point")
+        tj, pj = _plausible(world, task, j, tj, pj)
         path[:, j] = resample(tj, pj[:, None, :], grid)[:, 0]
     return HumanExecution(task, t1 - t0, path)
+
+
+def _plausible(world: World, task: str, j: int, t: np.ndarray, xyz: np.ndarray,
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of body point ``j`` in ``task`` that are plausible
+    (:mod:`rapidds.worlds.bounds`); the others are dropped with one line. A task whose samples
+    are mostly implausible is refused: it would not be learned as the person did it."""
+    keep, why = plausible_mask(world, t, xyz)
+    dropped = int((~keep).sum())
+    if not dropped:
+        return t, xyz
+    if mostly_implausible(int(keep.sum()), dropped):
+        raise TrackerError(f"task {task}, point {j}: {dropped} of {len(t)} samples are "
+                           f"implausible (the first: {why}); is this the person's tracking, "
+                           "in metres, in the world's frame?")
+    log.warning("tracker file, task %s, point %d: dropped %d implausible sample(s) (the "
+                "first: %s)", task, j, dropped, why)
+    return t[keep], xyz[keep]
 
 
 def tracker_csv(executions: Mapping[str, HumanExecution], dt: float, t0: float = 0.0) -> str:
