@@ -28,12 +28,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rapidds.bridge.failsafe import (
+    MonitorGuard,
+    ReadyCheck,
+    joint_state_fault,
+    planned_joint_speeds,
+)
 from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     SPEED_SCALING_TOPIC,
     STOP_TOPIC,
-    TRACKING_PREFIX,
     CycleObservation,
     LivePlan,
     joint_rows,
@@ -120,33 +125,41 @@ class LiveCell:
     options: CellOptions = field(default_factory=CellOptions)
     _robot_seen: float = 0.0
     _gate: StampGate = field(default_factory=StampGate)  # tracking stamps across cycles
+    _guard: MonitorGuard = field(init=False)  # the reactive cycle's (bridge.failsafe)
 
     def __post_init__(self) -> None:
         self.joints = joint_names(self.run.world)
         self.points = body_point_names(self.run.world)
 
     def wait_ready(self) -> None:
-        """Until the robot streams its joint states and the tracker the person's body points."""
+        """Until the robot streams joint states under the names the profile expects and the
+        tracker every body point (:class:`~rapidds.bridge.failsafe.ReadyCheck`); a robot under
+        other names or a body point left untracked is a fault, not a wait."""
         deadline = time.monotonic() + self.options.startup_timeout
-        robot = tracker = False
-        while not (robot and tracker):
+        check = ReadyCheck(self.joints, self.points)
+        while not check.ready:
             left = deadline - time.monotonic()
+            why = check.result()
+            if why is not None:
+                raise self._stop(self.run.next_cycle, why, before=True)
             if left <= 0:
-                missing = [n for n, ok in (("robot (joint states)", robot),
-                                           ("tracker (body points)", tracker)) if not ok]
+                missing = [n for n, ok in (("robot (joint states)", check.robot),
+                                           ("tracker (body points)", bool(check.tracked)))
+                           if not ok]
                 raise CellFault(f"no {' or '.join(missing)} on the link after "
                                 f"{self.options.startup_timeout:g} s; start the nodes with "
                                 "--connect to this hub's endpoint")
             rec = self.link.receive(min(left, 0.2))
             if rec is not None:
-                robot |= rec.topic == JOINT_STATE_TOPIC
-                tracker |= rec.topic.startswith(TRACKING_PREFIX)
+                check.see(rec)
         self._robot_seen = time.monotonic()
         time.sleep(0.2)  # the nodes' subscriptions reach the hub before the first plan
         self.link.drain()
 
-    def _stop(self, cycle: int, reason: str) -> CellFault:
+    def _stop(self, cycle: int, reason: str, before: bool = False) -> CellFault:
         self.link.publish(STOP_TOPIC, string_message({"cycle": cycle, "reason": reason}))
+        if before:
+            return CellFault(f"cycle {cycle} not started, nothing recorded: {reason}")
         return CellFault(f"cycle {cycle} stopped, not recorded: {reason}; continue with "
                          "--resume once the cell is back")
 
@@ -193,6 +206,9 @@ class LiveCell:
     def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
               monitor: SpeedMonitor | None) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints)
+            if why is not None:  # not the robot the profile describes: not a live robot
+                raise self._stop(live.cycle, why)
             self._robot_seen = time.monotonic()
             rows = joint_rows(rec.msg.name, self.joints)
             if monitor is not None and rows is not None:
@@ -210,8 +226,11 @@ class LiveCell:
             return None
         trajectories = {t: m.trajectory for t, m in plan.best.motions.items()
                         if m.trajectory is not None}
-        return SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
-                            period=1.0 / self.options.scaling_rate)
+        monitor = SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
+                               period=1.0 / self.options.scaling_rate)
+        self._guard = MonitorGuard(planned_joint_speeds(trajectories, self.run.world.dt),
+                                   monitor.limits.stopping_time)
+        return monitor
 
     def _scale(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                monitor: SpeedMonitor, tick: float) -> float:
@@ -223,6 +242,9 @@ class LiveCell:
         running = next((t for t in live.order["robot"] if t in sent and t not in obs.end), None)
         rate = monitor.tick(now, obs.latest(), running)
         self.link.publish(SPEED_SCALING_TOPIC, float64_message(rate))
+        fault = self._guard.check(now, monitor, running)
+        if fault is not None:
+            raise self._stop(live.cycle, fault)
         period = 1.0 / self.options.scaling_rate
         return (np.floor(now / period + 1e-9) + 1) * period
 
@@ -274,6 +296,9 @@ class LiveCell:
         reacted = None
         if monitor is not None:
             monitor.close(max(obs.end.values(), default=0.0))
+            fault = self._guard.unwatched(monitor)
+            if fault is not None:
+                raise self._stop(plan.cycle, fault)
             self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
             reacted = Reactions(tuple(monitor.pauses), (), monitor.protective())
         try:
