@@ -29,15 +29,26 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rapidds.bridge.link import Received
+from rapidds.bridge.link import Received, log
 from rapidds.bridge.live import TRACKING_PREFIX
 from rapidds.bridge.ros2 import JOINT_STATE_TOPIC
 
 if TYPE_CHECKING:
     from rapidds.bridge.reactive import SpeedMonitor
 
-__all__ = ["BLIND_LIMIT", "OBEY_TOLERANCE", "OVERSPEED", "READY_WINDOW", "STILL", "WATCHDOG",
-           "MonitorGuard", "ReadyCheck", "joint_state_fault", "planned_joint_speeds"]
+__all__ = [
+    "BLIND_LIMIT",
+    "DRIFT",
+    "OBEY_TOLERANCE",
+    "OVERSPEED",
+    "READY_WINDOW",
+    "STILL",
+    "WATCHDOG",
+    "MonitorGuard",
+    "ReadyCheck",
+    "joint_state_fault",
+    "planned_joint_speeds",
+]
 
 READY_WINDOW = 1.0
 """Wall s after the first tracked body point by which every body point must have been tracked
@@ -49,8 +60,12 @@ OBEY_TOLERANCE = 0.3
 """Cell s past the robot's stopping time T_s that a robot may take to follow a lower scaling
 (the scaling's delivery and the arm's settling tail; measured in docs/design-notes.md)."""
 STILL = 0.05
-"""Joint speed (rad/s, or the world's joint units per s) under which a joint counts as stopped:
-the reference arm's settling tail is under 0.022 rad/s 0.3 s after a hard drop to 0."""
+"""Joint speed (rad/s, or the world's joint units per s) that a partial scaling's bound allows
+on top (the reference arm's settling tail is under 0.022 rad/s 0.3 s after a hard drop to 0)."""
+DRIFT = 0.1
+"""Joint travel (rad, or the world's joint units) a robot held at scaling 0 may still make once
+T_s and the tolerance are over: a person leaning on a held Panda's wrist moves it (0.13 rad/s
+measured, springing back); a driver that ignores the hold travels on at its planned speed."""
 OVERSPEED = 1.0
 """Fraction by which a joint's measured speed may exceed the commanded scaling times its
 planned speed (the reference arm overshoots its planned speed by up to 61 % on a wrist joint)."""
@@ -143,6 +158,9 @@ class MonitorGuard:
     blind_limit: float = BLIND_LIMIT
     tolerance: float = OBEY_TOLERANCE
     ran: bool = False  # a robot task ran at some tick
+    warned: bool = False  # the robot outran a partial scaling (logged once a cycle)
+    _zero_since: float | None = None  # when the scaling last went to 0
+    _hold_q: np.ndarray | None = None  # where the held robot was once it had had time to stop
     _blind_since: float | None = None
     _rates: deque[tuple[float, float]] = field(default_factory=deque)  # (tick, rate commanded)
 
@@ -164,26 +182,48 @@ class MonitorGuard:
             return (f"the speed and separation monitor could not compute the separation for "
                     f"{now - self._blind_since:.2f} s ({blind}; limit {self.blind_limit:g} s)")
         allowed = self._allowed(now)
+        if monitor.rate > 0.0:
+            self._zero_since = self._hold_q = None
+        elif self._zero_since is None:
+            self._zero_since = now
         self._rates.append((now, monitor.rate))
         measured = monitor.joint_speed()
         if task is None or measured is None or task not in self.speeds:
             return None
-        bound = allowed * self.speeds[task] * (1.0 + OVERSPEED) + STILL
-        over = np.flatnonzero(measured > bound)
-        if not len(over):
+        if allowed > 0.0:  # slowed, not held: said, not stopped (a pushed arm moves too)
+            bound = allowed * self.speeds[task] * (1.0 + OVERSPEED) + STILL
+            if (measured > bound).any() and not self.warned:
+                self.warned = True
+                j = int(np.argmax(measured - bound))
+                log.warning("the robot ran faster than its speed scaling allows: joint %d at "
+                            "%.3f/s where scaling %g allows %.3f/s", j + 1, measured[j],
+                            allowed, bound[j])
             return None
-        j = int(over[np.argmax(measured[over] - bound[over])])
-        return (f"the robot does not obey the speed scaling: joint {j + 1} moves at "
-                f"{measured[j]:.3f}/s where scaling {allowed:g} of the last {self.settle:g} s "
-                f"(T_s {self.stopping_time:g} + {self.tolerance:g} s) allows {bound[j]:.3f}/s")
+        q = monitor.joint_position()
+        if self._zero_since is None or q is None or now - self._zero_since < self.settle:
+            return None
+        if self._hold_q is None:  # T_s and the tolerance are over: from here it holds still
+            self._hold_q = q
+            return None
+        drift = np.abs(q - self._hold_q)
+        if drift.max() <= DRIFT:
+            return None
+        j = int(np.argmax(drift))
+        return (f"the robot does not obey the speed scaling: joint {j + 1} moved {drift[j]:.3f} "
+                f"(at {measured[j]:.3f}/s) while held, {now - self._zero_since:.2f} s after the "
+                f"scaling went to 0 (it may take T_s {self.stopping_time:g} s + "
+                f"{self.tolerance:g} s to stop, then {DRIFT:g})")
 
     def _allowed(self, now: float) -> float:
         """The highest scaling in force over the last ``settle`` s before ``now`` (a robot may
-        still be slowing down from it); 1 before the first tick."""
+        still be slowing down from it); 1 before the cycle's first tick (the hub sends 1
+        between cycles)."""
         rates = self._rates
         while len(rates) > 1 and rates[1][0] <= now - self.settle:
             rates.popleft()
-        return max((r for _, r in rates), default=1.0)
+        if not rates or rates[0][0] > now - self.settle:
+            return 1.0
+        return max(r for _, r in rates)
 
     def unwatched(self, monitor: SpeedMonitor) -> str | None:
         """A robot task ran and the monitor watched no tick of it: never recorded."""

@@ -139,6 +139,10 @@ class SpeedMonitor:
             return f"the robot's joint state is {now - self._robot_seen[-1][0]:.2f} s old"
         return None
 
+    def joint_position(self) -> np.ndarray | None:
+        """The robot's last joint positions; None before its first state."""
+        return self._robot_seen[-1][1] if self._robot_seen else None
+
     def joint_speed(self) -> np.ndarray | None:
         """Each joint's measured speed over the last ``WINDOW`` of joint states (units/s);
         None before two states."""
