@@ -55,21 +55,32 @@ def export_cmd(
                                               show_default="every stored cycle")] = None,
     run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
                                             "several.")] = None,
+    robot: Annotated[str, typer.Option("--robot", help="Robot profile: the driver's joint "
+                                       "names, offsets, limits and controller topic "
+                                       "(reference, franka-panda, franka-fr3).")
+                     ] = "reference",
+    epoch: Annotated[str | None, typer.Option(
+        help="Bag time of the first exported cycle's start: Unix seconds or ISO 8601 with a "
+        "zone.", show_default="the run's recorded wall-clock start")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Write a stored run's cycles as ROS 2 messages in an MCAP rosbag2 bag: each robot task's
-    JointTrajectory, the schedule, the person's paths and the learned spatial costs."""
-    from rapidds.bridge.export import export_run
+    JointTrajectory (cut to its task, time-parameterized within the robot's limits), the
+    schedule, the person's paths and the learned spatial costs."""
+    from rapidds.bridge.export import export_run, parse_epoch
+    from rapidds.bridge.profiles import robot_profile
     from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
     try:
+        profile = robot_profile(robot)
+        epoch_ns = None if epoch is None else parse_epoch(epoch)
         with RunStore.open_readonly(run_dir / STORE) as store:
             rid = _run_id(store, run)
             cfg = store.run_config(rid) or {}
             world = make_world(cfg["world"], cfg.get("variant"))
             cycles = None if cycle is None else [cycle]
-            path, count = export_run(store, rid, world, out, cycles)
+            path, count = export_run(store, rid, world, out, cycles, epoch_ns, profile)
     except RapiddsError as exc:
         fail(str(exc))
         return
