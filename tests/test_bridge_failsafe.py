@@ -200,6 +200,9 @@ def test_a_joint_state_is_the_profiles_robot_or_a_fault() -> None:
     assert "expects 2 (a, b)" in joint_state_fault(["a"], [0.0], joints)
     assert "with 1 position(s)" in joint_state_fault(["a", "b"], [0.0], joints)
     assert "not finite" in joint_state_fault(["a", "b"], [0.0, np.nan], joints)
+    fingers = ("f1", "f2")  # a profile's gripper joints may come along, nothing else
+    assert joint_state_fault(["a", "b", "f1", "f2"], [0.0] * 4, joints, fingers) is None
+    assert "may carry f1, f2" in joint_state_fault(["a", "b", "c"], [0.0] * 3, joints, fingers)
 
 
 def test_the_ready_check_waits_then_names_what_is_missing() -> None:

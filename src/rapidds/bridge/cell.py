@@ -17,6 +17,10 @@ it. Its pauses and protective check go into the cycle's record, as a simulated r
 Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds) or the
 cycle overruns (``cycle_timeout`` cell seconds): a stop goes out on ``/rapidds/stop``, nothing
 is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last recorded cycle.
+So is a safety function that cannot do its job (:mod:`rapidds.bridge.failsafe`): joint states
+under other names than the profile's, a body point never tracked (before the first cycle: the
+cycle is not started), a reactive monitor blind for long, a robot that does not hold at scaling
+0, a robot task that ran unwatched.
 """
 
 from __future__ import annotations

@@ -79,14 +79,17 @@ def _names(names: Sequence[str]) -> str:
 
 
 def joint_state_fault(names: Sequence[str], positions: Sequence[float],
-                      expected: Sequence[str]) -> str | None:
-    """Why a ``JointState`` is not the robot the profile expects (its names, their count, a
-    position per name), or None when it is."""
+                      expected: Sequence[str], extra: Sequence[str] = ()) -> str | None:
+    """Why a ``JointState`` is not the robot the profile expects, or None when it is: each of
+    ``expected`` once, nothing else but the profile's ``extra`` joints (a gripper's fingers),
+    a finite position per name."""
     got = [str(n) for n in names]
-    if sorted(got) != sorted(expected) or len(positions) != len(got):
+    arm = [n for n in got if n not in extra]
+    if sorted(arm) != sorted(expected) or len(positions) != len(got):
+        also = f" and may carry {_names(list(extra))}" if extra else ""
         return (f"the robot's joint states carry {len(got)} joint(s) ({_names(got)}) with "
                 f"{len(positions)} position(s); the robot profile expects {len(expected)} "
-                f"({_names(list(expected))})")
+                f"({_names(list(expected))}){also}")
     if not np.isfinite(np.asarray(positions, float)).all():
         return "the robot's joint states carry positions that are not finite"
     return None
@@ -100,6 +103,7 @@ class ReadyCheck:
 
     joints: tuple[str, ...]
     points: tuple[str, ...]
+    extra: tuple[str, ...] = ()  # joints the profile allows beyond ``joints`` (fingers)
     window: float = READY_WINDOW
     robot: bool = False
     fault: str | None = None
@@ -108,7 +112,7 @@ class ReadyCheck:
 
     def see(self, rec: Received) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
-            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints)
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.extra)
             self.robot |= why is None
             self.fault = self.fault or why
         elif rec.topic.startswith(TRACKING_PREFIX):
