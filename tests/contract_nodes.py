@@ -206,14 +206,17 @@ class Hub:
 
     def __init__(self, endpoint: str):
         self.session = _session(listen=endpoint)
-        self.states: list[tuple[int, np.ndarray]] = []  # (received ns, positions)
+        self.states: list[tuple[int, np.ndarray]] = []  # (header stamp ns, positions)
         self.events: list[dict[str, Any]] = []
         self._subs = [
-            self.session.declare_subscriber("rapidds/robot/joint_states", lambda s: self.states
-                                            .append((time.time_ns(), np.asarray(decode(
-                                                s, "sensor_msgs/msg/JointState").position)))),
+            self.session.declare_subscriber("rapidds/robot/joint_states", self._state),
             self.session.declare_subscriber("rapidds/events", lambda s: self.events.append(
                 json.loads(decode(s, "std_msgs/msg/String").data)))]
+
+    def _state(self, sample: Any) -> None:
+        msg = decode(sample, "sensor_msgs/msg/JointState")
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        self.states.append((stamp, np.asarray(msg.position)))
 
     def put(self, key: str, msg: Any) -> None:
         self.session.put(key, cdr(msg))

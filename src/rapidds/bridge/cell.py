@@ -134,13 +134,15 @@ class LiveCell:
     def __post_init__(self) -> None:
         self.joints = joint_names(self.run.world)
         self.points = body_point_names(self.run.world)
+        # joints a joint state may carry beyond ``joints`` (a profile's fingers; bridge.failsafe)
+        self.fingers: tuple[str, ...] = ()
 
     def wait_ready(self) -> None:
         """Until the robot streams joint states under the names the profile expects and the
         tracker every body point (:class:`~rapidds.bridge.failsafe.ReadyCheck`); a robot under
         other names or a body point left untracked is a fault, not a wait."""
         deadline = time.monotonic() + self.options.startup_timeout
-        check = ReadyCheck(self.joints, self.points)
+        check = ReadyCheck(self.joints, self.points, self.fingers)
         while not check.ready:
             left = deadline - time.monotonic()
             why = check.result()
@@ -210,7 +212,7 @@ class LiveCell:
     def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
               monitor: SpeedMonitor | None) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
-            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints)
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.fingers)
             if why is not None:  # not the robot the profile describes: not a live robot
                 raise self._stop(live.cycle, why)
             self._robot_seen = time.monotonic()
