@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from contract_nodes import Driver, Hub, Tracker, float64, joint_trajectory, string
-from test_bridge_e2e import CLI, SEARCH, _endpoint, _start, _stop
+from test_bridge_e2e import CLI, _endpoint, _start, _stop
 
 from rapidds.bridge.failsafe import (
     BLIND_LIMIT,
@@ -34,6 +34,9 @@ from rapidds.worlds.base import body_point_names, joint_names
 from rapidds.worlds.registry import make_world
 
 SCALE = 2.0
+# the smallest search: the plan only has to send the robot's first task (half the e2e's CPU)
+SEARCH = ["--population", "2", "--generations", "1", "--samples", "2", "--particles", "1",
+          "--candidates", "1"]
 FR3 = [f"fr3_joint{i}" for i in range(1, 8)]
 
 
