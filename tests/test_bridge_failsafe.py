@@ -101,7 +101,22 @@ def test_a_robot_under_franka_names_is_one_line_and_exit_3(tmp_path: Path) -> No
     line, _ = _cell(tmp_path, "planned", FR3, _person(world))
     assert line.startswith("rapidds: error: cycle 0 not started, nothing recorded: the robot's "
                            "joint states carry 7 joint(s) (fr3_joint1, "), line
-    assert "robot:panda0_joint1" in line and "expects 7" in line
+    assert "robot profile 'reference' (--robot) expects 7 (robot:panda0_joint1, " in line
+
+
+def test_franka_names_with_fingers_are_the_fr3_profiles_robot() -> None:
+    from rapidds.bridge.profiles import robot_profile
+
+    fr3 = robot_profile("franka-fr3")
+    world = make_world("painting")
+    names = [*FR3, "fr3_finger_joint1", "fr3_finger_joint2"]  # as franka_ros2 publishes them
+    check = ReadyCheck(fr3.joint_names(world), ("p",), fr3.fingers)
+    check.see(Received(JOINT_STATE_TOPIC, joint_state(names, np.zeros(9)), 0))
+    check.see(Received("/rapidds/human/p", point_stamped((0.0, 0.0, 0.0), 1), 0))
+    assert check.ready and check.result() is None
+    wrong = ReadyCheck(fr3.joint_names(world), ("p",), fr3.fingers)
+    wrong.see(Received(JOINT_STATE_TOPIC, joint_state(names[:6] + names[7:], np.zeros(8)), 0))
+    assert "expects 7 (fr3_joint1, " in wrong.result()
 
 
 def test_an_untracked_body_point_is_one_line_and_exit_3(tmp_path: Path) -> None:

@@ -137,14 +137,15 @@ class LiveCell:
         self.joints = self.profile.joint_names(self.run.world)  # the driver's names
         self.points = body_point_names(self.run.world)
         # joints a joint state may carry beyond ``joints`` (a profile's fingers; bridge.failsafe)
-        self.fingers: tuple[str, ...] = ()
+        self.fingers = self.profile.fingers
+        self._named = f"robot profile '{self.profile.name}' (--robot)"
 
     def wait_ready(self) -> None:
         """Until the robot streams joint states under the names the profile expects and the
         tracker every body point (:class:`~rapidds.bridge.failsafe.ReadyCheck`); a robot under
         other names or a body point left untracked is a fault, not a wait."""
         deadline = time.monotonic() + self.options.startup_timeout
-        check = ReadyCheck(self.joints, self.points, self.fingers)
+        check = ReadyCheck(self.joints, self.points, self.fingers, self._named)
         while not check.ready:
             left = deadline - time.monotonic()
             why = check.result()
@@ -212,7 +213,8 @@ class LiveCell:
     def _file(self, live: LivePlan, obs: CycleObservation, rec: Received,
               monitor: SpeedMonitor | None) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
-            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.fingers)
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.fingers,
+                                    self._named)
             if why is not None:  # not the robot the profile describes: not a live robot
                 raise self._stop(live.cycle, why)
             self._robot_seen = time.monotonic()

@@ -79,7 +79,8 @@ def _names(names: Sequence[str]) -> str:
 
 
 def joint_state_fault(names: Sequence[str], positions: Sequence[float],
-                      expected: Sequence[str], extra: Sequence[str] = ()) -> str | None:
+                      expected: Sequence[str], extra: Sequence[str] = (),
+                      profile: str = "the robot profile") -> str | None:
     """Why a ``JointState`` is not the robot the profile expects, or None when it is: each of
     ``expected`` once, nothing else but the profile's ``extra`` joints (a gripper's fingers),
     a finite position per name."""
@@ -88,7 +89,7 @@ def joint_state_fault(names: Sequence[str], positions: Sequence[float],
     if sorted(arm) != sorted(expected) or len(positions) != len(got):
         also = f" and may carry {_names(list(extra))}" if extra else ""
         return (f"the robot's joint states carry {len(got)} joint(s) ({_names(got)}) with "
-                f"{len(positions)} position(s); the robot profile expects {len(expected)} "
+                f"{len(positions)} position(s); {profile} expects {len(expected)} "
                 f"({_names(list(expected))}){also}")
     if not np.isfinite(np.asarray(positions, float)).all():
         return "the robot's joint states carry positions that are not finite"
@@ -104,6 +105,7 @@ class ReadyCheck:
     joints: tuple[str, ...]
     points: tuple[str, ...]
     extra: tuple[str, ...] = ()  # joints the profile allows beyond ``joints`` (fingers)
+    profile: str = "the robot profile"  # how the message names it
     window: float = READY_WINDOW
     robot: bool = False
     fault: str | None = None
@@ -112,7 +114,8 @@ class ReadyCheck:
 
     def see(self, rec: Received) -> None:
         if rec.topic == JOINT_STATE_TOPIC:
-            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.extra)
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.extra,
+                                    self.profile)
             self.robot |= why is None
             self.fault = self.fault or why
         elif rec.topic.startswith(TRACKING_PREFIX):
