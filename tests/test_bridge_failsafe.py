@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from contract_nodes import Driver, Hub, Tracker, float64, joint_trajectory, string
 from test_bridge_e2e import CLI, _endpoint, _start, _stop
 
@@ -96,6 +97,7 @@ def _person(world, near_arm: bool = False) -> dict[str, np.ndarray]:  # type: ig
     return dict(zip(body_point_names(world), pose, strict=True))
 
 
+@pytest.mark.slow  # the hub's start and plan: 35-55 s at load 20 on 2 cores
 def test_a_robot_under_franka_names_is_one_line_and_exit_3(tmp_path: Path) -> None:
     world = make_world("painting")
     line, _ = _cell(tmp_path, "planned", FR3, _person(world))
@@ -119,6 +121,7 @@ def test_franka_names_with_fingers_are_the_fr3_profiles_robot() -> None:
     assert "expects 7 (fr3_joint1, " in wrong.result()
 
 
+@pytest.mark.slow  # the hub's start and plan: 35-55 s at load 20 on 2 cores
 def test_an_untracked_body_point_is_one_line_and_exit_3(tmp_path: Path) -> None:
     world = make_world("painting")
     points = _person(world)
@@ -128,6 +131,7 @@ def test_an_untracked_body_point_is_one_line_and_exit_3(tmp_path: Path) -> None:
     assert "l_wrist, r_wrist, l_elbow, r_elbow" in line
 
 
+@pytest.mark.slow  # the hub's start and plan: 35-55 s at load 20 on 2 cores
 def test_a_driver_that_ignores_the_scaling_gets_a_protective_stop(tmp_path: Path) -> None:
     """The person stands at the arm: the monitor holds it (scaling 0); a driver that runs its
     planned timing anyway is stopped on /rapidds/stop and the cycle faults."""
@@ -141,6 +145,7 @@ def test_a_driver_that_ignores_the_scaling_gets_a_protective_stop(tmp_path: Path
     assert "speed scaling" in driver.stops[0]["reason"]
 
 
+@pytest.mark.slow  # the hub's start and plan: 35-55 s at load 20 on 2 cores
 def test_a_tracker_that_falls_silent_holds_the_robot_then_faults(tmp_path: Path) -> None:
     world = make_world("painting")
     line, driver = _cell(tmp_path, "reactive", list(joint_names(world)), _person(world),

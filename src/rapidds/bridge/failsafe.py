@@ -11,9 +11,10 @@ these here ends as a fault: a stop on ``/rapidds/stop``, one line, nothing recor
   :data:`READY_WINDOW` wall s of the first tracked one. During a cycle a joint state under other
   names is a fault too (:func:`joint_state_fault`), not a live robot.
 - :class:`MonitorGuard`: during a reactive cycle, the monitor held blind (no robot state, no
-  tracking, stale data) for over :data:`BLIND_LIMIT` cell s; the robot moving faster than the
-  commanded scaling allows (:meth:`MonitorGuard.check`); a cycle in which a robot task ran with
-  no watched tick (:meth:`MonitorGuard.unwatched`).
+  tracking, stale data) for over :data:`BLIND_LIMIT` cell s; a robot that, held at scaling 0,
+  still travels over :data:`DRIFT` once its stopping time T_s and :data:`OBEY_TOLERANCE` are
+  over (:meth:`MonitorGuard.check`; one outrunning a partial scaling is logged); a cycle in
+  which a robot task ran with no watched tick (:meth:`MonitorGuard.unwatched`).
 
 The times and tolerances and why they are what they are: docs/design-notes.md, "Fail safe,
 never silent".
@@ -195,10 +196,10 @@ class MonitorGuard:
             self._zero_since = now
         self._rates.append((now, monitor.rate))
         measured = monitor.joint_speed()
-        if task is None or measured is None or task not in self.speeds:
+        if task is None or measured is None:
             return None
         if allowed > 0.0:  # slowed, not held: said, not stopped (a pushed arm moves too)
-            bound = allowed * self.speeds[task] * (1.0 + OVERSPEED) + STILL
+            bound = allowed * self.speeds.get(task, np.inf) * (1.0 + OVERSPEED) + STILL
             if (measured > bound).any() and not self.warned:
                 self.warned = True
                 j = int(np.argmax(measured - bound))
