@@ -167,7 +167,7 @@ def test_the_monitor_counts_its_latencies_into_the_reaction_time() -> None:
     rest = np.asarray(world.robot_rest(), float)
     points = world.robot_points(rest[None])[0]
     monitor = SpeedMonitor(world, {"t": 0.7}, period=0.05)
-    monitor.joint_state(rest, 0.0)
+    monitor.joint_state(rest, 1.0)  # fresh at the tick: a stale robot state holds the arm
     limits = monitor.limits
     vh = 0.3
     top = points[np.argmax(points[:, 2])]  # straight above the arm: the separation is d

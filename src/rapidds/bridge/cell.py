@@ -22,6 +22,10 @@ is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last 
 A stop the hub did not send ends the cycle the same way at once, with the stop's stated reason
 and sender. Input is bounded before it is kept (:mod:`rapidds.bridge.faults`,
 :class:`~rapidds.bridge.live.CycleObservation`); what was dropped is summed up per cycle.
+So is a safety function that cannot do its job (:mod:`rapidds.bridge.failsafe`): joint states
+under other names than the profile's, a body point never tracked (before the first cycle: the
+cycle is not started), a reactive monitor blind for long, a robot that does not hold at scaling
+0, a robot task that ran unwatched.
 """
 
 from __future__ import annotations
@@ -34,12 +38,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rapidds.bridge.failsafe import (
+    MonitorGuard,
+    ReadyCheck,
+    joint_state_fault,
+    planned_joint_speeds,
+)
 from rapidds.bridge.link import ALIVE_PREFIX, Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
     SPEED_SCALING_TOPIC,
     STOP_TOPIC,
-    TRACKING_PREFIX,
     CycleObservation,
     LivePlan,
     joint_rows,
@@ -138,6 +147,7 @@ and ``watch=True``: the nodes' liveliness)."""
     profile: RobotProfile = field(default_factory=lambda: robot_profile(DEFAULT_PROFILE))
     _robot_seen: float = 0.0
     _gate: StampGate = field(default_factory=StampGate)  # tracking stamps across cycles
+    _guard: MonitorGuard = field(init=False)  # the reactive cycle's (bridge.failsafe)
 
     def __post_init__(self) -> None:
         self.joints = self.profile.joint_names(self.run.world)  # the driver's names
@@ -146,30 +156,40 @@ and ``watch=True``: the nodes' liveliness)."""
         self._plausible = Plausibility(self.run.world)  # the run's: last plausible samples
         self._gate.faults = self.link.faults
         self._nodes: set[str] = set()  # liveliness tokens (node/session) the hub has seen
+        # joints a joint state may carry beyond ``joints`` (a profile's fingers; bridge.failsafe)
+        self.fingers = self.profile.fingers
+        self._named = f"robot profile '{self.profile.name}' (--robot)"
 
     def wait_ready(self) -> None:
-        """Until the robot streams its joint states and the tracker the person's body points."""
+        """Until the robot streams joint states under the names the profile expects and the
+        tracker every body point (:class:`~rapidds.bridge.failsafe.ReadyCheck`); a robot under
+        other names or a body point left untracked is a fault, not a wait."""
         deadline = time.monotonic() + self.options.startup_timeout
-        robot = tracker = False
-        while not (robot and tracker):
+        check = ReadyCheck(self.joints, self.points, self.fingers, self._named)
+        while not check.ready:
             left = deadline - time.monotonic()
+            why = check.result()
+            if why is not None:
+                raise self._stop(self.run.next_cycle, why, before=True)
             if left <= 0:
-                missing = [n for n, ok in (("robot (joint states)", robot),
-                                           ("tracker (body points)", tracker)) if not ok]
+                missing = [n for n, ok in (("robot (joint states)", check.robot),
+                                           ("tracker (body points)", bool(check.tracked)))
+                           if not ok]
                 raise CellFault(f"no {' or '.join(missing)} on the link after "
                                 f"{self.options.startup_timeout:g} s; start the nodes with "
                                 "--connect to this hub's endpoint")
             rec = self.link.receive(min(left, 0.2))
             if rec is not None:
                 self._liveness(rec, None)
-                robot |= rec.topic == JOINT_STATE_TOPIC
-                tracker |= rec.topic.startswith(TRACKING_PREFIX)
+                check.see(rec)
         self._robot_seen = time.monotonic()
         time.sleep(0.2)  # the nodes' subscriptions reach the hub before the first plan
         self.link.drain()
 
-    def _stop(self, cycle: int, reason: str) -> CellFault:
+    def _stop(self, cycle: int, reason: str, before: bool = False) -> CellFault:
         self.link.publish(STOP_TOPIC, string_message(stop_payload(cycle, reason, HUB)))
+        if before:
+            return CellFault(f"cycle {cycle} not started, nothing recorded: {reason}")
         return CellFault(f"cycle {cycle} stopped, not recorded: {reason}; continue with "
                          "--resume once the cell is back")
 
@@ -239,6 +259,10 @@ and ``watch=True``: the nodes' liveliness)."""
                             f"{reason}; continue with --resume once the cell is back")
         self._liveness(rec, live.cycle)
         if rec.topic == JOINT_STATE_TOPIC:
+            why = joint_state_fault(rec.msg.name, rec.msg.position, self.joints, self.fingers,
+                                    self._named)
+            if why is not None:  # not the robot the profile describes: not a live robot
+                raise self._stop(live.cycle, why)
             self._robot_seen = time.monotonic()
             rows = joint_rows(rec.msg.name, self.joints)
             if monitor is not None and rows is not None:
@@ -261,8 +285,11 @@ and ``watch=True``: the nodes' liveliness)."""
             return None
         trajectories = {t: m.trajectory for t, m in plan.best.motions.items()
                         if m.trajectory is not None}
-        return SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
-                            period=1.0 / self.options.scaling_rate)
+        monitor = SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
+                               period=1.0 / self.options.scaling_rate)
+        self._guard = MonitorGuard(planned_joint_speeds(trajectories, self.run.world.dt),
+                                   monitor.limits.stopping_time)
+        return monitor
 
     def _scale(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                monitor: SpeedMonitor, tick: float) -> float:
@@ -274,6 +301,9 @@ and ``watch=True``: the nodes' liveliness)."""
         running = next((t for t in live.order["robot"] if t in sent and t not in obs.end), None)
         rate = monitor.tick(now, obs.latest(), running)
         self.link.publish(SPEED_SCALING_TOPIC, float64_message(rate))
+        fault = self._guard.check(now, monitor, running)
+        if fault is not None:
+            raise self._stop(live.cycle, fault)
         period = 1.0 / self.options.scaling_rate
         return (np.floor(now / period + 1e-9) + 1) * period
 
@@ -330,6 +360,9 @@ and ``watch=True``: the nodes' liveliness)."""
         reacted = None
         if monitor is not None:
             monitor.close(max(obs.end.values(), default=0.0))
+            fault = self._guard.unwatched(monitor)
+            if fault is not None:
+                raise self._stop(plan.cycle, fault)
             self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
             reacted = Reactions(tuple(monitor.pauses), (), monitor.protective())
         try:

@@ -15,7 +15,9 @@ the live latencies, the person's sample age, a tick period and the scaling's ``D
 
 A person not tracked for ``STALE`` cell s (a tracker that stalls, a lost link) holds the robot,
 as a missing sensor does in a safety controller: their last position says nothing of now. Such
-a pause's reason is ``no tracking (stop)``.
+a pause's reason is ``no tracking (stop)``; a robot whose last joint state is that old holds
+too (``no robot state (stop)``). Held so for long, the cycle faults
+(:class:`~rapidds.bridge.failsafe.MonitorGuard`).
 
 Pauses are kept as the executor keeps them (``{"agent": "robot", "task", "start", "end",
 "reason": "protective distance (stop|slow)"}``), and ``protective`` checks every tick at which
@@ -77,6 +79,9 @@ class SpeedMonitor:
     trace: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     _robot_seen: list[tuple[float, np.ndarray]] = field(default_factory=list)  # (t, q)
     _held: tuple[float, str, str] | None = None  # since, reason, task
+    # why the last tick could not compute the separation (None: it could); bridge.failsafe
+    # turns a long one into a fault
+    blind: str | None = None
 
     def __post_init__(self) -> None:
         _, self.limits = cell_reactions(self.world)
@@ -107,10 +112,11 @@ class SpeedMonitor:
         (None: idle, full rate). Untracked or stale: held."""
         robot = self._robot()
         why = "protective distance"
+        self.blind = self._blind(now, person)
         if task is None:
             rate = 1.0
-        elif person is None or robot is None or now - person[2] > STALE:
-            rate, why = 0.0, "no tracking"
+        elif self.blind is not None:
+            rate, why = 0.0, "no tracking" if "person" in self.blind else "no robot state"
         else:
             (human, vh, _), (points, vr) = person, robot
             sep = separation(human, points)
@@ -119,6 +125,30 @@ class SpeedMonitor:
         self._log(now, rate, task, why)
         self.rate = rate
         return rate
+
+    def _blind(self, now: float, person: tuple[np.ndarray, float, float] | None) -> str | None:
+        """Why the separation cannot be computed at ``now``, or None: a person or a robot not
+        seen yet, or their last sample over ``STALE`` cell s old (their stamps are late)."""
+        if person is None:
+            return "the person's body points are not all tracked"
+        if now - person[2] > STALE:
+            return f"the person's tracking is {now - person[2]:.2f} s old"
+        if not self._robot_seen:
+            return "no robot joint state"
+        if now - self._robot_seen[-1][0] > STALE:
+            return f"the robot's joint state is {now - self._robot_seen[-1][0]:.2f} s old"
+        return None
+
+    def joint_position(self) -> np.ndarray | None:
+        """The robot's last joint positions; None before its first state."""
+        return self._robot_seen[-1][1] if self._robot_seen else None
+
+    def joint_speed(self) -> np.ndarray | None:
+        """Each joint's measured speed over the last ``WINDOW`` of joint states (units/s);
+        None before two states."""
+        seen = self._robot_seen
+        span = seen[-1][0] - seen[0][0] if len(seen) > 1 else 0.0
+        return np.abs(seen[-1][1] - seen[0][1]) / span if span > 0 else None
 
     def policy_now(self, age: float) -> SpeedSeparation:
         """The policy with ISO/TS 15066's T_r as the whole reaction time of this safety

@@ -10,8 +10,10 @@ places where the tracking says. ``/rapidds/stop`` holds the arm where it is and 
 cycle's queue. ``/rapidds/robot/speed_scaling`` (``std_msgs/Float64`` in [0, 1]) sets the rate
 at which the arm advances along its trajectory, as a speed slider does on a scaled trajectory
 controller: at 0 it holds where it is on its path, it resumes when the value rises; a new plan
-sets it back to 1 (a hub that does not monitor sends none). Simulated time runs
-``time_scale`` (from the plan) times faster than the wall.
+sets it back to 1 (a hub that does not monitor sends none). Watchdog: once a scaling has come
+in a cycle, a silence of over :data:`~rapidds.bridge.failsafe.WATCHDOG` simulated s while a
+trajectory runs holds the arm on its path (a monitor that died cannot slow it) until the next
+scaling. Simulated time runs ``time_scale`` (from the plan) times faster than the wall.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from rapidds.bridge.failsafe import WATCHDOG
 from rapidds.bridge.link import Link, Received, StampGate, log
 from rapidds.bridge.live import (
     CONTACTS_TOPIC,
@@ -78,6 +81,7 @@ class SimRobot:
     _people: dict[str, np.ndarray] = field(default_factory=dict)
     _touching: set[tuple[str, str]] = field(default_factory=set)
     _gate: StampGate = field(default_factory=StampGate)
+    _scaled_at: float | None = None  # monotonic s of this cycle's last speed scaling
 
     def __post_init__(self) -> None:
         physics = getattr(self.world, "physics_model", None)
@@ -119,12 +123,14 @@ class SimRobot:
             self._tasks = deque(self.plan.order["robot"])
             self._queue.clear()
             self.arm.speed = 1.0
+            self._scaled_at = None  # the watchdog arms at this cycle's first scaling
         elif rec.topic == SPEED_SCALING_TOPIC:
             value = float(rec.msg.data)
             if not np.isfinite(value):
                 log.warning("sim-robot dropped a speed scaling that is not finite")
                 return
             self.arm.speed = min(max(value, 0.0), 1.0)
+            self._scaled_at = time.monotonic()
         elif rec.topic == STOP_TOPIC:
             log.warning("sim-robot: stop (%s)", rec.msg.data[:120])
             self.plan, self._current = None, None
@@ -154,9 +160,21 @@ class SimRobot:
     def _event(self, task: str, kind: str, stamp: int) -> None:
         self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind, stamp)))  # type: ignore[arg-type]
 
+    def _watchdog(self) -> None:
+        """Hold the arm when the monitor's scaling has been silent for over WATCHDOG simulated
+        s while a trajectory runs (once per silence)."""
+        if self._scaled_at is None or self._current is None or self.arm.speed == 0.0:
+            return
+        silent = (time.monotonic() - self._scaled_at) * self.scale
+        if silent > WATCHDOG:
+            log.warning("sim-robot: no speed scaling for %.2f s (watchdog %g s); holding",
+                        silent, WATCHDOG)
+            self.arm.speed = 0.0
+
     def _control(self) -> None:
         """One control period: start a due trajectory, step the physics, report its events and
         new touches."""
+        self._watchdog()
         now = time.time_ns()
         if self._current is None and self._queue and now >= self._queue[0].start_ns:
             job = self._queue.popleft()
