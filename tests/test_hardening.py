@@ -319,6 +319,38 @@ def test_a_stop_the_hub_did_not_send_ends_the_cycle_at_once(hub) -> None:
     assert hub[1].run.next_cycle == 0  # not recorded
 
 
+def test_the_hub_drops_a_forged_event_pair_and_runs_on(hub, caplog) -> None:
+    """Probe H1 on the hub itself: the forged pair (start now, end 1e15 s later) from a peer
+    mid-cycle is one line, the cycle runs on (here until a stop ends it), and the hub's peak
+    resident memory does not grow past 64 MiB."""
+    import resource
+
+    from rapidds.bridge.live import STOP_TOPIC, stop_payload
+
+    caplog.set_level(logging.WARNING, logger="rapidds.bridge")
+    cell = hub[1]
+
+    def forge(nodes: _Nodes) -> None:
+        now = time.time_ns()
+        for kind, stamp in (("start", now), ("end", now + 10**24)):
+            nodes.link.publish(ros2.EVENTS_TOPIC, ros2.event_message(
+                ros2.Event("prep_vise", "human", kind, stamp)))  # type: ignore[arg-type]
+        deadline = time.monotonic() + 60
+        while not cell.link.faults.counts().get("event out of window") \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        nodes.link.publish(STOP_TOPIC, ros2.string_message(stop_payload(0, "done", "test")))
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB
+    said = _fault_when(hub, forge)
+    grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert "a stop from test: done" in said and grown < 64 * 1024
+    forged = [x for x in _lines(caplog) if "'prep_vise'" in x]
+    assert len(forged) == 1 and "stamped 1e+15 s ahead of its arrival" in forged[0]
+    assert any(x.startswith("cycle 0: dropped 1 message(s): event out of window 1")
+               for x in _lines(caplog))
+
+
 def test_a_node_that_leaves_the_link_ends_the_cycle_at_once(hub) -> None:
     said = _fault_when(hub, lambda nodes: nodes.close())
     assert "the robot node left the link" in said
