@@ -189,7 +189,7 @@ class CycleObservation:
         try:
             ev = parse_event(rec.msg.data)
         except MessageError as exc:
-            self._drop_event("malformed event", "an event: %s", exc)
+            self._drop_event("malformed event", "an event: %s", str(exc)[:200])
             return
         agent = self.plan.agent.get(ev.task)
         stamp = rec.received_ns if ev.stamp_ns is None else ev.stamp_ns
