@@ -121,6 +121,15 @@ def test_events_outside_the_cycles_window_or_the_task_bound_are_dropped(painting
         "prep_vise"}
 
 
+def test_a_plan_a_node_cannot_keep_is_refused(painting) -> None:
+    """A forged plan read by the nodes: a clock 1e300 times fast or rows of 1e9 s."""
+    payload = live_plan_payload(painting.problem(), 0, ["prep_vise"], ["mix_l"], {},
+                                start_ns=time.time_ns(), time_scale=4.0, dt=0.15)
+    for bad in ({"time_scale": 1e300}, {"dt": 1e9}, {"stamp_ns": 2**70}):
+        with pytest.raises(ros2.MessageError, match="not a live plan"):
+            LivePlan.parse(ros2.string_message({**payload, **bad}).data)
+
+
 # -- the fault log and sizes ----------------------------------------------------------------------
 def test_faults_are_counted_per_kind_and_summed_in_one_line_per_cycle(caplog) -> None:
     caplog.set_level(logging.WARNING, logger="rapidds.bridge")
