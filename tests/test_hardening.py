@@ -71,8 +71,9 @@ def _lines(caplog: pytest.LogCaptureFixture) -> list[str]:
 def test_a_forged_event_pair_far_apart_is_dropped_in_one_line_without_allocating(
         painting, caplog, apart_s: float) -> None:
     """Probe H1: a start now and an end 1e15 s (47 PiB of path) or 1e5 s (807 MiB) later.
-    The end is stamped far ahead of its arrival: dropped in one line; nothing is allocated
-    past 1 MiB; the task stays open (the real end still counts)."""
+    The end is dropped in one line (1e15 s: its stamp is past ROS 2's int64 ns; 1e5 s: far
+    ahead of its arrival); nothing is allocated past 1 MiB; the task stays open (the real end
+    still counts)."""
     plan = _plan(painting)
     obs = CycleObservation(plan, POINTS, window=120.0, task_bound=world_task_bound(painting))
     caplog.set_level(logging.WARNING, logger="rapidds.bridge")
@@ -88,7 +89,9 @@ def test_a_forged_event_pair_far_apart_is_dropped_in_one_line_without_allocating
     got, peak = _peak(run)
     assert got == {} and "prep_vise" not in obs.end and peak < MiB
     lines = _lines(caplog)
-    assert len(lines) == 1 and "\n" not in lines[0] and "ahead of its arrival" in lines[0]
+    said = "should be less than 9223372036854775808" if apart_s > 1e10 else \
+        "stamped 1e+05 s ahead of its arrival"
+    assert len(lines) == 1 and "\n" not in lines[0] and said in lines[0], lines
 
 
 def test_events_outside_the_cycles_window_or_the_task_bound_are_dropped(painting,
@@ -111,6 +114,20 @@ def test_events_outside_the_cycles_window_or_the_task_bound_are_dropped(painting
         (True, False, False), (False, True, False), (False, False, True)]
     obs.handle(_event(plan, "prep_vise", "end", plan.wall_ns(7.0), plan.wall_ns(7.0)))
     assert obs.durations("human") == {"prep_vise": pytest.approx(6.0)}
+    # a stamp past ROS 2's int64 ns (1e300 would overflow a float) is no event at all
+    obs.handle(Received(ros2.EVENTS_TOPIC, ros2.string_message(
+        {"task": "brush", "agent": "human", "event": "start", "stamp_ns": 10**400}), late))
+    assert "should be less than 9223372036854775808" in _lines(caplog)[-1] and obs.start.keys() == {
+        "prep_vise"}
+
+
+def test_a_plan_a_node_cannot_keep_is_refused(painting) -> None:
+    """A forged plan read by the nodes: a clock 1e300 times fast or rows of 1e9 s."""
+    payload = live_plan_payload(painting.problem(), 0, ["prep_vise"], ["mix_l"], {},
+                                start_ns=time.time_ns(), time_scale=4.0, dt=0.15)
+    for bad in ({"time_scale": 1e300}, {"dt": 1e9}, {"stamp_ns": 2**70}):
+        with pytest.raises(ros2.MessageError, match="not a live plan"):
+            LivePlan.parse(ros2.string_message({**payload, **bad}).data)
 
 
 # -- the fault log and sizes ----------------------------------------------------------------------
@@ -317,6 +334,38 @@ def test_a_stop_the_hub_did_not_send_ends_the_cycle_at_once(hub) -> None:
     said = _fault_when(hub, forge)
     assert said.startswith("cycle 0 stopped, not recorded: a stop from mallory: forged stop;")
     assert hub[1].run.next_cycle == 0  # not recorded
+
+
+def test_the_hub_drops_a_forged_event_pair_and_runs_on(hub, caplog) -> None:
+    """Probe H1 on the hub itself: the forged pair (start now, end 1e15 s later) from a peer
+    mid-cycle is one line, the cycle runs on (here until a stop ends it), and the hub's peak
+    resident memory does not grow past 64 MiB."""
+    import resource
+
+    from rapidds.bridge.live import STOP_TOPIC, stop_payload
+
+    caplog.set_level(logging.WARNING, logger="rapidds.bridge")
+    cell = hub[1]
+
+    def forge(nodes: _Nodes) -> None:
+        now = time.time_ns()
+        for kind, stamp in (("start", now), ("end", now + 10**24)):
+            nodes.link.publish(ros2.EVENTS_TOPIC, ros2.event_message(
+                ros2.Event("prep_vise", "human", kind, stamp)))  # type: ignore[arg-type]
+        deadline = time.monotonic() + 60
+        while not cell.link.faults.counts().get("malformed event") \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        nodes.link.publish(STOP_TOPIC, ros2.string_message(stop_payload(0, "done", "test")))
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB
+    said = _fault_when(hub, forge)
+    grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert "a stop from test: done" in said and grown < 64 * 1024
+    forged = [x for x in _lines(caplog) if "prep_vise" in x]
+    assert len(forged) == 1 and "should be less than 9223372036854775808" in forged[0]
+    assert any(x.startswith("cycle 0: dropped 1 message(s): malformed event 1")
+               for x in _lines(caplog))
 
 
 def test_a_node_that_leaves_the_link_ends_the_cycle_at_once(hub) -> None:

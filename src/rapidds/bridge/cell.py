@@ -139,7 +139,7 @@ def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
 @dataclass
 class LiveCell:
     """Runs an :class:`AdaptiveRun`'s cycles over ``link`` (opened with :func:`hub_topics`
-and ``watch=True``: the nodes' liveliness)."""
+    and ``watch=True``: the nodes' liveliness)."""
 
     run: AdaptiveRun
     link: Link
@@ -184,7 +184,8 @@ and ``watch=True``: the nodes' liveliness)."""
                 check.see(rec)
         self._robot_seen = time.monotonic()
         time.sleep(0.2)  # the nodes' subscriptions reach the hub before the first plan
-        self.link.drain()
+        for rec in self.link.drain():  # the backlog goes, the nodes' arrivals are kept
+            self._liveness(rec, None)
 
     def _stop(self, cycle: int, reason: str, before: bool = False) -> CellFault:
         self.link.publish(STOP_TOPIC, string_message(stop_payload(cycle, reason, HUB)))

@@ -55,6 +55,10 @@ SPEED_SCALING_TOPIC = "/rapidds/robot/speed_scaling"
 """``std_msgs/msg/Float64`` in [0, 1]: the fraction of its trajectory's planned speed the robot
 may move at now (0 holds it where it is on its path, 1 is as planned); sent by a hub under
 reactive execution at a fixed rate of the cell clock (see docs/design-notes.md)."""
+MAX_TIME_SCALE = 1000.0
+"""Fastest cell clock a plan may ask of the nodes (the tests run at 4; a real cell at 1)."""
+MAX_DT = 10.0
+"""Longest trajectory row a plan may name, s (the worlds here: 0.15-0.2 s)."""
 MAX_TRACKING_RATE = 1000.0
 """Samples per cell second a body point may bring into a cycle (a tracker at 10x any real
 rate): the rest are dropped, so a flood cannot grow the hub's memory past
@@ -133,10 +137,12 @@ class LivePlan:
         except (ValueError, TypeError, KeyError, AttributeError) as exc:
             raise MessageError(f"not a live plan: {str(exc)[:120]}") from exc
         tasks = [t for o in order.values() for t in o]
-        if not (plan.time_scale > 0 and plan.dt > 0) or set(after) != set(tasks) \
+        if not (0 < plan.time_scale <= MAX_TIME_SCALE and 0 < plan.dt <= MAX_DT
+                and 0 <= plan.stamp_ns < 2**63) or set(after) != set(tasks) \
                 or any(x not in after for v in after.values() for x in v):
-            raise MessageError("not a live plan: time_scale and dt must be > 0 and 'after' must "
-                               "name the plan's tasks")
+            raise MessageError(f"not a live plan: time_scale must be in (0, {MAX_TIME_SCALE:g}], "
+                               f"dt in (0, {MAX_DT:g}] s, stamp_ns int64 ns >= 0, and 'after' "
+                               "must name the plan's tasks")
         return plan
 
     @property
@@ -189,7 +195,7 @@ class CycleObservation:
         try:
             ev = parse_event(rec.msg.data)
         except MessageError as exc:
-            self._drop_event("malformed event", "an event: %s", exc)
+            self._drop_event("malformed event", "an event: %s", str(exc)[:200])
             return
         agent = self.plan.agent.get(ev.task)
         stamp = rec.received_ns if ev.stamp_ns is None else ev.stamp_ns

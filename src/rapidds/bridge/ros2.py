@@ -197,7 +197,7 @@ class _EventJson(BaseModel):
     task: str
     agent: Agent
     event: Literal["start", "end"]
-    stamp_ns: Annotated[int, Field(ge=0)] | None = None
+    stamp_ns: Annotated[int, Field(ge=0, lt=2**63)] | None = None  # ROS 2 time: int64 ns
 
 
 def event_message(event: Event) -> Any:
@@ -217,7 +217,7 @@ def parse_event(text: str) -> Event:
     except ValidationError as exc:
         raise MessageError(f"bad event {text[:80]!r}: {error_line(exc, with_input=True)} "
                            "(keys task, agent human|robot, event start|end, stamp_ns whole ns "
-                           ">= 0)") from None
+                           "in 0 .. 2**63 - 1)") from None
     return Event(e.task, e.agent, e.event, e.stamp_ns)
 
 
