@@ -4,7 +4,12 @@
   bag's receive time.
 - Tracked points (PointStamped, PoseStamped, PoseArray, TFMessage) mapped to the world's body
   points by a :class:`TrackingMapping` (YAML), with a rigid transform into the world frame;
-  timed by receive time too, so events and tracking share one clock (the recorder's).
+  timed by receive time too, so events and tracking share one clock (the recorder's). TF
+  frames (``/tf``, ``/tf_static``) are composed up to the mapping's ``root_frame`` as tf2 does
+  (:mod:`rapidds.bridge.tf`) before that transform; a ROS4HRI skeleton's frames are named with
+  ``{body}`` for the body id (the mapping's ``body_id``, else the first ``body_<id>`` seen).
+- Or task boundaries from the cell's own signals, by the mapping's ``boundaries`` rules
+  (:mod:`rapidds.bridge.boundaries`).
 - The robot's ``sensor_msgs/JointState`` on ``/rapidds/robot/joint_states`` (demonstrations).
 - "Too close" signals of the person on ``/rapidds/human/too_close`` (``std_msgs/Empty`` or
   ``String``), timed by receive time and taken relative to the cycle's first task start (the
@@ -33,6 +38,8 @@ from pydantic import Field, field_validator
 
 from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage, read_bag
+from rapidds.bridge.boundaries import BoundaryRules, SignalReader
+from rapidds.bridge.tf import TfBuffer, tracked_frames
 from rapidds.errors import ConfigError, RapiddsError
 from rapidds.settings import Settings, read_yaml
 from rapidds.worlds.base import HumanExecution, World, body_point_names
@@ -86,11 +93,18 @@ class RigidTransform(Settings):
 
 class TrackingMapping(Settings):
     """Which tracked source is which body point (source: a TF child frame, a topic, or
-    ``TOPIC/i`` for a PoseArray's i-th pose), and how the tracker's frame sits in the world."""
+    ``TOPIC/i`` for a PoseArray's i-th pose), and how the tracker's frame sits in the world.
+
+    root_frame: TF frames are composed up to this frame, then ``transform`` takes them into
+    the world. body_id: the ROS4HRI body whose frames fill ``{body}`` in the sources (None:
+    the first tracked). boundaries: task boundaries from the cell's own signals."""
 
     points: Annotated[dict[str, str], Field(min_length=1)]
     transform: RigidTransform = RigidTransform()
     transforms: dict[str, RigidTransform] = Field(default_factory=dict)
+    root_frame: Annotated[str, Field(min_length=1)] = "world"
+    body_id: Annotated[str, Field(min_length=1)] | None = None
+    boundaries: BoundaryRules | None = None
 
     def check(self, world: World) -> TrackingMapping:
         """This mapping, if it names only and every body point of ``world``; ConfigError else."""
@@ -103,6 +117,9 @@ class TrackingMapping(Settings):
                               f"{world.name}")
         if stray := sorted(set(self.transforms) - set(self.points)):
             raise ConfigError(f"mapping: a transform for {stray[0]!r}, which is not a source")
+        if self.boundaries is not None and (bad := self.boundaries.check(world.task_ids)):
+            raise ConfigError(f"mapping: boundaries.order names {bad!r}, not a task of "
+                              f"{world.name}")
         return self
 
     def to_world(self, source: str, p: np.ndarray, dim: int) -> np.ndarray:
@@ -167,6 +184,10 @@ class _Reader:
         self.stamps: dict[str, int] = {}
         self.joint_rows: list[tuple[int, np.ndarray]] = []
         self.unmapped: set[str] = set()
+        self.tf = TfBuffer()
+        self.tf_samples: list[tuple[int, str, int]] = []  # receive ns, child frame, stamp ns
+        self.signals = None if mapping.boundaries is None else SignalReader(mapping.boundaries)
+        self.bad_joints = 0
 
     def drop(self, what: str) -> None:
         log.warning("%s: %s; dropped", self.where, what)
@@ -179,19 +200,33 @@ class _Reader:
             return self.drop(f"event at {m.time_ns} ns: {exc}")
         if ev.task not in self.world.task_ids:
             return self.drop(f"event of unknown task {ev.task!r}")
+        return self.task_event(ev, m.time_ns)
+
+    def signal(self, m: BagMessage) -> None:
+        """A message a boundary rule may fire on (module docstring)."""
+        assert self.signals is not None
+        for got in self.signals.feed(m.topic, m.msg, m.time_ns):
+            if isinstance(got, str):
+                self.drop(got)
+            else:
+                self.task_event(ros2.Event(*got), m.time_ns)  # type: ignore[arg-type]
+
+    def task_event(self, ev: ros2.Event, time_ns: int) -> None:
         if ev.event == "start":
             if ev.task in self.started or ev.task in self.out.tasks:
                 return self.drop(f"second start of task {ev.task!r}")
-            self.started[ev.task] = (ev.agent, m.time_ns)
+            self.started[ev.task] = (ev.agent, time_ns)
             return None
         agent, start = self.started.get(ev.task, (None, None))
         if start is None or agent != ev.agent:
             return self.drop(f"end of task {ev.task!r} ({ev.agent}) before its start")
         del self.started[ev.task]
-        self.out.tasks[ev.task] = (ev.agent, start, m.time_ns)
+        self.out.tasks[ev.task] = (ev.agent, start, time_ns)
         return None
 
     def tracking(self, m: BagMessage) -> None:
+        if m.msgtype == "tf2_msgs/msg/TFMessage":
+            return self.transforms(m)
         try:
             points = list(ros2.tracked_points(m.msg, m.topic))
         except (ros2.MessageError, AttributeError) as exc:
@@ -215,19 +250,61 @@ class _Reader:
                                                   self.world.workspace_dim)))
         return None
 
-    def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
+    def transforms(self, m: BagMessage) -> None:
+        """A TFMessage: every transform into the buffer; a dynamic one is also a sample of
+        its child frame, composed at its stamp when the bag has been read (tf2's rule)."""
+        static = m.topic.rstrip("/").endswith("tf_static")
+        try:
+            self.tf.add_message(m.msg, static)
+            if not static:
+                self.tf_samples += [(m.time_ns, tf.child_frame_id, ros2.stamp_ns(tf.header))
+                                    for tf in m.msg.transforms]
+        except AttributeError as exc:
+            return self.drop(f"{m.topic}: {exc}")
+        return None
+
+    def composed(self) -> None:
+        """The mapped TF frames' samples, composed to the root frame (rapidds.bridge.tf)."""
+        got, lines = tracked_frames(self.tf, self.tf_samples, self.mapping.points,
+                                    self.mapping.root_frame, self.mapping.body_id)
+        for line in lines:
+            self.drop(line)
+        for recv, source, stamp, p in got:
+            name = self.mapping.points[source]
+            if not np.isfinite(p).all():
+                self.drop(f"{source!r} at {recv} ns is not finite")
+            elif stamp and stamp < self.stamps.get(name, 0):
+                self.drop(f"{source!r} stamped {stamp} ns, before its previous sample")
+            else:
+                self.stamps[name] = max(stamp, self.stamps.get(name, 0))
+                self.samples[name].append(
+                    (recv, self.mapping.to_world(source, p, self.world.workspace_dim)))
+
+    def joint_state(self, m: BagMessage, names: Sequence[str],
+                    offsets: np.ndarray | None = None) -> None:
+        """A robot joint state, in the world's order and convention (world = driver - offset,
+        the robot profile's); one line for the first that lacks the joints, a count after."""
         got = list(m.msg.name)
         pos = np.asarray(m.msg.position, float)
         if set(names) - set(got) or len(pos) != len(got) or not np.isfinite(pos).all():
-            return self.drop(f"joint state at {m.time_ns} ns lacks the robot's joints "
-                             f"{', '.join(names)} or is not finite")
+            self.bad_joints += 1
+            if self.bad_joints == 1:
+                self.drop(f"joint state at {m.time_ns} ns names {', '.join(got) or 'nothing'}"
+                          f" ({len(pos)} positions): not the robot's joints "
+                          f"{', '.join(names)}, or not finite")
+            return None
         row = pos[[got.index(n) for n in names]]
-        self.joint_rows.append((m.time_ns, row))
+        self.joint_rows.append((m.time_ns, row if offsets is None else row - offsets))
         return None
 
     def finish(self) -> RecordedCycle:
+        self.composed()
         for task in self.started:
             self.drop(f"task {task!r} started but never ended")
+        if self.bad_joints > 1:
+            self.drop(f"{self.bad_joints - 1} more joint states like it")
+        for rows in self.samples.values():
+            rows.sort(key=lambda r: r[0])
         for name, rows in self.samples.items():
             self.out.points[name] = (np.array([t for t, _ in rows], dtype=np.int64),
                                      np.stack([p for _, p in rows]))
@@ -238,13 +315,19 @@ class _Reader:
 
 
 def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None = None,
-               joints: Sequence[str] | None = None) -> RecordedCycle:
-    """Events, tracked body points and (given the robot's ``joints``) joint states of the bag
-    at ``path`` (module docstring)."""
+               joints: Sequence[str] | None = None,
+               offsets: Sequence[float] | None = None) -> RecordedCycle:
+    """Events, tracked body points and (given the robot's ``joints``, as its driver names
+    them, and the driver's ``offsets`` from the world's positions) joint states of the bag at
+    ``path`` (module docstring)."""
     mapping = (mapping or default_mapping(world)).check(world)
     reader = _Reader(world, mapping, str(path))
+    signals = set() if mapping.boundaries is None else mapping.boundaries.topics()
+    off = None if offsets is None else np.asarray(offsets, float)
     # one clock: the bag's receive times, in order (a bag of several files may interleave)
     for m in sorted(read_bag(path), key=lambda m: m.time_ns):
+        if "/" + m.topic.lstrip("/") in signals:
+            reader.signal(m)
         if m.topic == ros2.EVENTS_TOPIC and m.msgtype == "std_msgs/msg/String":
             reader.event(m)
         elif m.topic == ros2.TOO_CLOSE_TOPIC and m.msgtype in _SIGNALS:
@@ -252,7 +335,7 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
         elif m.msgtype in _TRACKING:
             reader.tracking(m)
         elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
-            reader.joint_state(m, joints)
+            reader.joint_state(m, joints, off)
     return reader.finish()
 
 
@@ -332,7 +415,7 @@ class RecordedTeammate:
 
 
 def bag_paths(path: str | Path) -> list[Path]:
-    """The bags at ``path``: itself (an .mcap or .db3 file, or a bag folder with
+    """The bags at ``path``: itself (an .mcap, .db3 or ROS 1 .bag file, or a bag folder with
     ``metadata.yaml``), or the bags directly inside a folder of them, by name."""
     path = Path(path)
     if path.is_file() or (path / "metadata.yaml").is_file():
@@ -340,10 +423,10 @@ def bag_paths(path: str | Path) -> list[Path]:
     if not path.is_dir():
         raise RapiddsError(f"{path}: no such bag or folder of bags")
     found = sorted(p for p in path.iterdir()
-                   if (p.is_file() and p.suffix in (".mcap", ".db3"))
+                   if (p.is_file() and p.suffix in (".mcap", ".db3", ".bag"))
                    or (p / "metadata.yaml").is_file())
     if not found:
-        raise RapiddsError(f"{path}: no rosbag2 bag in it (.mcap, .db3 or bag folders)")
+        raise RapiddsError(f"{path}: no bag in it (.mcap, .db3, bag folders, or ROS 1 .bag)")
     return found
 
 
