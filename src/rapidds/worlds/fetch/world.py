@@ -48,6 +48,8 @@ from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
+    from rapidds.motion.timing import JointLimits
+
 
 __all__ = ["POLICY_DEFAULTS", "PRIOR_SEED", "FetchWorld", "default_world", "fetch_problem"]
 
@@ -185,6 +187,20 @@ class FetchWorld:
     def joint_names(self) -> tuple[str, ...]:
         """The robot's planar coordinates (m), as a mobile base's driver would name its axes."""
         return ("x", "y")
+
+    @property
+    def robot_limits(self) -> JointLimits:
+        """The point robot's limits per axis (m, m/s, m/s^2, m/s^3): the map's bounds, 1.2 times
+        its route speed (demonstrations reach 1.09 times it), and acceleration and jerk that
+        reach that speed within about a row (``robot_speed / dt`` times 2, and that over
+        ``dt`` times 5): a toy robot's, stated so its trajectories are parameterized like the
+        arm's when they leave rapidds (its planner keeps its own row timing)."""
+        from rapidds.motion.timing import JointLimits
+
+        lo, hi = self.bounds
+        accel = 2.0 * self.robot_speed / self.dt
+        return JointLimits(lo, hi, np.full(2, 1.2 * self.robot_speed), np.full(2, accel),
+                           np.full(2, 5.0 * accel / self.dt))
 
     @property
     def body_point_names(self) -> tuple[str, ...]:

@@ -234,6 +234,10 @@ class ArmKinematics:
 # the same numbers as the comments of the gymnasium-robotics actuator.xml): joints 1-4 2.1750,
 # joints 5-7 2.6100.
 FRANKA_VELOCITY = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+# and its acceleration (rad/s^2) and jerk (rad/s^3) limits, the same table
+# (frankaemika/docs control-parameters-joint-panda.csv)
+FRANKA_ACCELERATION = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+FRANKA_JERK = np.array([7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0])
 
 
 @cache

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     import mujoco
     from matplotlib.axes import Axes
 
+    from rapidds.motion.timing import JointLimits
     from rapidds.worlds.painting.kinematics import ArmKinematics
     from rapidds.worlds.painting.motions import Motion
     from rapidds.worlds.painting.teammates import PaintingTeammate
@@ -255,6 +256,16 @@ class PaintingWorld:
         from rapidds.worlds.painting.kinematics import tool_path_ik
 
         return tool_path_ik(positions, self.robot_rest(), layout=self.layout)
+
+    @property
+    def robot_limits(self) -> JointLimits:
+        """The arm's joint limits: the MJCF's ranges and the Panda datasheet's velocity,
+        acceleration and jerk (what :mod:`rapidds.motion.timing` parameterizes within)."""
+        from rapidds.motion.timing import JointLimits
+        from rapidds.worlds.painting.kinematics import FRANKA_ACCELERATION, FRANKA_JERK
+
+        kin = self.kinematics
+        return JointLimits(kin.lower, kin.upper, kin.velocity, FRANKA_ACCELERATION, FRANKA_JERK)
 
     @property
     def body_point_names(self) -> tuple[str, ...]:
