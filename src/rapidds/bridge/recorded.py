@@ -430,21 +430,51 @@ def bag_paths(path: str | Path) -> list[Path]:
     return found
 
 
-def robot_demonstrations(path: str | Path, world: World) -> Any:
+def _driver_joints(bags: Sequence[Path], world: World,
+                   robot: str | None) -> tuple[tuple[str, ...], np.ndarray]:
+    """The driver's joint names and offsets: robot profile ``robot``'s, else those of the first
+    profile (``reference`` first) whose names the bags' first joint state carries; one line
+    naming what came and what was expected when it does not carry them."""
+    from rapidds.bridge.profiles import PROFILES, ProfileError, robot_profile
+
+    first = next(((b, list(m.msg.name)) for b in bags for m in read_bag(b)
+                  if m.msgtype == "sensor_msgs/msg/JointState"), None)
+    fitting = []
+    for profile in [robot_profile(robot)] if robot is not None else PROFILES.values():
+        try:
+            names = profile.joint_names(world)
+        except ProfileError:  # a profile of another robot
+            if robot is not None:
+                raise
+            continue
+        fitting.append((profile.name, names, profile.offset(world)))
+        if first is None or set(names) <= set(first[1]):
+            return names, profile.offset(world)
+    assert first is not None and fitting  # "reference" fits every world
+    expected = "; ".join(f"{n}: {', '.join(names)}" for n, names, _ in fitting)
+    raise ProfileError(f"{first[0]}: its joint states name {', '.join(first[1]) or 'nothing'}; "
+                       f"no robot profile{' ' + repr(robot) if robot else ''} of world "
+                       f"{world.name} fits ({expected})")
+
+
+def robot_demonstrations(path: str | Path, world: World, mapping: TrackingMapping | None = None,
+                         robot: str | None = None) -> Any:
     """:class:`~rapidds.motion.demos.Demonstrations` of the robot from recorded bags: its
-    ``sensor_msgs/JointState`` (the world's joint names, any order, extra joints ignored) cut
-    into tasks by the robot's task events and sampled at the world's dt from each task's start,
+    ``sensor_msgs/JointState`` (named as robot profile ``robot`` names them, else as the first
+    profile that fits the bag; any order, extra joints such as fingers ignored; shifted into
+    the world's convention by the profile's offsets) cut into tasks by the robot's task events
+    (or the ``mapping``'s boundary rules) and sampled at the world's dt from each task's start,
     held at the last pose to the world's horizon (the demonstrations' convention: a motion
     that finishes early stops moving). A task longer than the horizon is dropped."""
     from rapidds.motion.demos import Demonstrations
-    from rapidds.worlds.base import joint_names
 
-    names = joint_names(world)
+    bags = bag_paths(path)
+    names, offsets = _driver_joints(bags, world, robot)
     tasks = [t.id for t in world.problem().tasks if "robot" in t.allowed]
     dt, horizon = world.dt, world.horizon
     rows, index = [], []
-    for bag in bag_paths(path):
-        cycle = read_cycle(bag, world, joints=names)
+    for bag in bags:
+        cycle = read_cycle(bag, world, mapping, joints=names, offsets=offsets)
         for task, (agent, start, end) in cycle.tasks.items():
             if agent != "robot":
                 continue
@@ -464,7 +494,8 @@ def robot_demonstrations(path: str | Path, world: World) -> Any:
             index.append(tasks.index(task))
     if not rows:
         raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "
-                           "and end events on /rapidds/events, sensor_msgs/JointState)")
+                           "and end events on /rapidds/events or by the mapping's boundaries, "
+                           f"sensor_msgs/JointState naming {', '.join(names)})")
     if missing := [t for k, t in enumerate(tasks) if k not in index]:
         log.warning("no demonstration of robot task(s) %s: the policy will not know them",
                     ", ".join(missing))

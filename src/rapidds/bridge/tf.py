@@ -186,26 +186,34 @@ def tracked_frames(buffer: TfBuffer, samples: Iterable[tuple[int, str, int]],
     for recv, frame, stamp in samples:
         rows.setdefault(frame.lstrip("/"), []).append((recv, stamp))
     needed: set[str] = set()
-    broken: set[str] = set()
+    driver: dict[str, str] = {}  # mapped frame -> the frame whose samples time it
     for frame in sources:
         if frame not in buffer.links:
             continue  # a topic, or a frame the bag does not hold (the caller sees it missing)
         walked, gap = buffer.chain(frame, root)
         needed.update(walked)
+        moving = next((f for f in walked if not buffer.links[f].static), None)
         if gap is not None:
-            broken.add(frame)
             lines.append(f"TF frame {frame!r} does not reach the root frame {root!r} (chain "
                          f"{' -> '.join([*walked, gap])}; {gap!r} has no parent); not learned")
+        elif moving is None:
+            lines.append(f"TF frame {frame!r} is fixed to {root!r} (/tf_static only); not "
+                         "learned")
+        else:
+            # a frame on /tf_static (a skeleton's fixed joint) is sampled when the nearest
+            # moving frame of its chain is
+            driver[frame] = moving
     for child, parent in buffer.reparented.items():
         lines.append(f"TF frame {child!r} also published under parent {parent!r}; only its "
                      f"first parent, {buffer.links[child].parent!r}, is used")
+    for frame in rows:
+        if frame not in sources and frame not in needed \
+                and not any(frame.endswith(f"_{b}") for b in bodies):
+            lines.append(f"{frame!r} is not in the mapping")
     out: dict[str, list[tuple[int, str, int, np.ndarray]]] = {}
-    for frame, got in rows.items():
-        if frame not in sources:
-            if frame not in needed and not any(frame.endswith(f"_{b}") for b in bodies):
-                lines.append(f"{frame!r} is not in the mapping")
-            continue
-        if frame in broken:
+    for frame, moving in driver.items():
+        got = rows.get(moving, [])
+        if not got:
             continue
         pos, ok = buffer.positions(frame, root, np.array([s for _, s in got], np.int64))
         if not ok.all():
