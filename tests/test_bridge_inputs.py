@@ -498,3 +498,16 @@ def test_a_ros1_bag_that_is_no_bag_is_said_in_one_line(tmp_path: Path) -> None:
     fake.write_text("not a bag")
     with pytest.raises(RapiddsError, match="not a readable ROS 1 bag"):
         list(read_bag(fake))
+
+
+def test_the_mappings_body_id_picks_another_tracked_body(tmp_path: Path) -> None:
+    """body_id zz9 (tracked from 2 s on): its wrist, not the first body's, is learned."""
+    bag = write_bag(tmp_path / "hri.mcap", _ros4hri_messages())
+    world = make_world("painting")
+    mapping = TrackingMapping(**{**_mapping_yaml(), "body_id": "zz9"})
+    times, points = read_cycle(bag, world, mapping).points["l_wrist"]
+    assert times[0] == 2 * S + LATENCY
+    links = _skeleton("zz9", phase=0.4)
+    want = np.stack([_world_point(_truth(links, "l_wrist_zz9", "room", (t - LATENCY) / S))
+                     for t in times])
+    np.testing.assert_allclose(points, want, atol=1e-9)
