@@ -121,9 +121,11 @@ _POINTS = {"l_wrist_{body}": "l_wrist", "r_wrist_{body}": "r_wrist",
            "l_elbow_{body}": "l_elbow", "r_elbow_{body}": "r_elbow"}
 
 
-def _mapping_yaml() -> dict[str, Any]:
+def _mapping_yaml(ordered: bool = True) -> dict[str, Any]:
+    """The pedal's presses start and end the person's tasks: in the order given, or (not
+    ``ordered``) in the cycle's plan's order."""
     return {"points": _POINTS, "root_frame": "room", "transform": _TURN,
-            "boundaries": {"order": {"human": list(_TASKS)},
+            "boundaries": {"order": {"human": list(_TASKS)} if ordered else {},
                            "rules": [{"topic": "/pedal", "agent": "human", "event": "toggle",
                                       "when": {"data": True}}]}}
 
@@ -221,11 +223,14 @@ def test_a_ros4hri_skeleton_on_tf_is_composed_and_observed(
     """The first tracked body's wrists and elbows, composed through their chains (camera,
     body, torso, shoulder, elbow; wrists on /tf_static) and the mapping's transform, reach
     observe's stored paths within 1 mm of the chain multiplied out by hand; task boundaries
-    come from a pedal by the mapping's rule; the bag is rosbag2 MCAP or ROS 1."""
+    come from a pedal by the mapping's rule (the order of the tasks given in the mapping, or,
+    for the ROS 1 bag, the plan's); the bag is rosbag2 MCAP or ROS 1."""
+    from rapidds.schedule import task_items
+
     msgs = _ros4hri_messages()
     bag = (write_bag(tmp_path / "hri.mcap", msgs) if storage == "mcap"
            else write_ros1(tmp_path / "hri.bag", msgs))
-    (tmp_path / "map.yaml").write_text(yaml.safe_dump(_mapping_yaml()))
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump(_mapping_yaml(storage == "mcap")))
     (tmp_path / "run.yaml").write_text(yaml.safe_dump(SMALL))
     code, stdout, err = run_main(capsys, "observe", str(tmp_path / "real"), "--bag", str(bag),
                                  "--mapping", str(tmp_path / "map.yaml"), "--config",
@@ -234,7 +239,9 @@ def test_a_ros4hri_skeleton_on_tf_is_composed_and_observed(
     assert "bodies b1x7, zz9 tracked; the first, 'b1x7', is learned" in err
     assert "not in the mapping" not in err  # the skeleton's other frames are not noise
     rec = json.loads(stdout)
-    assert rec["observed"], rec
+    order = list(_TASKS) if storage == "mcap" else task_items(rec["human"])
+    spans = dict(zip(order, _TASKS.values(), strict=False))  # the k-th pedal run: k-th task
+    assert set(rec["observed"]) == set(task_items(rec["human"])) and rec["observed"]
     links = _skeleton("b1x7")
     world = make_world("painting")
     with RunStore.open_readonly(tmp_path / "real" / "run.sqlite") as store:
@@ -242,7 +249,7 @@ def test_a_ros4hri_skeleton_on_tf_is_composed_and_observed(
         human = cycle_paths(store.arrays(rid, 0))["human"]
     assert set(human) == set(rec["observed"])
     for task, path in human.items():
-        start, end = _TASKS[task]
+        start, end = spans[task]
         assert rec["observed"][task] == pytest.approx(end - start, abs=1e-6)
         times = start + np.minimum(np.arange(len(path)) * world.dt, end - start)
         path = np.asarray(path).reshape(len(times), 4, 3)
@@ -280,7 +287,8 @@ def test_boundary_rules_are_declared_and_checked(tmp_path: Path,
     base: dict[str, Any] = {"points": {n: n for n in ("l_wrist", "r_wrist", "l_elbow",
                                                       "r_elbow")}}
     bad = [
-        {"rules": [{"topic": "/pedal", "agent": "human", "event": "toggle"}]},  # no order
+        {"rules": [{"topic": "/pedal", "agent": "human", "event": "end"}]},  # never starts
+        {"rules": [{"topic": "/pedal", "agent": "human", "event": "start"}]},  # never ends
         {"rules": [{"topic": "/pedal", "agent": "dog", "event": "end"}]},
         {"rules": [{"topic": "/pedal", "agent": "human", "event": "press"}]},
         {"rules": []},
@@ -319,6 +327,16 @@ def test_boundary_rules_are_declared_and_checked(tmp_path: Path,
     lines = [r.getMessage() for r in caplog.records]
     for needle in ("ends no open robot task", "while 'mix_l' runs", "past the 2 of"):
         assert sum(needle in line for line in lines) == 1, (needle, lines)
+    # without an order the signals wait for the plan's; demonstrations have no plan
+    from rapidds.bridge.recorded import bind_plan, robot_demonstrations
+
+    waiting = TrackingMapping(**base, boundaries={"rules": rules["rules"]})
+    unbound = read_cycle(bag, world, waiting)
+    assert unbound.tasks == {} and len(unbound.signals) == len(msgs)
+    bound = bind_plan(unbound, world, waiting, {"robot": ("mix_l", "mix_r"), "human": ()})
+    assert bound.tasks == cycle.tasks
+    with pytest.raises(ConfigError, match=r"boundaries\.order\.robot"):
+        robot_demonstrations(bag, world, waiting)
 
 
 # -- robot demonstrations -------------------------------------------------------------------

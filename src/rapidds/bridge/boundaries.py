@@ -14,7 +14,9 @@ fields of the message hold given values::
         - {topic: /pedal, agent: human, event: toggle}      # start, then end, then start ...
 
 An ``end`` closes the agent's open task; a ``toggle`` starts the agent's next task when none is
-open and ends it otherwise. Signals carry no task id, so the order names them; a signal that
+open and ends it otherwise. Signals carry no task id, so the order names them; an agent with
+no order takes the cycle's plan's (``observe`` plans the cycle, then binds the signals to its
+order; ``train-policy``, with no plan, needs ``order.robot``). A signal that
 does not fit (an end with no task open, a start while one is open, a start past the order's
 end) is dropped in one line, as a malformed rapidds event is. A message's time is its receive
 time (the recorder's clock, the one tracking is timed by).
@@ -69,12 +71,26 @@ class BoundaryRules(Settings):
     order: dict[Agent, list[str]] = Field(default_factory=dict)
 
     @model_validator(mode="after")
-    def _ordered(self) -> BoundaryRules:
-        for rule in self.rules:
-            if rule.event != "end" and not self.order.get(rule.agent):
-                raise ValueError(f"a {rule.event} rule for the {rule.agent} needs "
-                                 f"order.{rule.agent}, the tasks it starts in turn")
+    def _ends_need_starts(self) -> BoundaryRules:
+        for agent in ("human", "robot"):
+            kinds = {r.event for r in self.rules if r.agent == agent}
+            if kinds and not kinds - {"end"}:
+                raise ValueError(f"the {agent}'s tasks end by a rule but none starts them (a "
+                                 "start or toggle rule)")
+            if kinds and not kinds & {"end", "toggle"}:
+                raise ValueError(f"the {agent}'s tasks start by a rule but none ends them (an "
+                                 "end or toggle rule)")
         return self
+
+    def unordered(self) -> set[str]:
+        """The agents whose rules wait for an order (the plan's)."""
+        return {r.agent for r in self.rules} - set(self.order)
+
+    def ordered(self, order: Mapping[str, tuple[str, ...] | list[str]]) -> BoundaryRules:
+        """These rules with ``order`` for the agents that have none."""
+        full = {**{a: list(ts) for a, ts in order.items() if a in self.unordered()},
+                **self.order}
+        return BoundaryRules(rules=[r.model_dump() for r in self.rules], order=full)
 
     def topics(self) -> set[str]:
         return {"/" + r.topic.lstrip("/") for r in self.rules}
@@ -87,8 +103,10 @@ class BoundaryRules(Settings):
 class SignalReader:
     """Turns a bag's messages into task events by :class:`BoundaryRules` (module docstring)."""
 
-    def __init__(self, rules: BoundaryRules):
+    def __init__(self, rules: BoundaryRules, agents: set[str] | None = None):
+        """Reads the rules of ``agents`` (None: of the agents that have an order)."""
         self.rules = rules
+        self.agents = set(rules.order) if agents is None else agents
         self.next: dict[str, int] = {"human": 0, "robot": 0}
         self.open: dict[str, str | None] = {"human": None, "robot": None}
         self.lacking: set[int] = set()
@@ -99,7 +117,7 @@ class SignalReader:
         out: list[tuple[str, str, str] | str] = []
         topic = "/" + topic.lstrip("/")
         for k, rule in enumerate(self.rules.rules):
-            if "/" + rule.topic.lstrip("/") != topic:
+            if "/" + rule.topic.lstrip("/") != topic or rule.agent not in self.agents:
                 continue
             fired = rule.matches(msg)
             if fired is None:

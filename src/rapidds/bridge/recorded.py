@@ -50,6 +50,7 @@ __all__ = [
     "RigidTransform",
     "TrackingMapping",
     "bag_paths",
+    "bind_plan",
     "default_mapping",
     "human_executions",
     "load_mapping",
@@ -155,6 +156,7 @@ class RecordedCycle:
     joints: tuple[np.ndarray, np.ndarray] | None = None
     too_close: list[int] = field(default_factory=list)  # receive times, ns
     dropped: int = 0
+    signals: list[BagMessage] = field(default_factory=list)  # for rules awaiting the plan
 
     def too_close_times(self) -> list[float]:
         """The "too close" signals in seconds from the cycle's first task start, those within
@@ -322,12 +324,17 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
     ``path`` (module docstring)."""
     mapping = (mapping or default_mapping(world)).check(world)
     reader = _Reader(world, mapping, str(path))
-    signals = set() if mapping.boundaries is None else mapping.boundaries.topics()
+    rules = mapping.boundaries
+    signals = set() if rules is None else rules.topics()
+    waiting = set() if rules is None else {"/" + r.topic.lstrip("/") for r in rules.rules
+                                           if r.agent in rules.unordered()}
     off = None if offsets is None else np.asarray(offsets, float)
     # one clock: the bag's receive times, in order (a bag of several files may interleave)
     for m in sorted(read_bag(path), key=lambda m: m.time_ns):
         if "/" + m.topic.lstrip("/") in signals:
             reader.signal(m)
+            if "/" + m.topic.lstrip("/") in waiting:
+                reader.out.signals.append(m)
         if m.topic == ros2.EVENTS_TOPIC and m.msgtype == "std_msgs/msg/String":
             reader.event(m)
         elif m.topic == ros2.TOO_CLOSE_TOPIC and m.msgtype in _SIGNALS:
@@ -337,6 +344,27 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
         elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
             reader.joint_state(m, joints, off)
     return reader.finish()
+
+
+def bind_plan(cycle: RecordedCycle, world: World, mapping: TrackingMapping,
+              order: Mapping[str, Sequence[str]]) -> RecordedCycle:
+    """``cycle`` with the task events of the mapping's boundary rules that waited for an order
+    (an agent without ``boundaries.order``), bound to ``order`` (agent -> its tasks in the
+    cycle's plan); the cycle itself when none waited."""
+    rules = mapping.boundaries
+    if rules is None or not rules.unordered():
+        return cycle
+    bound = rules.ordered({a: tuple(ts) for a, ts in order.items()})
+    reader = _Reader(world, mapping, "the plan's order")
+    reader.signals = SignalReader(bound, rules.unordered())
+    reader.out = RecordedCycle(tasks=dict(cycle.tasks), points=cycle.points,
+                               joints=cycle.joints, too_close=cycle.too_close,
+                               dropped=cycle.dropped)
+    for m in cycle.signals:
+        reader.signal(m)
+    for task in reader.started:
+        reader.drop(f"task {task!r} started but never ended")
+    return reader.out
 
 
 def resample(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
@@ -468,6 +496,10 @@ def robot_demonstrations(path: str | Path, world: World, mapping: TrackingMappin
     that finishes early stops moving). A task longer than the horizon is dropped."""
     from rapidds.motion.demos import Demonstrations
 
+    if mapping is not None and mapping.boundaries is not None \
+            and "robot" in mapping.boundaries.unordered():
+        raise ConfigError("mapping: boundaries.order.robot is needed to cut demonstrations "
+                          "(there is no plan to take the robot's order from)")
     bags = bag_paths(path)
     names, offsets = _driver_joints(bags, world, robot)
     tasks = [t.id for t in world.problem().tasks if "robot" in t.allowed]

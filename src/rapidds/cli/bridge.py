@@ -96,6 +96,7 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
         RecordedTeammate,
+        bind_plan,
         default_mapping,
         load_mapping,
         observed_for,
@@ -126,7 +127,8 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     if body_id is not None:
         maps = maps.replace(body_id=body_id)
     recorded = read_cycle(bag, world, maps)
-    if not any(agent == "human" for agent, _, _ in recorded.tasks.values()):
+    waiting = set() if maps.boundaries is None else maps.boundaries.unordered()
+    if "human" not in waiting and not any(a == "human" for a, _, _ in recorded.tasks.values()):
         raise RapiddsError(f"{bag}: no complete human task (start and end events on "
                            "/rapidds/events, or by the mapping's boundaries) to learn from")
     # the store is written only now, with a usable bag in hand
@@ -135,7 +137,9 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
                           teammate=RecordedTeammate({}, answer=comfort,
                                                     too_close=tuple(recorded.too_close_times())))
         plan = run.plan()
-        observed = observed_for(recorded, world, plan.best.schedule.tasks("human"))
+        schedule = plan.best.schedule
+        recorded = bind_plan(recorded, world, maps, {a: schedule.tasks(a) for a in waiting})
+        observed = observed_for(recorded, world, schedule.tasks("human"))
         dep = run.execute(plan, observed=observed)
         run.learn(plan, dep)
         return run.record(plan, dep)
