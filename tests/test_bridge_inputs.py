@@ -529,3 +529,25 @@ def test_the_mappings_body_id_picks_another_tracked_body(tmp_path: Path) -> None
     want = np.stack([_world_point(_truth(links, "l_wrist_zz9", "room", (t - LATENCY) / S))
                      for t in times])
     np.testing.assert_allclose(points, want, atol=1e-9)
+
+
+def test_unstamped_and_broken_transforms(tmp_path: Path,
+                                         caplog: pytest.LogCaptureFixture) -> None:
+    """A tracker that stamps its transforms 0 is read at their receive times (tf2 would read
+    time 0 as "latest"); a transform with a NaN or a zero quaternion is dropped in one line."""
+    from rapidds.bridge.export import tf_message
+
+    world = make_world("painting")
+    names = ("l_wrist", "r_wrist", "l_elbow", "r_elbow")
+    rest = np.asarray(world.human_rest(), float)
+    msgs = [BagMessage("/tf", "tf2_msgs/msg/TFMessage", k * S // 10,
+                       tf_message(names, rest + 0.01 * k, 0)) for k in range(10)]
+    bad = tf_message(names[:1], rest[:1] + np.nan, 0)
+    msgs.append(BagMessage("/tf", "tf2_msgs/msg/TFMessage", S + 1, bad))
+    with caplog.at_level(logging.WARNING, logger="rapidds.bridge"):
+        cycle = read_cycle(write_bag(tmp_path / "zero.mcap", msgs), world)
+    times, points = cycle.points["l_wrist"]
+    assert times.tolist() == [k * S // 10 for k in range(10)]
+    np.testing.assert_allclose(points, rest[0] + 0.01 * np.arange(10)[:, None], atol=1e-12)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "not finite or with a zero quaternion" in lines[0], lines

@@ -257,12 +257,14 @@ class _Reader:
         its child frame, composed at its stamp when the bag has been read (tf2's rule)."""
         static = m.topic.rstrip("/").endswith("tf_static")
         try:
-            self.tf.add_message(m.msg, static)
-            if not static:
-                self.tf_samples += [(m.time_ns, tf.child_frame_id, ros2.stamp_ns(tf.header))
-                                    for tf in m.msg.transforms]
+            kept = self.tf.add_message(m.msg, static, unstamped=m.time_ns)
         except AttributeError as exc:
             return self.drop(f"{m.topic}: {exc}")
+        if len(kept) < len(m.msg.transforms):
+            self.drop(f"{m.topic} at {m.time_ns} ns: {len(m.msg.transforms) - len(kept)} "
+                      "transform(s) not finite or with a zero quaternion")
+        if not static:
+            self.tf_samples += [(m.time_ns, child, stamp) for child, stamp in kept]
         return None
 
     def composed(self) -> None:

@@ -77,8 +77,9 @@ class TfBuffer:
         self.reparented: dict[str, str] = {}  # child -> a second parent, ignored
 
     def add(self, parent: str, child: str, stamp_ns: int, translation: Iterable[float],
-            rotation: Iterable[float], static: bool = False) -> None:
-        """One transform parent <- child (rotation a quaternion [x, y, z, w])."""
+            rotation: Iterable[float], static: bool = False) -> bool:
+        """One transform parent <- child (rotation a quaternion [x, y, z, w]); False when it
+        is not one (a zero or non-finite quaternion, a non-finite translation)."""
         parent, child = parent.lstrip("/"), child.lstrip("/")
         for f in (child, parent):
             if f not in self.links and f not in self.seen:
@@ -88,29 +89,38 @@ class TfBuffer:
             link = self.links[child] = _Link(parent, static)
         elif link.parent != parent:
             self.reparented.setdefault(child, parent)
-            return
+            return True
         q = np.asarray(list(rotation), float)
+        p = np.asarray(list(translation), float)
         norm = np.linalg.norm(q)
-        if not np.isfinite(q).all() or norm < 1e-9:
-            return
+        if not (np.isfinite(q).all() and np.isfinite(p).all()) or norm < 1e-9:
+            return False
         if static:
             link.static = True
         link.stamps.append(int(stamp_ns))
-        link.translations.append(np.asarray(list(translation), float))
+        link.translations.append(p)
         link.rotations.append(q / norm)
+        return True
 
-    def add_message(self, msg: object, static: bool = False) -> None:
-        """Every transform of a ``tf2_msgs/TFMessage`` (ROS 1 or ROS 2)."""
+    def add_message(self, msg: object, static: bool = False,
+                    unstamped: int = 0) -> list[tuple[str, int]]:
+        """Every transform of a ``tf2_msgs/TFMessage`` (ROS 1 or ROS 2), one stamped 0 taken
+        at ``unstamped`` (its receive time: tf2 reads time 0 as "latest"); (child, stamp) of
+        each one kept, in order. Transforms that are not are skipped (:meth:`add`)."""
+        kept = []
         for tf in msg.transforms:  # type: ignore[attr-defined]
             t, r = tf.transform.translation, tf.transform.rotation
             stamp = int(tf.header.stamp.sec) * 1_000_000_000 + int(tf.header.stamp.nanosec)
-            self.add(tf.header.frame_id, tf.child_frame_id, stamp, (t.x, t.y, t.z),
-                     (r.x, r.y, r.z, r.w), static)
+            stamp = stamp or unstamped
+            if self.add(tf.header.frame_id, tf.child_frame_id, stamp, (t.x, t.y, t.z),
+                        (r.x, r.y, r.z, r.w), static):
+                kept.append((tf.child_frame_id, stamp))
+        return kept
 
     def chain(self, frame: str, root: str) -> tuple[list[str], str | None]:
         """The frames from ``frame`` up to (not including) ``root``, and None; or, when the
         chain breaks, the frames walked and the first frame without a parent."""
-        walked, f = [], frame.lstrip("/")
+        walked, f, root = [], frame.lstrip("/"), root.lstrip("/")
         while f != root:
             if f in walked or f not in self.links:
                 return walked, f
