@@ -283,6 +283,8 @@ class _Reader:
                 self.stamps[name] = max(stamp, self.stamps.get(name, 0))
                 self.samples[name].append(
                     (recv, self.mapping.to_world(source, p, self.world.workspace_dim)))
+        for rows in self.samples.values():  # TF and other sources of one point, in time order
+            rows.sort(key=lambda r: r[0])
 
     def joint_state(self, m: BagMessage, names: Sequence[str],
                     offsets: np.ndarray | None = None) -> None:
@@ -305,16 +307,14 @@ class _Reader:
         self.composed()
         for task in self.started:
             self.drop(f"task {task!r} started but never ended")
-        if self.bad_joints > 1:
-            self.drop(f"{self.bad_joints - 1} more joint states like it")
-        for rows in self.samples.values():
-            rows.sort(key=lambda r: r[0])
         for name, rows in self.samples.items():
             self.out.points[name] = (np.array([t for t, _ in rows], dtype=np.int64),
                                      np.stack([p for _, p in rows]))
         if self.joint_rows:
             self.out.joints = (np.array([t for t, _ in self.joint_rows], dtype=np.int64),
                                np.stack([r for _, r in self.joint_rows]))
+        if self.bad_joints > 1:
+            self.drop(f"{self.bad_joints - 1} more joint states like it")
         return self.out
 
 
