@@ -154,9 +154,9 @@ class RecordedCycle:
     tasks: dict[str, tuple[str, int, int]] = field(default_factory=dict)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     joints: tuple[np.ndarray, np.ndarray] | None = None
+    signals: list[BagMessage] = field(default_factory=list)  # for rules awaiting the plan
     too_close: list[int] = field(default_factory=list)  # receive times, ns
     dropped: int = 0
-    signals: list[BagMessage] = field(default_factory=list)  # for rules awaiting the plan
 
     def too_close_times(self) -> list[float]:
         """The "too close" signals in seconds from the cycle's first task start, those within
@@ -226,32 +226,6 @@ class _Reader:
         self.out.tasks[ev.task] = (ev.agent, start, time_ns)
         return None
 
-    def tracking(self, m: BagMessage) -> None:
-        if m.msgtype == "tf2_msgs/msg/TFMessage":
-            return self.transforms(m)
-        try:
-            points = list(ros2.tracked_points(m.msg, m.topic))
-        except (ros2.MessageError, AttributeError) as exc:
-            return self.drop(f"{m.topic}: {exc}")
-        for tp in points:
-            name = self.mapping.points.get(tp.name)
-            if name is None:
-                if tp.name not in self.unmapped:  # one line per source, not per message
-                    self.unmapped.add(tp.name)
-                    self.drop(f"{tp.name!r} is not in the mapping")
-                continue
-            if not np.isfinite(tp.position).all():
-                self.drop(f"{tp.name!r} at {m.time_ns} ns is not finite")
-                continue
-            if tp.stamp_ns and tp.stamp_ns < self.stamps.get(name, 0):
-                self.drop(f"{tp.name!r} stamped {tp.stamp_ns} ns, before its previous sample")
-                continue
-            self.stamps[name] = max(tp.stamp_ns, self.stamps.get(name, 0))
-            self.samples[name].append(
-                (m.time_ns, self.mapping.to_world(tp.name, tp.position,
-                                                  self.world.workspace_dim)))
-        return None
-
     def transforms(self, m: BagMessage) -> None:
         """A TFMessage: every transform into the buffer; a dynamic one is also a sample of
         its child frame, composed at its stamp when the bag has been read (tf2's rule)."""
@@ -285,6 +259,32 @@ class _Reader:
                     (recv, self.mapping.to_world(source, p, self.world.workspace_dim)))
         for rows in self.samples.values():  # TF and other sources of one point, in time order
             rows.sort(key=lambda r: r[0])
+
+    def tracking(self, m: BagMessage) -> None:
+        if m.msgtype == "tf2_msgs/msg/TFMessage":
+            return self.transforms(m)
+        try:
+            points = list(ros2.tracked_points(m.msg, m.topic))
+        except (ros2.MessageError, AttributeError) as exc:
+            return self.drop(f"{m.topic}: {exc}")
+        for tp in points:
+            name = self.mapping.points.get(tp.name)
+            if name is None:
+                if tp.name not in self.unmapped:  # one line per source, not per message
+                    self.unmapped.add(tp.name)
+                    self.drop(f"{tp.name!r} is not in the mapping")
+                continue
+            if not np.isfinite(tp.position).all():
+                self.drop(f"{tp.name!r} at {m.time_ns} ns is not finite")
+                continue
+            if tp.stamp_ns and tp.stamp_ns < self.stamps.get(name, 0):
+                self.drop(f"{tp.name!r} stamped {tp.stamp_ns} ns, before its previous sample")
+                continue
+            self.stamps[name] = max(tp.stamp_ns, self.stamps.get(name, 0))
+            self.samples[name].append(
+                (m.time_ns, self.mapping.to_world(tp.name, tp.position,
+                                                  self.world.workspace_dim)))
+        return None
 
     def joint_state(self, m: BagMessage, names: Sequence[str],
                     offsets: np.ndarray | None = None) -> None:
