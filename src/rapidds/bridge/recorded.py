@@ -190,6 +190,7 @@ class _Reader:
         self.tf_samples: list[tuple[int, str, int]] = []  # receive ns, child frame, stamp ns
         self.signals = None if mapping.boundaries is None else SignalReader(mapping.boundaries)
         self.bad_joints = 0
+        self.offsets: np.ndarray | None = None  # the driver's joint offsets (robot profile)
 
     def drop(self, what: str) -> None:
         log.warning("%s: %s; dropped", self.where, what)
@@ -286,10 +287,10 @@ class _Reader:
                                                   self.world.workspace_dim)))
         return None
 
-    def joint_state(self, m: BagMessage, names: Sequence[str],
-                    offsets: np.ndarray | None = None) -> None:
-        """A robot joint state, in the world's order and convention (world = driver - offset,
-        the robot profile's); one line for the first that lacks the joints, a count after."""
+    def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
+        """A robot joint state, in the world's order and convention (world = driver -
+        ``self.offsets``, the robot profile's); one line for the first that lacks the joints,
+        a count after."""
         got = list(m.msg.name)
         pos = np.asarray(m.msg.position, float)
         if set(names) - set(got) or len(pos) != len(got) or not np.isfinite(pos).all():
@@ -300,7 +301,7 @@ class _Reader:
                           f"{', '.join(names)}, or not finite")
             return None
         row = pos[[got.index(n) for n in names]]
-        self.joint_rows.append((m.time_ns, row if offsets is None else row - offsets))
+        self.joint_rows.append((m.time_ns, row if self.offsets is None else row - self.offsets))
         return None
 
     def finish(self) -> RecordedCycle:
@@ -326,11 +327,11 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
     ``path`` (module docstring)."""
     mapping = (mapping or default_mapping(world)).check(world)
     reader = _Reader(world, mapping, str(path))
+    reader.offsets = None if offsets is None else np.asarray(offsets, float)
     rules = mapping.boundaries
     signals = set() if rules is None else rules.topics()
     waiting = set() if rules is None else {"/" + r.topic.lstrip("/") for r in rules.rules
                                            if r.agent in rules.unordered()}
-    off = None if offsets is None else np.asarray(offsets, float)
     # one clock: the bag's receive times, in order (a bag of several files may interleave)
     for m in sorted(read_bag(path), key=lambda m: m.time_ns):
         if "/" + m.topic.lstrip("/") in signals:
@@ -344,7 +345,7 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
         elif m.msgtype in _TRACKING:
             reader.tracking(m)
         elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
-            reader.joint_state(m, joints, off)
+            reader.joint_state(m, joints)
     return reader.finish()
 
 
