@@ -418,6 +418,11 @@ class RunStore:
         rows = self._rows("SELECT config FROM runs WHERE run_id=?", (run_id,))
         return self._json(rows[0][0], f"run '{run_id}'") if rows else None
 
+    def run_created(self, run_id: str) -> float | None:
+        """Wall-clock seconds (Unix time) at which the run was first stored, or None."""
+        rows = self._rows("SELECT created FROM runs WHERE run_id=?", (run_id,))
+        return float(rows[0][0]) if rows else None
+
     def run_ids(self) -> list[str]:
         return [r[0] for r in self._rows("SELECT run_id FROM runs ORDER BY run_id")]
 

@@ -3,11 +3,12 @@ the robot's trajectories over the link, runs the cycle from the events and track
 then learns and records it like a simulated cycle (:class:`~rapidds.loop.run.AdaptiveRun`).
 
 Dispatch: a robot task's ``JointTrajectory`` goes out when every task the plan puts before it
-has ended (its header stamp is then "start now"), cut at the task's planned completion (the
-rows after it hold the rest pose). The person acts on the plan on their own. The cycle is
-realised from what was observed: the person's durations and paths, and the robot's durations
-from its start and end events (its trajectories stay the planned ones: the loop scores and
-stores those).
+has ended (its header stamp is then "start now"), cut at the task's completion,
+time-parameterized within the robot profile's limits and in its driver's joint names
+(:meth:`~rapidds.bridge.profiles.RobotProfile.timed`). The person acts on the plan on their
+own. The cycle is realised from what was observed: the person's durations and paths, and the
+robot's durations from its start and end events (its trajectories stay the planned paths: the
+loop scores and stores those).
 
 Reactive execution (``execution="reactive"``): while the cycle runs, a
 :class:`~rapidds.bridge.reactive.SpeedMonitor` ticks at ``scaling_rate`` Hz of the cell clock and
@@ -40,6 +41,7 @@ from rapidds.bridge.live import (
     live_plan_payload,
     tracking_topic,
 )
+from rapidds.bridge.profiles import DEFAULT_PROFILE, RobotProfile, robot_profile
 from rapidds.bridge.reactive import SpeedMonitor, planned_speeds
 from rapidds.bridge.ros2 import (
     EVENTS_TOPIC,
@@ -48,13 +50,12 @@ from rapidds.bridge.ros2 import (
     TRAJECTORY_TOPIC,
     MessageError,
     float64_message,
-    joint_trajectory,
     stamp_ns,
     string_message,
 )
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Reactions
-from rapidds.worlds.base import body_point_names, joint_names
+from rapidds.worlds.base import body_point_names
 
 if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
@@ -118,11 +119,12 @@ class LiveCell:
     run: AdaptiveRun
     link: Link
     options: CellOptions = field(default_factory=CellOptions)
+    profile: RobotProfile = field(default_factory=lambda: robot_profile(DEFAULT_PROFILE))
     _robot_seen: float = 0.0
     _gate: StampGate = field(default_factory=StampGate)  # tracking stamps across cycles
 
     def __post_init__(self) -> None:
-        self.joints = joint_names(self.run.world)
+        self.joints = self.profile.joint_names(self.run.world)  # the driver's names
         self.points = body_point_names(self.run.world)
 
     def wait_ready(self) -> None:
@@ -167,17 +169,15 @@ class LiveCell:
         """Send each robot trajectory whose prerequisites have all ended (and are past t0)."""
         if time.time_ns() < live.stamp_ns:
             return
-        dt = self.run.world.dt
         for task in live.order["robot"]:
             if task in sent or not all(x in obs.end for x in live.after[task]):
                 continue
-            motion = plan.best.motions[task]
-            q = np.asarray(motion.trajectory, dtype=float)
-            rows = min(len(q), int(np.ceil(motion.duration / dt - 1e-9)) + 1)
-            self.link.publish(TRAJECTORY_TOPIC, joint_trajectory(self.joints, q[:max(rows, 2)],
-                                                                 dt, stamp_ns=time.time_ns()))
+            # cut to the task, parameterized within the robot's limits, the driver's names
+            timed = self.profile.timed(self.run.world, task, plan.best.motions[task].trajectory)
+            self.link.publish(TRAJECTORY_TOPIC, self.profile.trajectory(
+                self.run.world, timed, stamp_ns=time.time_ns()))
             sent.add(task)
-            log.info("cycle %d: dispatched %s (%d rows)", plan.cycle, task, rows)
+            log.info("cycle %d: dispatched %s (%.2f s)", plan.cycle, task, timed.duration)
 
     def _take(self, live: LivePlan, obs: CycleObservation, wait: float = 0.02,
               monitor: SpeedMonitor | None = None) -> None:
@@ -196,7 +196,8 @@ class LiveCell:
             self._robot_seen = time.monotonic()
             rows = joint_rows(rec.msg.name, self.joints)
             if monitor is not None and rows is not None:
-                monitor.joint_state(np.asarray(rec.msg.position, float)[rows],
+                monitor.joint_state(np.asarray(rec.msg.position, float)[rows]
+                                    - self.profile.offset(self.run.world),
                                     live.cell_seconds(stamp_ns(rec.msg.header)))
         elif rec.topic == CONTACTS_TOPIC:
             obs.contacts.append({"at": live.cell_seconds(rec.received_ns),

@@ -1,13 +1,26 @@
 """A stored run as ROS 2 messages: each cycle's plan, robot motions, the person's paths and the
-learned spatial cost, for an MCAP bag (``rapidds export``) that Foxglove and ``ros2 bag`` open.
+learned spatial cost, for an MCAP bag (``rapidds export``) that Foxglove and ``ros2 bag`` open,
+and that ``ros2 bag play`` replays into a joint trajectory controller.
 
-Topics (frames: ``world``, REP-103 units; times: the cycle's realised timeline, cycle after
-cycle on one clock starting at 0, with :data:`CYCLE_GAP_S` between cycles):
+Clock: the run's recorded wall clock (the store's time the run was started) or ``--epoch``;
+cycle after cycle, each cycle's realised timeline, with :data:`CYCLE_GAP_S` between cycles.
+Robot joints: as the robot profile (``--robot``, :mod:`rapidds.bridge.profiles`) names and
+zeroes them; every trajectory is cut to its task and time-parameterized within the profile's
+limits (:mod:`rapidds.motion.timing`), velocities and accelerations in every point.
+Frames: ``world``, REP-103 units.
+
+Topics:
 
 - ``/rapidds/plan`` (String JSON, :func:`~rapidds.bridge.ros2.plan_payload`) at the cycle's start;
 - ``/rapidds/robot/trajectory`` (JointTrajectory) per robot task, sent with the plan, its
-  header stamp the time the motion starts, ``time_from_start`` row k at k * dt;
-- ``/rapidds/robot/joint_states`` (JointState) of the realised robot at every dt of its tasks;
+  header stamp the time the motion starts;
+- ``/<controller>/joint_trajectory`` (the profile's controller topic): the same trajectory at
+  its task's start, header stamp 0 ("start now"), so ``ros2 bag play`` drives a joint
+  trajectory controller through the plan;
+- ``/rapidds/robot/joint_states`` (JointState): one stream, the robot at every dt of each robot
+  task, from its start to its realised end, stamps strictly increasing: along the
+  parameterized trajectory where the planner timed the robot by it (the painting arm), else
+  along the path at its own row timing (fetch, whose planner keeps it);
 - ``/rapidds/events`` (String JSON) each task's start and end, as a real cell reports them;
 - ``/tf`` (TFMessage): the person's realised body points at every dt of their tasks, child
   frames the world's body-point names: the tracking contract of ``rapidds observe``, so an
@@ -29,14 +42,16 @@ import numpy as np
 
 from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage
+from rapidds.bridge.profiles import DEFAULT_PROFILE, RobotProfile, robot_profile, task_rows
 from rapidds.store import cycle_paths
-from rapidds.worlds.base import World, body_point_names, body_points, joint_names
+from rapidds.worlds.base import World, body_point_names, body_points
 
 if TYPE_CHECKING:
+    from rapidds.motion.timing import TimedTrajectory
     from rapidds.record import CycleRecord
 
-__all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "human_task_messages", "path_topic",
-           "run_messages", "tf_message"]
+__all__ = ["CYCLE_GAP_S", "cost_topic", "cycle_messages", "export_run", "human_task_messages",
+           "parse_epoch", "path_topic", "robot_messages", "run_messages", "tf_message"]
 
 CYCLE_GAP_S = 1.0
 """Seconds between one exported cycle's end and the next one's start on the bag's clock."""
@@ -56,6 +71,36 @@ def path_topic(kind: str, point: str) -> str:
 
 def _ns(seconds: float) -> int:
     return round(seconds * _NS)
+
+
+def _iso_seconds(text: str) -> float:
+    from datetime import datetime
+
+    from rapidds.errors import RapiddsError
+
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise RapiddsError(f"--epoch {text!r} is neither Unix seconds nor an ISO 8601 time "
+                           "(2026-11-27T06:00:00Z)") from None
+    if when.tzinfo is None:
+        raise RapiddsError(f"--epoch {text!r} has no time zone; add Z or +HH:MM")
+    return when.timestamp()
+
+
+def parse_epoch(text: str) -> int:
+    """``--epoch``: Unix seconds (``1764223200.5``) or an ISO 8601 time with its zone
+    (``2026-11-27T06:00:00Z``) -> nanoseconds since 1970 UTC; a :class:`RapiddsError` line
+    otherwise."""
+    from rapidds.errors import RapiddsError
+
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = _iso_seconds(text)
+    if not (np.isfinite(seconds) and seconds >= 0):
+        raise RapiddsError(f"--epoch {text!r} must be a time after 1970")
+    return _ns(seconds)
 
 
 def _xyz(p: np.ndarray) -> np.ndarray:
@@ -112,16 +157,67 @@ def human_task_messages(world: World, task: str, path: np.ndarray, duration: flo
     return sorted(out, key=lambda m: m.time_ns)
 
 
+def _states(world: World, task: str, path: np.ndarray, timed: TimedTrajectory,
+            length: float) -> Iterator[tuple[float, np.ndarray, np.ndarray | None]]:
+    """(seconds after the task's start, positions, velocities or None) every dt for ``length``
+    s: the robot as it was timed in the record. A world whose planner times its robot by the
+    parameterized trajectory (its ``robot_duration``, the arm) moves along it, its last row
+    held after (a slower realised task waited under the monitor's scaling); a world that keeps
+    its own row timing (fetch) is at row k at k * dt."""
+    dt = world.dt
+    if getattr(world, "robot_duration", None) is None:
+        rows = task_rows(world, task, path)
+        for s in np.arange(0.0, length - 1e-9, dt):
+            yield float(s), rows[min(round(s / dt), len(rows) - 1)], None
+        return
+    for s in np.arange(0.0, length - 1e-9, dt):
+        at = min(s, timed.duration)
+        q = np.array([np.interp(at, timed.times, c) for c in timed.positions.T])
+        v = np.array([np.interp(at, timed.times, c) for c in timed.velocities.T])
+        yield float(s), q, (v if s < timed.duration else np.zeros_like(v))
+
+
+def robot_messages(world: World, profile: RobotProfile, robot: Mapping[str, np.ndarray],
+                   times: Mapping[str, tuple[float, float]], epoch_ns: int,
+                   sent_ns: int) -> list[BagMessage]:
+    """The robot's part of a cycle: per task (in its realised order) its parameterized
+    trajectory (with the plan at ``sent_ns``, and on the controller's topic at its start) and
+    its joint states up to its realised end, one stream with strictly increasing stamps."""
+    out: list[BagMessage] = []
+    last = -1
+    traj_type = "trajectory_msgs/msg/JointTrajectory"
+    for task in sorted(robot, key=lambda t: times[t][0]):
+        start, end = times[task]
+        begin = epoch_ns + _ns(start)
+        timed = profile.timed(world, task, robot[task])
+        out.append(BagMessage(ros2.TRAJECTORY_TOPIC, traj_type, sent_ns,
+                              profile.trajectory(world, timed, stamp_ns=begin)))
+        out.append(BagMessage(profile.trajectory_topic, traj_type, begin,
+                              profile.trajectory(world, timed)))
+        for s, q, v in _states(world, task, robot[task], timed, end - start):
+            at = begin + _ns(s)
+            if at <= last:
+                continue  # a task that started before the last one's states ended
+            names, driver = profile.to_driver(world, q)
+            out.append(BagMessage(ros2.JOINT_STATE_TOPIC, "sensor_msgs/msg/JointState", at,
+                                  ros2.joint_state(names, driver, v, stamp_ns=at)))
+            last = at
+    return out
+
+
 def cycle_messages(world: World, record: CycleRecord, arrays: Mapping[str, np.ndarray],
                    spatial: Any, epoch_ns: int,
-                   expected: Mapping[str, np.ndarray] | None = None) -> Iterator[BagMessage]:
+                   expected: Mapping[str, np.ndarray] | None = None,
+                   profile: RobotProfile | None = None) -> Iterator[BagMessage]:
     """The messages of one stored cycle (module docstring), its time 0 at ``epoch_ns``.
 
     record, arrays: the cycle as the store holds it; spatial: the
     :class:`~rapidds.human.spatial.SpatialModel` after the cycle (None: no cost clouds);
-    expected: task -> the path the person is expected to take (their latest earlier one).
+    expected: task -> the path the person is expected to take (their latest earlier one);
+    profile: the robot's driver (default: the reference profile).
     """
-    dt, joints, names = world.dt, joint_names(world), body_point_names(world)
+    profile = profile or robot_profile(DEFAULT_PROFILE)
+    dt, names = world.dt, body_point_names(world)
     times = record.realised.timeline
     plan = ros2.plan_payload(record.cycle, record.plan.human, record.plan.robot, times)
     agent_of = {t: a for a in ("human", "robot") for t in plan["order"][a]}
@@ -132,16 +228,8 @@ def cycle_messages(world: World, record: CycleRecord, arrays: Mapping[str, np.nd
             out += [_event(task, agent_of[task], "start", epoch_ns + _ns(start)),
                     _event(task, agent_of[task], "end", epoch_ns + _ns(end))]
     paths = cycle_paths(arrays)
-    robot = paths["robot"]
+    out += robot_messages(world, profile, paths["robot"], times, epoch_ns, epoch_ns)
     human = {t: body_points(v) for t, v in paths["human"].items()}
-    for task, q in robot.items():
-        begin = epoch_ns + _ns(times[task][0])
-        out.append(BagMessage(ros2.TRAJECTORY_TOPIC, "trajectory_msgs/msg/JointTrajectory",
-                              epoch_ns, ros2.joint_trajectory(joints, q, dt, stamp_ns=begin)))
-        for k, row in enumerate(q):
-            at = begin + _ns(k * dt)
-            out.append(BagMessage(ros2.JOINT_STATE_TOPIC, "sensor_msgs/msg/JointState", at,
-                                  ros2.joint_state(joints, row, stamp_ns=at)))
     for task, path in human.items():
         start, end = times[task]
         begin = epoch_ns + _ns(start)
@@ -166,27 +254,30 @@ def cycle_messages(world: World, record: CycleRecord, arrays: Mapping[str, np.nd
 
 
 def run_messages(world: World, records: Sequence[CycleRecord], arrays_of: Any,
-                 spatial_of: Any, exported: Collection[int] | None = None
-                 ) -> Iterator[BagMessage]:
-    """The messages of several stored cycles, one after the other on the bag's clock.
-    arrays_of(cycle) and spatial_of(cycle): a cycle's stored arrays and learned spatial model.
-    exported: the cycles written (default: all). A task's expected path is the person's latest
-    earlier path of it in the run, so cycles before the first exported one count: pass them in
-    ``records`` and leave them out of ``exported``."""
-    epoch, last_paths = 0, {}
+                 spatial_of: Any, exported: Collection[int] | None = None, epoch_ns: int = 0,
+                 profile: RobotProfile | None = None) -> Iterator[BagMessage]:
+    """The messages of several stored cycles, one after the other on the bag's clock from
+    ``epoch_ns``. arrays_of(cycle) and spatial_of(cycle): a cycle's stored arrays and learned
+    spatial model. exported: the cycles written (default: all). A task's expected path is the
+    person's latest earlier path of it in the run, so cycles before the first exported one
+    count: pass them in ``records`` and leave them out of ``exported``."""
+    epoch, last_paths = epoch_ns, {}
     for rec in records:
         arrays = arrays_of(rec.cycle)
         if exported is None or rec.cycle in exported:
             yield from cycle_messages(world, rec, arrays, spatial_of(rec.cycle), epoch,
-                                      dict(last_paths))
+                                      dict(last_paths), profile)
             epoch += _ns(rec.realised.makespan + CYCLE_GAP_S)
         last_paths.update(cycle_paths(arrays)["human"])
 
 
 def export_run(store: Any, run_id: str, world: World, out: Any,
-               cycles: list[int] | None = None) -> tuple[Any, int]:
+               cycles: list[int] | None = None, epoch_ns: int | None = None,
+               profile: RobotProfile | None = None) -> tuple[Any, int]:
     """Write the stored cycles ``cycles`` (default: all) of run ``run_id`` in ``store`` (a
-    :class:`~rapidds.store.RunStore`) to the MCAP file ``out``; (path, messages written)."""
+    :class:`~rapidds.store.RunStore`) to the MCAP file ``out``; (path, messages written).
+    epoch_ns: the bag's time of the first written cycle's start (default: the run's recorded
+    wall-clock start); profile: the robot's driver (default: the reference profile)."""
     from rapidds.bridge.bag import write_bag
     from rapidds.errors import RapiddsError
     from rapidds.loop.model import HumanModel
@@ -201,6 +292,10 @@ def export_run(store: Any, run_id: str, world: World, out: Any,
                            f"{have[0]}..{have[-1]})")
     last = max(wanted)
     chosen = [r for r in records if r.cycle <= last]
+    if epoch_ns is None:
+        epoch_ns = _ns(store.run_created(run_id) or 0.0)
+    profile = profile or robot_profile(DEFAULT_PROFILE)
+    profile.joint_names(world)  # a profile that does not fit the world: one line, nothing written
 
     def spatial_of(cycle: int) -> Any:
         state = store.state(run_id, cycle)
@@ -211,7 +306,7 @@ def export_run(store: Any, run_id: str, world: World, out: Any,
     def counted() -> Iterator[BagMessage]:
         nonlocal count
         for m in run_messages(world, chosen, lambda c: store.arrays(run_id, c), spatial_of,
-                              wanted):
+                              wanted, epoch_ns, profile):
             count += 1
             yield m
 

@@ -13,8 +13,11 @@ Profiles (:data:`PROFILES`):
   [-1.6573, 2.1127] is Franka's [-0.0873, 3.8223], its own commented-out line, shifted by
   -pi/2), so ``driver = world + offset`` with offset +pi/2 on joint 6, 0 elsewhere. Limits:
   the Panda (FER) datasheet, positions in Franka's convention.
-- ``franka-fr3``: franka_ros2's ``fr3_joint1..7``, the same joint-6 offset, the FR3 datasheet
-  (its position-independent "rectangular" velocity limits, which are lower than the Panda's).
+- ``franka-fr3``: franka_ros2's ``fr3_joint1..7``, the same joint-6 offset, the FR3 datasheet:
+  its position range, acceleration and jerk, and the velocity limits Franka states for the
+  whole of a smaller "rectangular" box (lower than the Panda's; the FR3's own velocity limits
+  depend on the position). The painting arm's mixing poses bend joint 4 to -2.90 rad, inside
+  the FR3's range (-3.0421) but outside that box (-2.7478), where the arm is nearly still.
 
 Limits are Franka's published control-interface tables (frankaemika/docs,
 ``control-parameters-joint-panda.csv``, ``control-parameters-joint-fr3.csv`` and
@@ -35,11 +38,11 @@ import numpy as np
 from pydantic import Field
 
 from rapidds.errors import RapiddsError
-from rapidds.motion.timing import JointLimits
+from rapidds.motion.timing import JointLimits, TimedTrajectory, parameterize
 from rapidds.settings import Settings
 
 __all__ = ["DEFAULT_PROFILE", "PROFILES", "SPEED_SCALING_TYPE", "ProfileError", "RobotProfile",
-           "profile_names", "robot_limits", "robot_profile"]
+           "profile_names", "robot_limits", "robot_profile", "task_rows"]
 
 SPEED_SCALING_TYPE = "control_msgs/msg/SpeedScalingFactor"
 """The message ros2_control's scaled joint trajectory controller reads its scaling from."""
@@ -144,6 +147,43 @@ class RobotProfile(Settings):
         return JointLimits(**{f: given[f] if f in given else getattr(own, f) for f in fields})
 
 
+    def timed(self, world: Any, task: str, path: np.ndarray) -> TimedTrajectory:
+        """``path`` cut to ``task`` (:func:`task_rows`) and time-parameterized within this
+        profile's limits (:func:`~rapidds.motion.timing.parameterize`); world convention."""
+        limits = self.limits(world)
+        rows = task_rows(world, task, path)
+        out = (rows < limits.lower - 1e-9) | (rows > limits.upper + 1e-9)
+        if out.any():
+            k, j = (int(x[0]) for x in np.nonzero(out))
+            raise ProfileError(
+                f"robot task {task}'s path leaves robot profile '{self.name}''s range of "
+                f"joint {j + 1} at row {k}: {rows[k, j] + self.offset(world)[j]:.4f} not in "
+                f"[{limits.lower[j] + self.offset(world)[j]:.4f}, "
+                f"{limits.upper[j] + self.offset(world)[j]:.4f}] (the driver's convention)")
+        return parameterize(rows, world.dt, limits)
+
+    def trajectory(self, world: Any, timed: TimedTrajectory, stamp_ns: int = 0) -> Any:
+        """The driver's ``trajectory_msgs/msg/JointTrajectory`` of a parameterized trajectory:
+        its names, positions with the offsets, velocities and accelerations at every point;
+        header stamp ``stamp_ns`` (0: "start on arrival" to a joint trajectory controller)."""
+        from rapidds.bridge.ros2 import joint_trajectory
+
+        names, q = self.to_driver(world, timed.positions)
+        return joint_trajectory(names, q, world.dt, stamp_ns=stamp_ns, times=timed.times,
+                                velocities=timed.velocities,
+                                accelerations=timed.accelerations)
+
+
+def task_rows(world: Any, task: str, path: np.ndarray) -> np.ndarray:
+    """The rows of a robot ``path`` that do ``task``: up to the row at which the world counts
+    it complete (its ``completion_time``), at least two; all of them when it never is."""
+    q = np.asarray(path, dtype=float)
+    done = float(world.completion_time(task, q[None])[0])
+    if done >= getattr(world, "penalty", np.inf):
+        return q
+    return q[:max(round(done / world.dt) + 1, 2)]
+
+
 def robot_limits(world: Any) -> JointLimits | None:
     """The world's own robot limits (its optional ``robot_limits``), or None."""
     return getattr(world, "robot_limits", None)
@@ -156,11 +196,12 @@ _PANDA = {"lower": (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.897
           "velocity": (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
           "acceleration": (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
           "jerk": (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0)}
-# FR3 joint limits, frankaemika/docs control-parameters-joint-fr3.csv (acceleration, jerk) and
-# control-parameters-joint-fr3-rectangular.csv (positions and velocities valid everywhere in
-# that box; the full table's velocity limits depend on the position)
-_FR3 = {"lower": (-2.3093, -1.5133, -2.4937, -2.7478, -2.4800, 0.8521, -2.6895),
-        "upper": (2.3093, 1.5133, 2.4937, -0.4461, 2.4800, 4.2094, 2.6895),
+# FR3 joint limits, frankaemika/docs control-parameters-joint-fr3.csv (positions,
+# acceleration, jerk) and control-parameters-joint-fr3-rectangular.csv (velocities: the ones
+# valid everywhere in that table's smaller box; the FR3's own velocity limits depend on the
+# position and shrink near the range's ends)
+_FR3 = {"lower": (-2.7437, -1.7837, -2.9007, -3.0421, -2.8065, 0.5445, -3.0159),
+        "upper": (2.7437, 1.7837, 2.9007, -0.1518, 2.8065, 4.5169, 3.0159),
         "velocity": (2.0, 1.0, 1.5, 1.25, 3.0, 1.5, 3.0),
         "acceleration": (10.0,) * 7,
         "jerk": (5000.0,) * 7}

@@ -119,20 +119,31 @@ def stamp_ns(header: Any) -> int:
 
 
 def joint_trajectory(joint_names: Sequence[str], positions: np.ndarray, dt: float,
-                     stamp_ns: int = 0, frame_id: str = "world") -> Any:
+                     stamp_ns: int = 0, frame_id: str = "world", *,
+                     times: np.ndarray | None = None, velocities: np.ndarray | None = None,
+                     accelerations: np.ndarray | None = None) -> Any:
     """``trajectory_msgs/msg/JointTrajectory``: row k of ``positions`` (H, J) reached at
-    ``k * dt`` after the header stamp (the time the motion is to start)."""
+    ``times[k]`` (default ``k * dt``) after the header stamp (the time the motion is to start),
+    with its ``velocities`` and ``accelerations`` (H, J) when given (a parameterized
+    trajectory, :mod:`rapidds.motion.timing`)."""
     q = np.asarray(positions, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != len(joint_names):
         raise MessageError(f"positions must be (H, {len(joint_names)}), got {q.shape}")
-    if not np.isfinite(q).all():
+    t = np.arange(len(q)) * dt if times is None else np.asarray(times, dtype=float)
+    empty = np.zeros((len(q), 0), dtype=np.float64)
+    v = empty if velocities is None else np.asarray(velocities, dtype=np.float64)
+    a = empty if accelerations is None else np.asarray(accelerations, dtype=np.float64)
+    if t.shape != (len(q),) or any(x.shape[0] != len(q) for x in (v, a)):
+        raise MessageError("times, velocities and accelerations need one row per position")
+    if not (np.isfinite(q).all() and np.isfinite(v).all() and np.isfinite(a).all()
+            and np.isfinite(t).all()):
         raise MessageError("a trajectory with NaN or infinite positions")
     point = _type("trajectory_msgs/msg/JointTrajectoryPoint")
-    empty = np.zeros(0, dtype=np.float64)
     return _type("trajectory_msgs/msg/JointTrajectory")(
         header=_header(stamp_ns, frame_id), joint_names=list(joint_names),
-        points=[point(positions=row.copy(), velocities=empty, accelerations=empty, effort=empty,
-                      time_from_start=_duration(k * dt)) for k, row in enumerate(q)])
+        points=[point(positions=q[k].copy(), velocities=v[k].copy(),
+                      accelerations=a[k].copy(), effort=empty[k].copy(),
+                      time_from_start=_duration(float(t[k]))) for k in range(len(q))])
 
 
 def trajectory_positions(msg: Any) -> tuple[list[str], np.ndarray, np.ndarray]:

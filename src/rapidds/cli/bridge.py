@@ -55,21 +55,32 @@ def export_cmd(
                                               show_default="every stored cycle")] = None,
     run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
                                             "several.")] = None,
+    robot: Annotated[str, typer.Option("--robot", help="Robot profile: the driver's joint "
+                                       "names, offsets, limits and controller topic "
+                                       "(reference, franka-panda, franka-fr3).")
+                     ] = "reference",
+    epoch: Annotated[str | None, typer.Option(
+        help="Bag time of the first exported cycle's start: Unix seconds or ISO 8601 with a "
+        "zone.", show_default="the run's recorded wall-clock start")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Write a stored run's cycles as ROS 2 messages in an MCAP rosbag2 bag: each robot task's
-    JointTrajectory, the schedule, the person's paths and the learned spatial costs."""
-    from rapidds.bridge.export import export_run
+    JointTrajectory (cut to its task, time-parameterized within the robot's limits), the
+    schedule, the person's paths and the learned spatial costs."""
+    from rapidds.bridge.export import export_run, parse_epoch
+    from rapidds.bridge.profiles import robot_profile
     from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
     try:
+        profile = robot_profile(robot)
+        epoch_ns = None if epoch is None else parse_epoch(epoch)
         with RunStore.open_readonly(run_dir / STORE) as store:
             rid = _run_id(store, run)
             cfg = store.run_config(rid) or {}
             world = make_world(cfg["world"], cfg.get("variant"))
             cycles = None if cycle is None else [cycle]
-            path, count = export_run(store, rid, world, out, cycles)
+            path, count = export_run(store, rid, world, out, cycles, epoch_ns, profile)
     except RapiddsError as exc:
         fail(str(exc))
         return
@@ -191,3 +202,58 @@ def observe_cmd(
         observed = ", ".join(f"{t} {d:.2f} s" for t, d in rec.observed.items())
         typer.echo(f"cycle {rec.cycle} recorded in {run_dir / STORE}: makespan "
                    f"{rec.realised.makespan:.2f} s, observed {observed}")
+
+
+@app.command("plan-next")
+def plan_next_cmd(
+    run_dir: Annotated[Path, typer.Argument(help="Folder of the run (its run.sqlite; only "
+                                            "read).")],
+    out: Annotated[Path, typer.Option("--out", help="MCAP file to write the plan to (not "
+                                      "overwritten).")],
+    config: Annotated[Path | None, typer.Option(
+        help="YAML of run settings, to plan the first cycle of a new run in RUN_DIR.")] = None,
+    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
+                                            "several.")] = None,
+    policy: Annotated[Path | None, typer.Option(help="Policy checkpoint.",
+                                                show_default="the world's bundled one")] = None,
+    robot: Annotated[str, typer.Option("--robot", help="Robot profile: the driver's joint "
+                                       "names, offsets, limits and controller topic "
+                                       "(reference, franka-panda, franka-fr3).")
+                     ] = "reference",
+    epoch: Annotated[str | None, typer.Option(
+        help="Bag time of the cycle's start: Unix seconds or ISO 8601 with a zone.",
+        show_default="now")] = None,
+    threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the plan as JSON.")] = False,
+) -> None:
+    """Plan a run's next cycle before it runs, for a cell without the live link: write the
+    plan and the robot's trajectories (cut to their tasks, time-parameterized within the
+    robot's limits) to a bag. Execute it, record the cycle, and give the bag to 'rapidds
+    observe', which plans the same cycle and learns it."""
+    import time
+
+    import torch
+
+    from rapidds.bridge.export import parse_epoch
+    from rapidds.bridge.plan_first import plan_next
+    from rapidds.bridge.profiles import robot_profile
+
+    torch.set_num_threads(threads)
+    log_to_stderr()
+    try:
+        profile = robot_profile(robot)
+        epoch_ns = time.time_ns() if epoch is None else parse_epoch(epoch)
+        cfg = None if config is None else _new_config(config)
+        done = plan_next(run_dir, out, profile, epoch_ns, cfg, run, policy)
+    except RapiddsError as exc:
+        fail(str(exc))
+        return
+    if as_json:
+        typer.echo(json.dumps({"out": str(done.out), "run": done.run_id, "cycle": done.cycle,
+                               "messages": done.messages, "plan": done.payload},
+                              allow_nan=False))
+    else:
+        order = done.payload["order"]
+        typer.echo(f"wrote {done.out}: cycle {done.cycle} of run '{done.run_id}'; person "
+                   f"{', '.join(order['human'])}; robot {', '.join(order['robot'])}; record "
+                   f"it and give the bag to 'rapidds observe {run_dir}'")

@@ -58,6 +58,9 @@ def deploy_cmd(
     startup_timeout: float = typer.Option(60.0, help="Wall seconds to wait for the nodes."),
     cycle_timeout: float = typer.Option(120.0, help="Cell seconds a cycle may take."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    robot: str = typer.Option("reference", "--robot", help="Robot profile: the driver's "
+                              "joint names, offsets and limits (reference, franka-panda, "
+                              "franka-fr3)."),
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
@@ -74,7 +77,9 @@ def deploy_cmd(
         fail("--time-scale and the timeouts must be > 0")
     from rapidds.bridge.cell import CellFault, CellOptions, LinkTeammate, LiveCell, hub_topics
     from rapidds.bridge.link import Link, check_endpoint
+    from rapidds.bridge.profiles import robot_profile
     from rapidds.cli.run import set_threads
+    from rapidds.errors import RapiddsError
     from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
     from rapidds.store import RunStore
     from rapidds.worlds.base import body_point_names
@@ -88,6 +93,11 @@ def deploy_cmd(
                     samples=samples, particles=particles, candidates=candidates,
                     execution=execution)
     w = make_world(cfg.world, cfg.variant)
+    try:
+        profile = robot_profile(robot)
+        profile.limits(w)  # one that does not fit the world: one line before anything starts
+    except RapiddsError as exc:
+        fail(str(exc))
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
     run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
     if run.next_cycle and not resume:
@@ -113,7 +123,7 @@ def deploy_cmd(
 
     with Link(hub_topics(body_point_names(w)), listen=listen) as link:
         try:
-            LiveCell(run, link, options).run_all(on_cycle)
+            LiveCell(run, link, options, profile).run_all(on_cycle)
         except CellFault as exc:
             typer.echo(f"rapidds: error: {exc}", err=True)
             raise typer.Exit(3) from None
@@ -124,6 +134,8 @@ def sim_robot_cmd(
     world: str = typer.Argument(..., help="World whose robot to simulate (painting)."),
     connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
+    robot: str = typer.Option("reference", "--robot", help="Robot profile whose driver it "
+                              "plays: joint names and offsets on the wire."),
     quiet: bool = typer.Option(False, help="Log faults only."),
 ) -> None:
     """The reference robot: runs received joint trajectories in MuJoCo under physics, publishes
@@ -131,6 +143,8 @@ def sim_robot_cmd(
     across restarts, runs until stopped."""
     from rapidds.bridge.link import Link
     from rapidds.bridge.nodes.sim_robot import SimRobot
+    from rapidds.bridge.profiles import robot_profile
+    from rapidds.errors import RapiddsError
     from rapidds.worlds.base import body_point_names
     from rapidds.worlds.registry import make_world
 
@@ -139,8 +153,13 @@ def sim_robot_cmd(
     if getattr(w, "physics_model", None) is None:  # before waiting for the hub
         fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
              "(painting)")
+    try:
+        profile = robot_profile(robot)
+        profile.joint_names(w)
+    except RapiddsError as exc:
+        fail(str(exc))
     with Link(SimRobot.topics(body_point_names(w)), connect=connect) as link:
-        SimRobot(w, link, rate=rate).spin()
+        SimRobot(w, link, rate=rate, profile=profile).spin()
 
 
 @app.command("sim-human")

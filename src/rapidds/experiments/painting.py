@@ -74,7 +74,7 @@ def expectations(world: PaintingWorld, human: str) -> tuple[str, str]:
     passes, and the agent whose true mean brushing is shorter."""
     person = world.teammate(human)
     near = "mix_l" if person.hand == "left" else "mix_r"
-    robot = float(world.completion_time("brush", world.robot_trajectory("brush")[None])[0])
+    robot = world.robot_duration("brush", world.robot_trajectory("brush"))
     return near, faster_brusher(person.true_mean_durations()["brush"], robot)
 
 

@@ -74,7 +74,8 @@ def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
                            problem.objective.gamma,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
-                                          steps=config.steps))
+                                          steps=config.steps),
+                           duration=getattr(world, "robot_duration", None))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,

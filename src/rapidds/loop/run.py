@@ -372,6 +372,7 @@ class AdaptiveRun:
             workspace_cost(self.world, spatial), gamma,
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
+            duration=getattr(self.world, "robot_duration", None),
         )
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))

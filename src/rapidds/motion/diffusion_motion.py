@@ -72,6 +72,7 @@ class DiffusionMotion:
         gamma: float,
         config: SteeringConfig | None = None,
         nominal: Callable[[Problem], np.ndarray] | None = None,
+        duration: Callable[[str, np.ndarray], float] | None = None,
     ):
         self.policy = policy
         self.completion_time = completion_time
@@ -79,6 +80,9 @@ class DiffusionMotion:
         self.gamma = float(gamma)
         self.config = config or SteeringConfig()
         self._nominal = nominal
+        # the chosen trajectory's d_j^r: the arm's time-parameterized time (the world's
+        # robot_duration) where it has one; steering scores the path with completion_time
+        self._duration = duration
         self.calls = 0
         self.rows = 0
 
@@ -124,7 +128,8 @@ class DiffusionMotion:
             vals = result.values[k * b : (k + 1) * b]
             best = k * b + int(np.argmin(vals))
             traj = result.trajectories[best]
-            duration = float(self.completion_time(task, traj[None])[0])
+            duration = (float(self.completion_time(task, traj[None])[0])
+                        if self._duration is None else float(self._duration(task, traj)))
             spatial = float(self.spatial_cost(concurrent, traj[None])[0]) if concurrent else 0.0
             plans.append(MotionPlan(task, concurrent, duration, spatial, traj))
         return plans

@@ -267,7 +267,11 @@ class World(Protocol):
     #   joint_names: tuple[str, ...], the d coordinates of a robot row as its driver names them;
     #   body_point_names: tuple[str, ...], the K body points of a human path, as frame names;
     #   tracking_mapping: Path, the YAML mapping of a tracker's frames to those body points
-    #   (rapidds.bridge.recorded).
+    #   (rapidds.bridge.recorded);
+    #   robot_limits: rapidds.motion.timing.JointLimits, the robot's joint limits (what its
+    #   trajectories are time-parameterized within when they leave rapidds);
+    #   robot_duration(task, traj) -> float: the planner's d_j^r of one (H, d) trajectory when
+    #   it is not ``completion_time`` (the painting arm's: the parameterized time).
 
 
 def joint_names(world: World) -> tuple[str, ...]:

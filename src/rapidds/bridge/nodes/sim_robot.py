@@ -33,6 +33,7 @@ from rapidds.bridge.live import (
     tracking_topic,
 )
 from rapidds.bridge.nodes.arm import PhysicsArm
+from rapidds.bridge.profiles import DEFAULT_PROFILE, RobotProfile, robot_profile
 from rapidds.bridge.ros2 import (
     EVENTS_TOPIC,
     JOINT_STATE_TOPIC,
@@ -67,6 +68,7 @@ class SimRobot:
     world: World
     link: Link
     rate: float = 100.0
+    profile: RobotProfile = field(default_factory=lambda: robot_profile(DEFAULT_PROFILE))
     arm: PhysicsArm = field(init=False)
     plan: LivePlan | None = None
     _tasks: deque[str] = field(default_factory=deque)
@@ -82,7 +84,9 @@ class SimRobot:
         if physics is None:
             raise RapiddsError(f"world {self.world.name} has no physics model; sim-robot runs "
                                "a world that offers one (painting)")
-        self.joints = joint_names(self.world)
+        self.joints = joint_names(self.world)  # the MJCF's; the driver's on the wire:
+        self.driver = self.profile.joint_names(self.world)
+        self.offset = self.profile.offset(self.world)
         self.points = body_point_names(self.world)
         self.arm = PhysicsArm(physics(), self.joints)
         self.arm.reset(np.asarray(self.world.robot_rest(), dtype=float))
@@ -137,14 +141,15 @@ class SimRobot:
 
     def _trajectory(self, msg: Any) -> None:
         names, q, t = trajectory_positions(msg)
-        rows = joint_rows(names, self.joints)
+        rows = joint_rows(names, self.driver)
         if rows is None or not len(t) or not np.isfinite(q).all() or np.any(np.diff(t) < 0):
             log.warning("sim-robot dropped a trajectory: joints %s, %d points", names, len(t))
             return
         if self.plan is None or not self._tasks:
             log.warning("sim-robot dropped a trajectory: no robot task is left in the plan")
             return
-        self._queue.append(_Queued(self._tasks.popleft(), q[:, rows], t, stamp_ns(msg.header)))
+        self._queue.append(_Queued(self._tasks.popleft(), q[:, rows] - self.offset, t,
+                                   stamp_ns(msg.header)))
 
     def _event(self, task: str, kind: str, stamp: int) -> None:
         self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind, stamp)))  # type: ignore[arg-type]
@@ -178,8 +183,8 @@ class SimRobot:
     def tick(self) -> None:
         """One control period, then the joint state."""
         self._control()
-        self.link.publish(JOINT_STATE_TOPIC, joint_state(self.joints, self.arm.q, self.arm.qdot,
-                                                         stamp_ns=time.time_ns()))
+        self.link.publish(JOINT_STATE_TOPIC, joint_state(self.driver, self.arm.q + self.offset,
+                                                         self.arm.qdot, stamp_ns=time.time_ns()))
 
     def spin(self, until: float | None = None) -> None:
         """Run in (scaled) real time: the physics keeps to the cell's clock in control periods

@@ -79,7 +79,7 @@ class NominalMotion:
             self.options[task] = []
             for mode in world.modes(task):
                 traj = world.robot_trajectory(task, mode)
-                d = float(world.completion_time(task, traj[None])[0])
+                d = world.robot_duration(task, traj)
                 self.options[task].append((mode, d, traj))
                 pts = world.robot_points(traj).reshape(1, -1, 3)
                 self._s[task, mode] = {h: float(spatial.cost([h], pts)[0]) for h in spatial}

@@ -198,7 +198,7 @@ class PaintingWorld:
                 d = np.asarray(prior.durations[task], dtype=float)
                 mean, std = round(float(d.mean()), 2), round(float(d.std(ddof=1)), 2)
             if "robot" in allowed:
-                robot = float(self.completion_time(task, self.robot_trajectory(task)[None])[0])
+                robot = self.robot_duration(task, self.robot_trajectory(task))
             tasks.append(Task(id=task, allowed=frozenset(allowed), human_mean=mean,
                               human_std=std, robot_duration=robot,
                               description=_DESCRIPTIONS[task]))
@@ -315,6 +315,20 @@ class PaintingWorld:
         bad = ~self.executable(flat, pts)
         t = np.where(bad, self.penalty + self.horizon * self.dt + SHORTFALL_RATE * short, t)
         return t.reshape(lead).astype(float)
+
+    def robot_duration(self, task: str, traj: np.ndarray) -> float:
+        """The planner's d_j^r of one (H, 7) trajectory: the time the arm takes, within its
+        limits (:attr:`robot_limits`), to follow the path up to the row that completes
+        ``task`` (:func:`rapidds.motion.timing.row_times`); the penalty as
+        :meth:`completion_time` gives it when the path never completes the task."""
+        from rapidds.motion.timing import row_times
+
+        q = np.asarray(traj, dtype=float)
+        done = float(self.completion_time(task, q[None])[0])
+        if done >= self.penalty:
+            return done
+        k = max(round(done / self.dt), 1)
+        return round(float(row_times(q[:k + 1], self.dt, self.robot_limits)[k]), 9)
 
     def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
         """``n_per_mode`` demonstrations of each mode ("direct", "avoidant") of each robot task
