@@ -502,6 +502,7 @@ def test_wrong_demonstration_files_are_named(tmp_path: Path,
         (["--world", "painting", "--demos", str(bad_label)], "'dance' is not a robot task"),
         (["--world", "painting", "--demos", str(no_quat)], "no column 'qx'"),
         (["--world", "painting", "--demos", str(two_hot)], "row 2 is not one-hot"),
+        (["--world", "painting", "--demos", str(text)], "is not demonstrations painting reads"),
     ]
     for args, needle in cases:
         code, _, err = run_main(capsys, "train-policy", *args, "--steps", "1", "--out",

@@ -48,12 +48,19 @@ def _bag_demos(name: str, path: Path, robot: str | None = None,
     from rapidds.bridge.poses import pose_demonstrations
     from rapidds.bridge.recorded import load_mapping, robot_demonstrations
     from rapidds.cli.bridge import log_to_stderr
+    from rapidds.motion.demos import Demonstrations
     from rapidds.worlds.registry import make_world
 
     log_to_stderr()
     world = make_world(name)
-    if path.suffix.lower() == ".csv":
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
         return pose_demonstrations(path, world), dict(world.policy_defaults)
+    if suffix == ".npz":
+        return Demonstrations.load(path), dict(world.policy_defaults)
+    if path.is_file() and suffix not in (".mcap", ".db3", ".bag"):
+        raise RapiddsError(f"{path} is not demonstrations {name} reads: bags (.mcap, .db3, "
+                           "ROS 1 .bag, bag folders), a CSV of end-effector poses, or an .npz")
     maps = None if mapping is None else load_mapping(mapping).check(world)
     return robot_demonstrations(path, world, maps, robot), dict(world.policy_defaults)
 
