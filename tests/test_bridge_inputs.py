@@ -552,3 +552,50 @@ def test_unstamped_and_broken_transforms(tmp_path: Path,
     np.testing.assert_allclose(points, rest[0] + 0.01 * np.arange(10)[:, None], atol=1e-12)
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and "not finite or with a zero quaternion" in lines[0], lines
+
+
+def test_points_stamped_in_a_tf_frame_are_transformed_as_tf2_would(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """PointStamped messages in a moving camera's frame (its transform at 10 Hz, the points at
+    30 Hz between them): each point is taken into the root frame through the camera's
+    transform interpolated at the point's stamp. The camera moves and turns at constant rates,
+    so linear translation and slerp are exact and the answer is known to 1e-9; a point in a
+    frame whose chain stops short of the root is said once and not learned."""
+    def camera(t: float) -> tuple[tuple[float, float, float], float]:
+        return (0.5 + 0.2 * t, -0.3, 1.2 - 0.1 * t), 0.4 * t  # translation, angle about z
+
+    msgs, t0 = [], 100 * S  # stamps on a wall clock (a stamp of 0 means "unstamped")
+    for k in range(31):  # the camera's transform every 0.1 s from 0 to 3 s
+        trans, angle = camera(k / 10)
+        msgs.append(BagMessage("/tf", "tf2_msgs/msg/TFMessage", t0 + k * S // 10 + LATENCY,
+                               _tf([("room", "camera", False,
+                                     lambda t, tr=trans, a=angle: (tr, (0.0, 0.0, 1.0), a))],
+                                   t0 + k * S // 10, False)))
+    msgs.append(BagMessage("/tf", "tf2_msgs/msg/TFMessage", t0,
+                           _tf([("nowhere", "lost", False, lambda t: ((0, 0, 0), (0, 0, 1), 0))],
+                               t0, False)))
+    local = {"/hri/lw": (0.1, 0.2, 0.3), "/hri/rw": (-0.1, 0.2, 0.3),
+             "/hri/le": (0.1, 0.0, 0.5), "/hri/re": (0.0, 0.0, 0.0)}
+    for k in range(1, 85):  # 30 Hz, inside the camera's stamps
+        stamp = t0 + k * S // 30
+        for topic, p in local.items():
+            frame = "lost" if topic == "/hri/re" else "camera"
+            msgs.append(BagMessage(topic, "geometry_msgs/msg/PointStamped", stamp + LATENCY,
+                                   ros2.point_stamped(p, stamp, frame)))
+    bag = write_bag(tmp_path / "cam.mcap", sorted(msgs, key=lambda m: m.time_ns))
+    mapping = TrackingMapping(points={"/hri/lw": "l_wrist", "/hri/rw": "r_wrist",
+                                      "/hri/le": "l_elbow", "/hri/re": "r_elbow"},
+                              root_frame="room")
+    with caplog.at_level(logging.WARNING, logger="rapidds.bridge"):
+        cycle = read_cycle(bag, make_world("painting"), mapping)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "frame 'lost'" in lines[0] and "not learned" in lines[0], lines
+    assert "r_elbow" not in cycle.points
+    for topic, name in (("/hri/lw", "l_wrist"), ("/hri/rw", "r_wrist"), ("/hri/le", "l_elbow")):
+        times, points = cycle.points[name]
+        assert len(times) == 84
+        want = []
+        for t in (times - LATENCY - t0) / S:
+            trans, angle = camera(t)
+            want.append(_axis_angle((0, 0, 1), angle) @ np.array(local[topic]) + trans)
+        np.testing.assert_allclose(points, np.array(want), atol=1e-9)

@@ -188,6 +188,7 @@ class _Reader:
         self.unmapped: set[str] = set()
         self.tf = TfBuffer()
         self.tf_samples: list[tuple[int, str, int]] = []  # receive ns, child frame, stamp ns
+        self.framed: list[tuple[int, ros2.TrackedPoint]] = []  # points in another frame
         self.signals = None if mapping.boundaries is None else SignalReader(mapping.boundaries)
         self.bad_joints = 0
         self.offsets: np.ndarray | None = None  # the driver's joint offsets (robot profile)
@@ -243,11 +244,17 @@ class _Reader:
         return None
 
     def composed(self) -> None:
-        """The mapped TF frames' samples, composed to the root frame (rapidds.bridge.tf)."""
+        """The mapped TF frames' samples, composed to the root frame (rapidds.bridge.tf), and
+        the points stamped in another frame than the root: through TF where that frame's chain
+        reaches the root, as they are (the tracker's frame, the mapping's transform) where the
+        bag has no transform of it."""
         got, lines = tracked_frames(self.tf, self.tf_samples, self.mapping.points,
-                                    self.mapping.root_frame, self.mapping.body_id)
+                                    self.mapping.root_frame, self.mapping.body_id,
+                                    {tp.parent for _, tp in self.framed})
         for line in lines:
             self.drop(line)
+        got += self.framed_points()
+        got.sort(key=lambda g: g[0])
         for recv, source, stamp, p in got:
             name = self.mapping.points[source]
             if not np.isfinite(p).all():
@@ -278,6 +285,9 @@ class _Reader:
             if not np.isfinite(tp.position).all():
                 self.drop(f"{tp.name!r} at {m.time_ns} ns is not finite")
                 continue
+            if tp.parent.lstrip("/") not in ("", self.mapping.root_frame.lstrip("/")):
+                self.framed.append((m.time_ns, tp))  # through TF, once the bag is read
+                continue
             if tp.stamp_ns and tp.stamp_ns < self.stamps.get(name, 0):
                 self.drop(f"{tp.name!r} stamped {tp.stamp_ns} ns, before its previous sample")
                 continue
@@ -286,6 +296,29 @@ class _Reader:
                 (m.time_ns, self.mapping.to_world(tp.name, tp.position,
                                                   self.world.workspace_dim)))
         return None
+
+    def framed_points(self) -> list[tuple[int, str, int, np.ndarray]]:
+        """(receive ns, source, stamp ns, position) of the points in another frame."""
+        by_frame: dict[str, list[tuple[int, ros2.TrackedPoint]]] = defaultdict(list)
+        for recv, tp in self.framed:
+            by_frame[tp.parent.lstrip("/")].append((recv, tp))
+        out = []
+        for frame, rows in by_frame.items():
+            local = np.stack([tp.position for _, tp in rows])
+            ok = np.ones(len(rows), bool)
+            if frame in self.tf.links:
+                if (gap := self.tf.chain(frame, self.mapping.root_frame)[1]) is not None:
+                    self.drop(f"points in frame {frame!r}: its TF chain stops at {gap!r}, not "
+                              f"the root frame {self.mapping.root_frame!r}; not learned")
+                    continue
+                stamps = np.array([tp.stamp_ns or r for r, tp in rows], np.int64)
+                local, ok = self.tf.positions(frame, self.mapping.root_frame, stamps, local)
+                if not ok.all():
+                    self.drop(f"points in frame {frame!r}: {int((~ok).sum())} stamped outside "
+                              "the transforms of its chain (tf2 does not extrapolate)")
+            out += [(r, tp.name, tp.stamp_ns, p)
+                    for (r, tp), p, good in zip(rows, local, ok, strict=True) if good]
+        return out
 
     def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
         """A robot joint state, in the world's order and convention (world = driver -

@@ -128,16 +128,17 @@ class TfBuffer:
             f = self.links[f].parent
         return walked, None
 
-    def positions(self, frame: str, root: str, stamps_ns: np.ndarray) -> tuple[np.ndarray,
-                                                                               np.ndarray]:
-        """(positions (n, 3) of ``frame``'s origin in ``root``, valid (n,) bool) at the stamps;
-        a sample is invalid where a link of the chain cannot be looked up (extrapolation).
-        ValueError when the chain does not reach ``root``."""
+    def positions(self, frame: str, root: str, stamps_ns: np.ndarray,
+                  local: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (n, 3) in ``root`` of ``frame``'s origin, or of the points ``local``
+        (n, 3) given in ``frame``, valid (n,) bool) at the stamps; a sample is invalid where a
+        link of the chain cannot be looked up (extrapolation). ValueError when the chain does
+        not reach ``root``."""
         links, broken = self.chain(frame, root)
         if broken is not None:
             raise ValueError(broken)
         times = np.asarray(stamps_ns, np.int64)
-        p = np.zeros((len(times), 3))
+        p = np.zeros((len(times), 3)) if local is None else np.asarray(local, float).copy()
         valid = np.ones(len(times), bool)
         for f in links:  # leaf first: p_parent = R p_child + t
             t, rot, ok = self.links[f].at(times)
@@ -185,17 +186,19 @@ def _resolve(buffer: TfBuffer, keys: Iterable[str],
 
 def tracked_frames(buffer: TfBuffer, samples: Iterable[tuple[int, str, int]],
                    keys: Iterable[str], root: str, body_id: str | None = None,
+                   frames: Iterable[str] = (),
                    ) -> tuple[list[tuple[int, str, int, np.ndarray]], list[str]]:
     """The mapped frames' positions in ``root``: for each (receive ns, frame, stamp ns) of
     ``samples`` whose frame a mapping key names, (receive ns, key, stamp ns, position (3,)),
     in the order given; and one line per thing dropped: a mapped frame whose chain does not
     reach ``root`` (not learned at all), samples a chain cannot be looked up at, a frame that
-    changed parent, a frame neither mapped nor on a mapped frame's chain."""
+    changed parent, a frame neither mapped nor on a mapped frame's chain (nor on the chain of
+    ``frames``, those other tracked messages are stamped in)."""
     sources, bodies, lines = _resolve(buffer, keys, body_id)
     rows: dict[str, list[tuple[int, int]]] = {}
     for recv, frame, stamp in samples:
         rows.setdefault(frame.lstrip("/"), []).append((recv, stamp))
-    needed: set[str] = set()
+    needed: set[str] = {f for frame in frames for f in buffer.chain(frame, root)[0]}
     driver: dict[str, str] = {}  # mapped frame -> the frame whose samples time it
     for frame in sources:
         if frame not in buffer.links:
