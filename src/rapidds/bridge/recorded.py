@@ -268,6 +268,29 @@ class _Reader:
         for rows in self.samples.values():  # TF and other sources of one point, in time order
             rows.sort(key=lambda r: r[0])
 
+    def framed_points(self) -> list[tuple[int, str, int, np.ndarray]]:
+        """(receive ns, source, stamp ns, position) of the points in another frame."""
+        by_frame: dict[str, list[tuple[int, ros2.TrackedPoint]]] = defaultdict(list)
+        for recv, tp in self.framed:
+            by_frame[tp.parent.lstrip("/")].append((recv, tp))
+        out = []
+        for frame, rows in by_frame.items():
+            local = np.stack([tp.position for _, tp in rows])
+            ok = np.ones(len(rows), bool)
+            if frame in self.tf.links:
+                if (gap := self.tf.chain(frame, self.mapping.root_frame)[1]) is not None:
+                    self.drop(f"points in frame {frame!r}: its TF chain stops at {gap!r}, not "
+                              f"the root frame {self.mapping.root_frame!r}; not learned")
+                    continue
+                stamps = np.array([tp.stamp_ns or r for r, tp in rows], np.int64)
+                local, ok = self.tf.positions(frame, self.mapping.root_frame, stamps, local)
+                if not ok.all():
+                    self.drop(f"points in frame {frame!r}: {int((~ok).sum())} stamped outside "
+                              "the transforms of its chain (tf2 does not extrapolate)")
+            out += [(r, tp.name, tp.stamp_ns, p)
+                    for (r, tp), p, good in zip(rows, local, ok, strict=True) if good]
+        return out
+
     def tracking(self, m: BagMessage) -> None:
         if m.msgtype == "tf2_msgs/msg/TFMessage":
             return self.transforms(m)
@@ -296,29 +319,6 @@ class _Reader:
                 (m.time_ns, self.mapping.to_world(tp.name, tp.position,
                                                   self.world.workspace_dim)))
         return None
-
-    def framed_points(self) -> list[tuple[int, str, int, np.ndarray]]:
-        """(receive ns, source, stamp ns, position) of the points in another frame."""
-        by_frame: dict[str, list[tuple[int, ros2.TrackedPoint]]] = defaultdict(list)
-        for recv, tp in self.framed:
-            by_frame[tp.parent.lstrip("/")].append((recv, tp))
-        out = []
-        for frame, rows in by_frame.items():
-            local = np.stack([tp.position for _, tp in rows])
-            ok = np.ones(len(rows), bool)
-            if frame in self.tf.links:
-                if (gap := self.tf.chain(frame, self.mapping.root_frame)[1]) is not None:
-                    self.drop(f"points in frame {frame!r}: its TF chain stops at {gap!r}, not "
-                              f"the root frame {self.mapping.root_frame!r}; not learned")
-                    continue
-                stamps = np.array([tp.stamp_ns or r for r, tp in rows], np.int64)
-                local, ok = self.tf.positions(frame, self.mapping.root_frame, stamps, local)
-                if not ok.all():
-                    self.drop(f"points in frame {frame!r}: {int((~ok).sum())} stamped outside "
-                              "the transforms of its chain (tf2 does not extrapolate)")
-            out += [(r, tp.name, tp.stamp_ns, p)
-                    for (r, tp), p, good in zip(rows, local, ok, strict=True) if good]
-        return out
 
     def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
         """A robot joint state, in the world's order and convention (world = driver -
