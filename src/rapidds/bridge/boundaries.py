@@ -24,7 +24,6 @@ time (the recorder's clock, the one tracking is timed by).
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
@@ -33,8 +32,6 @@ from pydantic import Field, model_validator
 from rapidds.settings import Settings
 
 __all__ = ["BoundaryRule", "BoundaryRules", "SignalReader"]
-
-log = logging.getLogger("rapidds.bridge")
 
 Agent = Literal["human", "robot"]
 Scalar = bool | int | float | str
