@@ -63,7 +63,8 @@ class _Link:
         lo = hi - 1
         w = ((q - s[lo]) / (s[hi] - s[lo]))[:, None]
         t = (1 - w) * trans[lo] + w * trans[hi]
-        rot = Slerp(s.astype(float), Rotation.from_quat(quats))(q.astype(float))
+        # times from the first stamp: wall-clock ns lose precision as floats
+        rot = Slerp((s - s[0]).astype(float), Rotation.from_quat(quats))((q - s[0]).astype(float))
         return t, rot, valid
 
 
