@@ -1,5 +1,9 @@
 """rosbag2 bags through ``rosbags``: write MCAP (what ``ros2 bag`` and Foxglove open), read MCAP
-or SQLite (a bag folder with ``metadata.yaml``, or a bare ``.mcap`` / ``.db3`` file).
+or SQLite (a bag folder with ``metadata.yaml``, or a bare ``.mcap`` / ``.db3`` file), and ROS 1
+bags (``.bag``, as franka_ros labs record), whose messages come decoded by the message
+definitions the bag carries (ROS 1 names its types ``pkg/Type``; rosbags gives them as
+``pkg/msg/Type``, the ROS 2 spelling the rest of rapidds matches on; a ROS 1 header has a
+``seq`` more, which nothing here reads).
 
 Reading never stops at a bad message: one that does not decode, or whose type rapidds does not
 know, is logged in one line and dropped, and the rest of the bag is read.
@@ -80,6 +84,9 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[
 
     path = Path(path)
     wanted = None if topics is None else set(topics)
+    if path.suffix == ".bag" and path.is_file():
+        yield from _read_ros1(path, wanted)
+        return
     try:
         reader = Reader(path)
         reader.open()
@@ -100,6 +107,30 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[
                 msg = deserialize(raw, conn.msgtype)
             except MessageError as exc:
                 log.warning("%s: %s at %d ns: %s; dropped", path, conn.topic, t, exc)
+                continue
+            yield BagMessage(conn.topic, conn.msgtype, int(t), msg)
+    finally:
+        reader.close()
+
+
+def _read_ros1(path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
+    """The messages of a ROS 1 bag (:func:`read_bag`'s contract)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS1_NOETIC))
+        reader.open()
+    except Exception as exc:  # rosbags' own errors, OSError, a file that is no bag
+        raise RapiddsError(f"{path}: not a readable ROS 1 bag ({exc})") from None
+    try:
+        conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        for conn, t, raw in reader.messages(connections=conns) if conns else ():
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:  # a definition rosbags cannot use, truncated data
+                log.warning("%s: %s at %d ns: not a %s (%s); dropped", path, conn.topic, t,
+                            conn.msgtype, exc)
                 continue
             yield BagMessage(conn.topic, conn.msgtype, int(t), msg)
     finally:

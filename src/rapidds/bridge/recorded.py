@@ -4,7 +4,12 @@
   bag's receive time.
 - Tracked points (PointStamped, PoseStamped, PoseArray, TFMessage) mapped to the world's body
   points by a :class:`TrackingMapping` (YAML), with a rigid transform into the world frame;
-  timed by receive time too, so events and tracking share one clock (the recorder's).
+  timed by receive time too, so events and tracking share one clock (the recorder's). TF
+  frames (``/tf``, ``/tf_static``) are composed up to the mapping's ``root_frame`` as tf2 does
+  (:mod:`rapidds.bridge.tf`) before that transform; a ROS4HRI skeleton's frames are named with
+  ``{body}`` for the body id (the mapping's ``body_id``, else the first ``body_<id>`` seen).
+- Or task boundaries from the cell's own signals, by the mapping's ``boundaries`` rules
+  (:mod:`rapidds.bridge.boundaries`).
 - The robot's ``sensor_msgs/JointState`` on ``/rapidds/robot/joint_states`` (demonstrations).
 - "Too close" signals of the person on ``/rapidds/human/too_close`` (``std_msgs/Empty`` or
   ``String``), timed by receive time and taken relative to the cycle's first task start (the
@@ -33,6 +38,8 @@ from pydantic import Field, field_validator
 
 from rapidds.bridge import ros2
 from rapidds.bridge.bag import BagMessage, read_bag
+from rapidds.bridge.boundaries import BoundaryRules, SignalReader
+from rapidds.bridge.tf import TfBuffer, tracked_frames
 from rapidds.errors import ConfigError, RapiddsError
 from rapidds.settings import Settings, read_yaml
 from rapidds.worlds.base import HumanExecution, World, body_point_names
@@ -44,6 +51,7 @@ __all__ = [
     "RigidTransform",
     "TrackingMapping",
     "bag_paths",
+    "bind_plan",
     "default_mapping",
     "human_executions",
     "load_mapping",
@@ -87,11 +95,18 @@ class RigidTransform(Settings):
 
 class TrackingMapping(Settings):
     """Which tracked source is which body point (source: a TF child frame, a topic, or
-    ``TOPIC/i`` for a PoseArray's i-th pose), and how the tracker's frame sits in the world."""
+    ``TOPIC/i`` for a PoseArray's i-th pose), and how the tracker's frame sits in the world.
+
+    root_frame: TF frames are composed up to this frame, then ``transform`` takes them into
+    the world. body_id: the ROS4HRI body whose frames fill ``{body}`` in the sources (None:
+    the first tracked). boundaries: task boundaries from the cell's own signals."""
 
     points: Annotated[dict[str, str], Field(min_length=1)]
     transform: RigidTransform = RigidTransform()
     transforms: dict[str, RigidTransform] = Field(default_factory=dict)
+    root_frame: Annotated[str, Field(min_length=1)] = "world"
+    body_id: Annotated[str, Field(min_length=1)] | None = None
+    boundaries: BoundaryRules | None = None
 
     def check(self, world: World) -> TrackingMapping:
         """This mapping, if it names only and every body point of ``world``; ConfigError else."""
@@ -104,6 +119,9 @@ class TrackingMapping(Settings):
                               f"{world.name}")
         if stray := sorted(set(self.transforms) - set(self.points)):
             raise ConfigError(f"mapping: a transform for {stray[0]!r}, which is not a source")
+        if self.boundaries is not None and (bad := self.boundaries.check(world.task_ids)):
+            raise ConfigError(f"mapping: boundaries.order names {bad!r}, not a task of "
+                              f"{world.name}")
         return self
 
     def to_world(self, source: str, p: np.ndarray, dim: int) -> np.ndarray:
@@ -137,6 +155,7 @@ class RecordedCycle:
     tasks: dict[str, tuple[str, int, int]] = field(default_factory=dict)
     points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     joints: tuple[np.ndarray, np.ndarray] | None = None
+    signals: list[BagMessage] = field(default_factory=list)  # for rules awaiting the plan
     too_close: list[int] = field(default_factory=list)  # receive times, ns
     dropped: int = 0
     implausible: dict[str, np.ndarray] = field(default_factory=dict)  # dropped samples' ns
@@ -169,6 +188,12 @@ class _Reader:
         self.stamps: dict[str, int] = {}
         self.joint_rows: list[tuple[int, np.ndarray]] = []
         self.unmapped: set[str] = set()
+        self.tf = TfBuffer()
+        self.tf_samples: list[tuple[int, str, int]] = []  # receive ns, child frame, stamp ns
+        self.framed: list[tuple[int, ros2.TrackedPoint]] = []  # points in another frame
+        self.signals = None if mapping.boundaries is None else SignalReader(mapping.boundaries)
+        self.bad_joints = 0
+        self.offsets: np.ndarray | None = None  # the driver's joint offsets (robot profile)
 
     def drop(self, what: str) -> None:
         log.warning("%s: %s; dropped", self.where, what)
@@ -181,19 +206,96 @@ class _Reader:
             return self.drop(f"event at {m.time_ns} ns: {exc}")
         if ev.task not in self.world.task_ids:
             return self.drop(f"event of unknown task {ev.task!r}")
+        return self.task_event(ev, m.time_ns)
+
+    def signal(self, m: BagMessage) -> None:
+        """A message a boundary rule may fire on (module docstring)."""
+        assert self.signals is not None
+        for got in self.signals.feed(m.topic, m.msg, m.time_ns):
+            if isinstance(got, str):
+                self.drop(got)
+            else:
+                self.task_event(ros2.Event(*got), m.time_ns)  # type: ignore[arg-type]
+
+    def task_event(self, ev: ros2.Event, time_ns: int) -> None:
         if ev.event == "start":
             if ev.task in self.started or ev.task in self.out.tasks:
                 return self.drop(f"second start of task {ev.task!r}")
-            self.started[ev.task] = (ev.agent, m.time_ns)
+            self.started[ev.task] = (ev.agent, time_ns)
             return None
         agent, start = self.started.get(ev.task, (None, None))
         if start is None or agent != ev.agent:
             return self.drop(f"end of task {ev.task!r} ({ev.agent}) before its start")
         del self.started[ev.task]
-        self.out.tasks[ev.task] = (ev.agent, start, m.time_ns)
+        self.out.tasks[ev.task] = (ev.agent, start, time_ns)
         return None
 
+    def transforms(self, m: BagMessage) -> None:
+        """A TFMessage: every transform into the buffer; a dynamic one is also a sample of
+        its child frame, composed at its stamp when the bag has been read (tf2's rule)."""
+        static = m.topic.rstrip("/").endswith("tf_static")
+        try:
+            kept = self.tf.add_message(m.msg, static, unstamped=m.time_ns)
+        except AttributeError as exc:
+            return self.drop(f"{m.topic}: {exc}")
+        if len(kept) < len(m.msg.transforms):
+            self.drop(f"{m.topic} at {m.time_ns} ns: {len(m.msg.transforms) - len(kept)} "
+                      "transform(s) not finite or with a zero quaternion")
+        if not static:
+            self.tf_samples += [(m.time_ns, child, stamp) for child, stamp in kept]
+        return None
+
+    def composed(self) -> None:
+        """The mapped TF frames' samples, composed to the root frame (rapidds.bridge.tf), and
+        the points stamped in another frame than the root: through TF where that frame's chain
+        reaches the root, as they are (the tracker's frame, the mapping's transform) where the
+        bag has no transform of it."""
+        got, lines = tracked_frames(self.tf, self.tf_samples, self.mapping.points,
+                                    self.mapping.root_frame, self.mapping.body_id,
+                                    {tp.parent for _, tp in self.framed})
+        for line in lines:
+            self.drop(line)
+        got += self.framed_points()
+        got.sort(key=lambda g: g[0])
+        for recv, source, stamp, p in got:
+            name = self.mapping.points[source]
+            if not np.isfinite(p).all():
+                self.drop(f"{source!r} at {recv} ns is not finite")
+            elif stamp and stamp < self.stamps.get(name, 0):
+                self.drop(f"{source!r} stamped {stamp} ns, before its previous sample")
+            else:
+                self.stamps[name] = max(stamp, self.stamps.get(name, 0))
+                self.samples[name].append(
+                    (recv, self.mapping.to_world(source, p, self.world.workspace_dim)))
+        for rows in self.samples.values():  # TF and other sources of one point, in time order
+            rows.sort(key=lambda r: r[0])
+
+    def framed_points(self) -> list[tuple[int, str, int, np.ndarray]]:
+        """(receive ns, source, stamp ns, position) of the points in another frame."""
+        by_frame: dict[str, list[tuple[int, ros2.TrackedPoint]]] = defaultdict(list)
+        for recv, tp in self.framed:
+            by_frame[tp.parent.lstrip("/")].append((recv, tp))
+        out = []
+        for frame, rows in by_frame.items():
+            local = np.stack([tp.position for _, tp in rows])
+            ok = np.ones(len(rows), bool)
+            if frame in self.tf.links:
+                if (gap := self.tf.chain(frame, self.mapping.root_frame)[1]) is not None:
+                    self.drop(f"points in frame {frame!r}: its TF chain stops at {gap!r}, not "
+                              f"the root frame {self.mapping.root_frame!r}; not learned")
+                    continue
+                stamps = np.array([tp.stamp_ns or r for r, tp in rows], np.int64)
+                local, ok = self.tf.positions(frame, self.mapping.root_frame, stamps, local)
+                if not ok.all():
+                    self.drop(f"points in frame {frame!r}: {int((~ok).sum())} stamped outside "
+                              "the transforms of its chain (tf2 does not extrapolate)")
+            out += [(r, tp.name, tp.stamp_ns, p)
+                    for (r, tp), p, good in zip(rows, local, ok, strict=True) if good]
+        return out
+
     def tracking(self, m: BagMessage) -> None:
+        if m.msgtype == "tf2_msgs/msg/TFMessage":
+            return self.transforms(m)
         try:
             points = list(ros2.tracked_points(m.msg, m.topic))
         except (ros2.MessageError, AttributeError) as exc:
@@ -207,6 +309,9 @@ class _Reader:
                 continue
             if not np.isfinite(tp.position).all():
                 self.drop(f"{tp.name!r} at {m.time_ns} ns is not finite")
+                continue
+            if tp.parent.lstrip("/") not in ("", self.mapping.root_frame.lstrip("/")):
+                self.framed.append((m.time_ns, tp))  # through TF, once the bag is read
                 continue
             if tp.stamp_ns and tp.stamp_ns < self.stamps.get(name, 0):
                 self.drop(f"{tp.name!r} stamped {tp.stamp_ns} ns, before its previous sample")
@@ -230,16 +335,24 @@ class _Reader:
         return times[keep], pos[keep]
 
     def joint_state(self, m: BagMessage, names: Sequence[str]) -> None:
+        """A robot joint state, in the world's order and convention (world = driver -
+        ``self.offsets``, the robot profile's); one line for the first that lacks the joints,
+        a count after."""
         got = list(m.msg.name)
         pos = np.asarray(m.msg.position, float)
         if set(names) - set(got) or len(pos) != len(got) or not np.isfinite(pos).all():
-            return self.drop(f"joint state at {m.time_ns} ns lacks the robot's joints "
-                             f"{', '.join(names)} or is not finite")
+            self.bad_joints += 1
+            if self.bad_joints == 1:
+                self.drop(f"joint state at {m.time_ns} ns names {', '.join(got) or 'nothing'}"
+                          f" ({len(pos)} positions): not the robot's joints "
+                          f"{', '.join(names)}, or not finite")
+            return None
         row = pos[[got.index(n) for n in names]]
-        self.joint_rows.append((m.time_ns, row))
+        self.joint_rows.append((m.time_ns, row if self.offsets is None else row - self.offsets))
         return None
 
     def finish(self) -> RecordedCycle:
+        self.composed()
         for task in self.started:
             self.drop(f"task {task!r} started but never ended")
         for name, rows in self.samples.items():
@@ -249,17 +362,30 @@ class _Reader:
         if self.joint_rows:
             self.out.joints = (np.array([t for t, _ in self.joint_rows], dtype=np.int64),
                                np.stack([r for _, r in self.joint_rows]))
+        if self.bad_joints > 1:
+            self.drop(f"{self.bad_joints - 1} more joint states like it")
         return self.out
 
 
 def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None = None,
-               joints: Sequence[str] | None = None) -> RecordedCycle:
-    """Events, tracked body points and (given the robot's ``joints``) joint states of the bag
-    at ``path`` (module docstring)."""
+               joints: Sequence[str] | None = None,
+               offsets: Sequence[float] | None = None) -> RecordedCycle:
+    """Events, tracked body points and (given the robot's ``joints``, as its driver names
+    them, and the driver's ``offsets`` from the world's positions) joint states of the bag at
+    ``path`` (module docstring)."""
     mapping = (mapping or default_mapping(world)).check(world)
     reader = _Reader(world, mapping, str(path))
+    reader.offsets = None if offsets is None else np.asarray(offsets, float)
+    rules = mapping.boundaries
+    signals = set() if rules is None else rules.topics()
+    waiting = set() if rules is None else {"/" + r.topic.lstrip("/") for r in rules.rules
+                                           if r.agent in rules.unordered()}
     # one clock: the bag's receive times, in order (a bag of several files may interleave)
     for m in sorted(read_bag(path), key=lambda m: m.time_ns):
+        if "/" + m.topic.lstrip("/") in signals:
+            reader.signal(m)
+            if "/" + m.topic.lstrip("/") in waiting:
+                reader.out.signals.append(m)
         if m.topic == ros2.EVENTS_TOPIC and m.msgtype == "std_msgs/msg/String":
             reader.event(m)
         elif m.topic == ros2.TOO_CLOSE_TOPIC and m.msgtype in _SIGNALS:
@@ -269,6 +395,27 @@ def read_cycle(path: str | Path, world: World, mapping: TrackingMapping | None =
         elif joints is not None and m.msgtype == "sensor_msgs/msg/JointState":
             reader.joint_state(m, joints)
     return reader.finish()
+
+
+def bind_plan(cycle: RecordedCycle, world: World, mapping: TrackingMapping,
+              order: Mapping[str, Sequence[str]]) -> RecordedCycle:
+    """``cycle`` with the task events of the mapping's boundary rules that waited for an order
+    (an agent without ``boundaries.order``), bound to ``order`` (agent -> its tasks in the
+    cycle's plan); the cycle itself when none waited."""
+    rules = mapping.boundaries
+    if rules is None or not rules.unordered():
+        return cycle
+    bound = rules.ordered({a: tuple(ts) for a, ts in order.items()})
+    reader = _Reader(world, mapping, "the plan's order")
+    reader.signals = SignalReader(bound, rules.unordered())
+    reader.out = RecordedCycle(tasks=dict(cycle.tasks), points=cycle.points,
+                               joints=cycle.joints, too_close=cycle.too_close,
+                               dropped=cycle.dropped)
+    for m in cycle.signals:
+        reader.signal(m)
+    for task in reader.started:
+        reader.drop(f"task {task!r} started but never ended")
+    return reader.out
 
 
 def resample(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
@@ -368,7 +515,7 @@ class RecordedTeammate:
 
 
 def bag_paths(path: str | Path) -> list[Path]:
-    """The bags at ``path``: itself (an .mcap or .db3 file, or a bag folder with
+    """The bags at ``path``: itself (an .mcap, .db3 or ROS 1 .bag file, or a bag folder with
     ``metadata.yaml``), or the bags directly inside a folder of them, by name."""
     path = Path(path)
     if path.is_file() or (path / "metadata.yaml").is_file():
@@ -376,28 +523,62 @@ def bag_paths(path: str | Path) -> list[Path]:
     if not path.is_dir():
         raise RapiddsError(f"{path}: no such bag or folder of bags")
     found = sorted(p for p in path.iterdir()
-                   if (p.is_file() and p.suffix in (".mcap", ".db3"))
+                   if (p.is_file() and p.suffix in (".mcap", ".db3", ".bag"))
                    or (p / "metadata.yaml").is_file())
     if not found:
-        raise RapiddsError(f"{path}: no rosbag2 bag in it (.mcap, .db3 or bag folders)")
+        raise RapiddsError(f"{path}: no bag in it (.mcap, .db3, bag folders, or ROS 1 .bag)")
     return found
 
 
-def robot_demonstrations(path: str | Path, world: World) -> Any:
+def _driver_joints(bags: Sequence[Path], world: World,
+                   robot: str | None) -> tuple[tuple[str, ...], np.ndarray]:
+    """The driver's joint names and offsets: robot profile ``robot``'s, else those of the first
+    profile (``reference`` first) whose names the bags' first joint state carries; one line
+    naming what came and what was expected when it does not carry them."""
+    from rapidds.bridge.profiles import PROFILES, ProfileError, robot_profile
+
+    first = next(((b, list(m.msg.name)) for b in bags for m in read_bag(b)
+                  if m.msgtype == "sensor_msgs/msg/JointState"), None)
+    fitting = []
+    for profile in [robot_profile(robot)] if robot is not None else PROFILES.values():
+        try:
+            names = profile.joint_names(world)
+        except ProfileError:  # a profile of another robot
+            if robot is not None:
+                raise
+            continue
+        fitting.append((profile.name, names, profile.offset(world)))
+        if first is None or set(names) <= set(first[1]):
+            return names, profile.offset(world)
+    assert first is not None and fitting  # "reference" fits every world
+    expected = "; ".join(f"{n}: {', '.join(names)}" for n, names, _ in fitting)
+    raise ProfileError(f"{first[0]}: its joint states name {', '.join(first[1]) or 'nothing'}; "
+                       f"no robot profile{' ' + repr(robot) if robot else ''} of world "
+                       f"{world.name} fits ({expected})")
+
+
+def robot_demonstrations(path: str | Path, world: World, mapping: TrackingMapping | None = None,
+                         robot: str | None = None) -> Any:
     """:class:`~rapidds.motion.demos.Demonstrations` of the robot from recorded bags: its
-    ``sensor_msgs/JointState`` (the world's joint names, any order, extra joints ignored) cut
-    into tasks by the robot's task events and sampled at the world's dt from each task's start,
+    ``sensor_msgs/JointState`` (named as robot profile ``robot`` names them, else as the first
+    profile that fits the bag; any order, extra joints such as fingers ignored; shifted into
+    the world's convention by the profile's offsets) cut into tasks by the robot's task events
+    (or the ``mapping``'s boundary rules) and sampled at the world's dt from each task's start,
     held at the last pose to the world's horizon (the demonstrations' convention: a motion
     that finishes early stops moving). A task longer than the horizon is dropped."""
     from rapidds.motion.demos import Demonstrations
-    from rapidds.worlds.base import joint_names
 
-    names = joint_names(world)
+    if mapping is not None and mapping.boundaries is not None \
+            and "robot" in mapping.boundaries.unordered():
+        raise ConfigError("mapping: boundaries.order.robot is needed to cut demonstrations "
+                          "(there is no plan to take the robot's order from)")
+    bags = bag_paths(path)
+    names, offsets = _driver_joints(bags, world, robot)
     tasks = [t.id for t in world.problem().tasks if "robot" in t.allowed]
     dt, horizon = world.dt, world.horizon
     rows, index = [], []
-    for bag in bag_paths(path):
-        cycle = read_cycle(bag, world, joints=names)
+    for bag in bags:
+        cycle = read_cycle(bag, world, mapping, joints=names, offsets=offsets)
         for task, (agent, start, end) in cycle.tasks.items():
             if agent != "robot":
                 continue
@@ -417,7 +598,8 @@ def robot_demonstrations(path: str | Path, world: World) -> Any:
             index.append(tasks.index(task))
     if not rows:
         raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "
-                           "and end events on /rapidds/events, sensor_msgs/JointState)")
+                           "and end events on /rapidds/events or by the mapping's boundaries, "
+                           f"sensor_msgs/JointState naming {', '.join(names)})")
     if missing := [t for k, t in enumerate(tasks) if k not in index]:
         log.warning("no demonstration of robot task(s) %s: the policy will not know them",
                     ", ".join(missing))

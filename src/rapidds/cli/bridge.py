@@ -102,11 +102,12 @@ def _new_config(config: Path) -> Any:
 
 def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
                   run_id: str | None, policy: Path | None,
-                  comfort: int | None = None) -> CycleRecord:
+                  comfort: int | None = None, body_id: str | None = None) -> CycleRecord:
     """Plan the run's next cycle, realise it with what the bag recorded (and the person's
     ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
         RecordedTeammate,
+        bind_plan,
         default_mapping,
         load_mapping,
         observed_for,
@@ -134,17 +135,22 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
         raise RapiddsError(f"{run_dir} holds run(s) {', '.join(ids)}, not '{rid}' of --config; "
                            "observe into another folder")
     maps = default_mapping(world) if mapping is None else load_mapping(mapping).check(world)
+    if body_id is not None:
+        maps = maps.replace(body_id=body_id)
     recorded = read_cycle(bag, world, maps)
-    if not any(agent == "human" for agent, _, _ in recorded.tasks.values()):
+    waiting = set() if maps.boundaries is None else maps.boundaries.unordered()
+    if "human" not in waiting and not any(a == "human" for a, _, _ in recorded.tasks.values()):
         raise RapiddsError(f"{bag}: no complete human task (start and end events on "
-                           "/rapidds/events) to learn from")
+                           "/rapidds/events, or by the mapping's boundaries) to learn from")
     # the store is written only now, with a usable bag in hand
     with RunStore(path, lock_as="rapidds observe") as store:
         run = AdaptiveRun(cfg, load_policy(world, policy), store, world,
                           teammate=RecordedTeammate({}, answer=comfort,
                                                     too_close=tuple(recorded.too_close_times())))
         plan = run.plan()
-        observed = observed_for(recorded, world, plan.best.schedule.tasks("human"))
+        schedule = plan.best.schedule
+        recorded = bind_plan(recorded, world, maps, {a: schedule.tasks(a) for a in waiting})
+        observed = observed_for(recorded, world, schedule.tasks("human"))
         dep = run.execute(plan, observed=observed)
         run.learn(plan, dep)
         return run.record(plan, dep)
@@ -154,11 +160,15 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
 def observe_cmd(
     run_dir: Annotated[Path, typer.Argument(help="Folder of the run (its run.sqlite); the "
                                             "bag becomes its next cycle.")],
-    bag: Annotated[Path, typer.Option("--bag", help="rosbag2 bag of one cycle: a folder, or an "
-                                      ".mcap or .db3 file.")],
+    bag: Annotated[Path, typer.Option("--bag", help="Bag of one cycle: a rosbag2 folder, an "
+                                      ".mcap or .db3 file, or a ROS 1 .bag.")],
     mapping: Annotated[Path | None, typer.Option(
-        help="YAML: tracked frames or topics -> the world's body points, and the tracker's "
-        "transform into the world frame.", show_default="the world's")] = None,
+        help="YAML: tracked frames or topics -> the world's body points, the TF root frame and "
+        "its transform into the world frame, task boundary rules.", show_default="the world's")
+    ] = None,
+    body_id: Annotated[str | None, typer.Option(
+        "--body-id", help="The ROS4HRI body whose frames fill {body} in the mapping.",
+        show_default="the mapping's, else the first tracked")] = None,
     config: Annotated[Path | None, typer.Option(
         help="YAML of run settings (world, cycles, seed, ...) to start a new run in RUN_DIR.")
     ] = None,
@@ -182,7 +192,7 @@ def observe_cmd(
     torch.set_num_threads(threads)
     log_to_stderr()
     try:
-        rec = observe_cycle(run_dir, bag, mapping, config, run, policy, comfort)
+        rec = observe_cycle(run_dir, bag, mapping, config, run, policy, comfort, body_id)
     except RapiddsError as exc:
         fail(str(exc))
         return

@@ -41,15 +41,43 @@ def _world_demos(name: str, per_mode: int, seed: int) -> tuple[Any, dict[str, An
     return demos, dict(world.policy_defaults)
 
 
-def _bag_demos(name: str, path: Path) -> tuple[Any, dict[str, Any]]:
-    """A world's robot demonstrations recorded in rosbag2 bags, and its network defaults."""
-    from rapidds.bridge.recorded import robot_demonstrations
+def _bag_demos(name: str, path: Path, robot: str | None = None,
+               mapping: Path | None = None) -> tuple[Any, dict[str, Any]]:
+    """A world's robot demonstrations recorded in bags (ROS 2 or ROS 1), or as end-effector
+    poses with task labels in a CSV (through the world's IK), and its network defaults."""
+    from rapidds.bridge.poses import pose_demonstrations
+    from rapidds.bridge.recorded import load_mapping, robot_demonstrations
     from rapidds.cli.bridge import log_to_stderr
+    from rapidds.motion.demos import Demonstrations
     from rapidds.worlds.registry import make_world
 
     log_to_stderr()
     world = make_world(name)
-    return robot_demonstrations(path, world), dict(world.policy_defaults)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return pose_demonstrations(path, world), dict(world.policy_defaults)
+    if suffix == ".npz":
+        return Demonstrations.load(path), dict(world.policy_defaults)
+    if path.is_file() and suffix not in (".mcap", ".db3", ".bag"):
+        raise RapiddsError(f"{path} is not demonstrations {name} reads: bags (.mcap, .db3, "
+                           "ROS 1 .bag, bag folders), a CSV of end-effector poses, or an .npz")
+    maps = None if mapping is None else load_mapping(mapping).check(world)
+    return robot_demonstrations(path, world, maps, robot), dict(world.policy_defaults)
+
+
+def _not_npz(path: Path) -> str | None:
+    """What ``path`` is when it is not a demonstrations .npz that needs no world, in one line."""
+    if path.suffix.lower() == ".csv":
+        return (f"{path} is a CSV: end-effector poses with task labels become joint paths "
+                "through a world's IK; add --world NAME")
+    if path.suffix.lower() in (".bag", ".mcap", ".db3") or (path / "metadata.yaml").is_file():
+        return f"{path} is a bag: its joint states are cut into tasks for a world; add --world"
+    if path.is_file():
+        with path.open("rb") as f:
+            if f.read(4) != b"PK\x03\x04":
+                return (f"{path} is not a demonstrations .npz (a NumPy zip archive); give an "
+                        ".npz, or with --world a CSV of end-effector poses or bags")
+    return None
 
 
 @app.command("train-policy")
@@ -57,9 +85,16 @@ def train_policy_cmd(
     out: Annotated[Path, typer.Option("--out", help="Checkpoint directory to write.")],
     demos: Annotated[Path | None, typer.Option(
         "--demos", help="Demonstrations .npz (trajectories, task_index, task_names[, start]); "
-        "with --world, rosbag2 bags of the robot (a bag or a folder of them: JointState cut "
-        "into tasks by its task events).")
+        "with --world, bags of the robot (rosbag2 or ROS 1 .bag, or a folder of them: "
+        "JointState cut into tasks by its task events), or a CSV of end-effector poses "
+        "(x,y,z,qx,qy,qz,qw and one 0/1 column per task) through the world's IK.")
     ] = None,
+    robot: Annotated[str | None, typer.Option(
+        "--robot", help="With --world --demos BAGS: the robot profile naming the joint states' "
+        "joints.", show_default="the first profile whose joints the bag carries")] = None,
+    mapping: Annotated[Path | None, typer.Option(
+        help="With --world --demos BAGS: a tracker mapping YAML whose 'boundaries' rules cut "
+        "tasks from the cell's own signals.")] = None,
     world: Annotated[str | None, typer.Option(
         help="Train on a registered world's generated demonstrations instead (see 'rapidds "
         "worlds'), with the world's network defaults; with --demos, on its recorded ones.")
@@ -96,7 +131,7 @@ def train_policy_cmd(
             raise ConfigError("give --demos FILE, --world NAME, or --world NAME --demos BAGS")
         fields: dict[str, Any] = {}
         if world is not None and demos is not None:
-            data, fields = _bag_demos(world, demos)
+            data, fields = _bag_demos(world, demos, robot, mapping)
             if horizon is not None:
                 data = data.resample(horizon)
         elif world is not None:
@@ -105,6 +140,8 @@ def train_policy_cmd(
                 data = data.resample(horizon)
         else:
             assert demos is not None
+            if (foreign := _not_npz(demos)) is not None:
+                raise ConfigError(foreign)
             data = Demonstrations.load(demos, horizon=horizon)
         if config is not None:
             fields.update(read_yaml(config, "config file"))  # JSON is YAML

@@ -271,7 +271,9 @@ class World(Protocol):
     #   robot_limits: rapidds.motion.timing.JointLimits, the robot's joint limits (what its
     #   trajectories are time-parameterized within when they leave rapidds);
     #   robot_duration(task, traj) -> float: the planner's d_j^r of one (H, d) trajectory when
-    #   it is not ``completion_time`` (the painting arm's: the parameterized time).
+    #   it is not ``completion_time`` (the painting arm's: the parameterized time);
+    #   end_effector_ik(positions (T, 3) in the robot's base frame) -> (T, d): the robot's
+    #   joints putting its tool there (rapidds.bridge.poses, CSV demonstrations).
 
 
 def joint_names(world: World) -> tuple[str, ...]:

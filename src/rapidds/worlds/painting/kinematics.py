@@ -37,6 +37,7 @@ __all__ = [
     "arm_kinematics",
     "mirror_joints",
     "solve_ik",
+    "tool_path_ik",
 ]
 
 # (name, link index into ARM_BODIES, offset in that link's frame in metres, collision radius).
@@ -289,3 +290,20 @@ def solve_ik(target: Sequence[float], seed: Sequence[float], *, layout: CellLayo
         raise ValueError(f"IK did not reach {tuple(round(float(v), 3) for v in goal)}: tool "
                          f"{miss * 1000:.1f} mm away, tilted {tilt:.3f} rad")
     return q
+
+
+def tool_path_ik(positions: np.ndarray, seed: Sequence[float], *,
+                 layout: CellLayout = LAYOUT) -> np.ndarray:
+    """Joint vectors (T, 7) for tool-tip positions (T, 3) given in the arm's base frame (link0):
+    :func:`solve_ik` row by row, each seeded with the previous answer (the first with
+    ``seed``), so the path stays on one branch. ValueError naming the first unreachable row."""
+    kin = arm_kinematics(layout)
+    world = np.asarray(positions, dtype=float) @ kin.base_rot.T + kin.base_pos
+    out, q = [], np.asarray(seed, dtype=float)
+    for k, target in enumerate(world):
+        try:
+            q = solve_ik(target, q, layout=layout)
+        except ValueError as exc:
+            raise ValueError(f"row {k + 1}: {exc}") from None
+        out.append(q)
+    return np.array(out)

@@ -248,6 +248,15 @@ class PaintingWorld:
         this order (README, "In a real cell")."""
         return ARM_JOINTS
 
+    def end_effector_ik(self, positions: np.ndarray) -> np.ndarray:
+        """Joint path (T, 7) putting the tool tip at ``positions`` (T, 3), given in the arm's
+        base frame (link0, Franka's ``O`` frame, as ``O_T_EE`` is recorded), tool pointing
+        down; each row seeded with the previous answer, the first with the rest pose
+        (:func:`~rapidds.worlds.painting.kinematics.tool_path_ik`)."""
+        from rapidds.worlds.painting.kinematics import tool_path_ik
+
+        return tool_path_ik(positions, self.robot_rest(), layout=self.layout)
+
     @property
     def robot_limits(self) -> JointLimits:
         """The arm's joint limits: the MJCF's ranges and the Panda datasheet's velocity,
