@@ -221,7 +221,7 @@ class LiveCell:
         if now < tick:
             return tick
         running = next((t for t in live.order["robot"] if t in sent and t not in obs.end), None)
-        rate = monitor.tick(now, obs.latest(), running)
+        rate = monitor.tick(now, obs.latest(), running, obs.velocities())
         self.link.publish(SPEED_SCALING_TOPIC, float64_message(rate))
         period = 1.0 / self.options.scaling_rate
         return (np.floor(now / period + 1e-9) + 1) * period
