@@ -92,11 +92,13 @@ class LiveReplanner:
                                claimed=frozenset(current["human"]))
         robot = list(rem.robot) if list(rem.human) == current["human"] else current["robot"]
         changed = robot != current["robot"]
-        self.order["robot"] = [t for t in self.order["robot"] if t in sent or t in start] + robot
-        prev = next((t for t in reversed(self.order["robot"]) if t in sent), None)
-        for t in robot:
-            self.after[t] = sorted({*self.problem.preceding[t], *([prev] if prev else [])})
-            prev = t
+        if changed:  # unchanged, the plan's order and waits stay (as the executor's queue does)
+            self.order["robot"] = [t for t in self.order["robot"]
+                                   if t in sent or t in start] + robot
+            prev = next((t for t in reversed(self.order["robot"]) if t in sent), None)
+            for t in robot:
+                self.after[t] = sorted({*self.problem.preceding[t], *([prev] if prev else [])})
+                prev = t
         entry = {"time": now, "reason": reason, "task": task, "changed": changed,
                  "before": current,
                  "after": {"human": current["human"], "robot": robot},
