@@ -161,14 +161,17 @@ class RobotProfile(Settings):
                 f"{limits.upper[j] + self.offset(world)[j]:.4f}] (the driver's convention)")
         return parameterize(rows, world.dt, limits)
 
-    def trajectory(self, world: Any, timed: TimedTrajectory, stamp_ns: int = 0) -> Any:
+    def trajectory(self, world: Any, timed: TimedTrajectory, stamp_ns: int = 0,
+                   frame_id: str = "world") -> Any:
         """The driver's ``trajectory_msgs/msg/JointTrajectory`` of a parameterized trajectory:
         its names, positions with the offsets, velocities and accelerations at every point;
-        header stamp ``stamp_ns`` (0: "start on arrival" to a joint trajectory controller)."""
+        header stamp ``stamp_ns`` (0: "start on arrival" to a joint trajectory controller);
+        ``frame_id``: the live link names the trajectory's task there."""
         from rapidds.bridge.ros2 import joint_trajectory
 
         names, q = self.to_driver(world, timed.positions)
-        return joint_trajectory(names, q, world.dt, stamp_ns=stamp_ns, times=timed.times,
+        return joint_trajectory(names, q, world.dt, stamp_ns=stamp_ns, frame_id=frame_id,
+                                times=timed.times,
                                 velocities=timed.velocities,
                                 accelerations=timed.accelerations)
 
