@@ -71,7 +71,7 @@ def test_exported_trajectories_stay_within_the_profiles_limits(
     store = RunStore.open_readonly(run_dir / "run.sqlite")
     (rid,) = store.run_ids()
     records = store.cycle_records(rid)
-    assert len(trajs) == sum(len(r.plan.robot) for r in records) > 0
+    assert len(trajs) == sum(len(r.plan.tasks("robot")) for r in records) > 0
     # the same trajectories, stamped 0 ("now"), on the controller's topic at each task's start
     assert len(msgs[profile.trajectory_topic]) == len(trajs)
     assert all(ros2.stamp_ns(m.header) == 0 for m in msgs[profile.trajectory_topic])

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 from rapidds.bridge.profiles import PROFILES, ProfileError, robot_profile
 from rapidds.worlds.registry import make_world
@@ -85,3 +86,14 @@ def test_bad_names_and_mismatched_worlds_are_one_line() -> None:
     with pytest.raises(ProfileError, match=r"maps 7 joints.*has 2"):
         robot_profile("franka-panda").joint_names(fetch)
     assert set(PROFILES) == {"reference", "franka-panda", "franka-fr3"}
+
+
+@pytest.mark.parametrize("args", [
+    ["deploy", "painting", "--robot", "ur5"], ["deploy", "fetch", "--robot", "franka-panda"],
+    ["sim-robot", "painting", "--robot", "ur5"]])
+def test_the_live_commands_refuse_a_bad_profile_before_starting(
+        tmp_path, capsys: pytest.CaptureFixture[str], args: list[str]) -> None:
+    extra = ["--out", str(tmp_path / "cell")] if args[0] == "deploy" else []
+    code, _, err = run_main(capsys, *args, *extra)
+    assert code == 2 and err.count("\n") == 1 and "robot profile" in err, err
+    assert not (tmp_path / "cell").exists()

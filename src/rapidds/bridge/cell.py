@@ -173,7 +173,11 @@ class LiveCell:
             if task in sent or not all(x in obs.end for x in live.after[task]):
                 continue
             # cut to the task, parameterized within the robot's limits, the driver's names
-            timed = self.profile.timed(self.run.world, task, plan.best.motions[task].trajectory)
+            try:
+                timed = self.profile.timed(self.run.world, task,
+                                           plan.best.motions[task].trajectory)
+            except RapiddsError as exc:  # a path the arm would refuse: stop, record nothing
+                raise self._stop(plan.cycle, str(exc)) from None
             self.link.publish(TRAJECTORY_TOPIC, self.profile.trajectory(
                 self.run.world, timed, stamp_ns=time.time_ns()))
             sent.add(task)

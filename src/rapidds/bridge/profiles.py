@@ -146,7 +146,6 @@ class RobotProfile(Settings):
                 given[f] = given[f] - off
         return JointLimits(**{f: given[f] if f in given else getattr(own, f) for f in fields})
 
-
     def timed(self, world: Any, task: str, path: np.ndarray) -> TimedTrajectory:
         """``path`` cut to ``task`` (:func:`task_rows`) and time-parameterized within this
         profile's limits (:func:`~rapidds.motion.timing.parameterize`); world convention."""
