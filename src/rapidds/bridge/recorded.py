@@ -253,8 +253,9 @@ class _Reader:
         got, lines = tracked_frames(self.tf, self.tf_samples, self.mapping.points,
                                     self.mapping.root_frame, self.mapping.body_id,
                                     {tp.parent for _, tp in self.framed})
-        for line in lines:
-            self.drop(line)
+        for line in lines:  # each says what became of what it names
+            log.warning("%s: %s", self.where, line)
+            self.out.dropped += 1
         got += self.framed_points()
         got.sort(key=lambda g: g[0])
         for recv, source, stamp, p in got:
@@ -281,13 +282,13 @@ class _Reader:
             ok = np.ones(len(rows), bool)
             if frame in self.tf.links:
                 if (gap := self.tf.chain(frame, self.mapping.root_frame)[1]) is not None:
-                    self.drop(f"points in frame {frame!r}: its TF chain stops at {gap!r}, not "
-                              f"the root frame {self.mapping.root_frame!r}; not learned")
+                    self.drop(f"points in frame {frame!r} (its TF chain stops at {gap!r}, not "
+                              f"the root frame {self.mapping.root_frame!r}), not learned")
                     continue
                 stamps = np.array([tp.stamp_ns or r for r, tp in rows], np.int64)
                 local, ok = self.tf.positions(frame, self.mapping.root_frame, stamps, local)
                 if not ok.all():
-                    self.drop(f"points in frame {frame!r}: {int((~ok).sum())} stamped outside "
+                    self.drop(f"{int((~ok).sum())} points in frame {frame!r} stamped outside "
                               "the transforms of its chain (tf2 does not extrapolate)")
             out += [(r, tp.name, tp.stamp_ns, p)
                     for (r, tp), p, good in zip(rows, local, ok, strict=True) if good]
