@@ -15,6 +15,7 @@ from pathlib import Path
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 
 _D = RunConfig.model_fields
@@ -58,6 +59,7 @@ def deploy_cmd(
     startup_timeout: float = typer.Option(60.0, help="Wall seconds to wait for the nodes."),
     cycle_timeout: float = typer.Option(120.0, help="Cell seconds a cycle may take."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    device: DeviceOption = "auto",
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
 ) -> None:
     """Run the adaptive loop in a live cell: this process is the hub the nodes connect to; each
@@ -86,10 +88,11 @@ def deploy_cmd(
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
                     seed=seed, population=population, generations=generations,
                     samples=samples, particles=particles, candidates=candidates,
-                    execution=execution)
+                    execution=execution, device=device)
     w = make_world(cfg.world, cfg.variant)
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
-    run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
+    run = AdaptiveRun(cfg, load_policy(w, policy, cfg.device), store, world=w,
+                      teammate=LinkTeammate())
     if run.next_cycle and not resume:
         fail(f"{out} already holds run '{run.config.run_id}' ({run.next_cycle} cycles); pass "
              "--resume to continue it or choose another --out")
