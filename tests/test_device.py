@@ -4,6 +4,7 @@ settings and ``--resume`` do not depend on it."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from cli_helpers import run_main
@@ -77,3 +78,73 @@ def test_a_run_resumes_on_another_device(tmp_path):
     with RunStore(tmp_path / "run.sqlite") as store:
         again = AdaptiveRun(RunConfig(**base, device="cpu"), policy, store, world=world)
         assert again.next_cycle == 1 and again.config.device == "cpu"
+
+
+# -- steering and training on the device: what the CPU can check ------------------------------
+@pytest.fixture(scope="module")
+def toy() -> tuple:
+    """A tiny two-route policy trained in float32 and in bfloat16 autocast (the GPU's mixed
+    precision, run here on the CPU), with their histories."""
+    from rapidds.motion.config import DiffusionConfig
+    from rapidds.motion.demos import two_route_demos
+    from rapidds.motion.train import train_policy
+
+    demos, _ = two_route_demos(n_per_route=32, seed=0)
+    cfg = DiffusionConfig(horizon=16, state_dim=2, task_names=demos.task_names,
+                          down_dims=(32, 64), step_embed_dim=32, num_train_timesteps=50,
+                          num_inference_steps=10, steps=200, batch_size=64, lr=4e-3,
+                          device="cpu")
+    fp32 = train_policy(demos, cfg)
+    bf16 = train_policy(demos, cfg, mixed_precision=True)
+    return fp32, bf16
+
+
+def test_steering_on_the_device_chooses_as_on_the_host(toy):
+    """The paper's V as a tensor value (computed where the policy is, no host copy inside the
+    loop) steers to the same trajectories as the same V on numpy arrays, on the same seed."""
+    from rapidds.motion.steering import TensorValue, proximity_cost, steer, value_function
+
+    (policy, _), _ = toy
+    person = np.stack([np.full(7, 0.5), np.linspace(-0.3, 0.0, 7)], axis=-1)
+    on_device = value_function([proximity_cost(person, 2.0)], 20.0, tol=0.15)
+    assert isinstance(on_device, TensorValue)
+
+    def on_host(xi: np.ndarray) -> np.ndarray:
+        assert isinstance(xi, np.ndarray)
+        return on_device(xi)
+
+    a = steer(policy, "right", 16, on_device, num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8,
+              generator=3)
+    b = steer(policy, "right", 16, on_host, num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8,
+              generator=3)
+    assert np.array_equal(a.trajectories, b.trajectories)
+    np.testing.assert_allclose(a.values, b.values, rtol=1e-12)
+    assert a.stats.kept_value == pytest.approx(b.stats.kept_value, rel=1e-12)
+    torch_values = on_device(torch.as_tensor(a.trajectories))
+    np.testing.assert_allclose(torch_values.numpy(), a.values, rtol=1e-12)
+
+
+def test_a_tensor_value_of_the_wrong_shape_is_refused(toy):
+    from rapidds.motion.steering import steer, tensor_value
+
+    (policy, _), _ = toy
+    with pytest.raises(ValueError, match="shape"):
+        steer(policy, "right", 4, tensor_value(lambda xi: xi.sum(dim=1)), num_candidates=2,
+              generator=0)
+
+
+def test_mixed_precision_training_keeps_the_checkpoint_and_the_loss(toy, tmp_path):
+    """bfloat16 autocast (the GPU default) trains to a loss no worse than float32's at equal
+    steps (within a quarter), and writes the same float32 checkpoint, which loads."""
+    from rapidds.motion.policy import DiffusionPolicy
+
+    (_, h32), (p16, h16) = toy
+    assert h16.steps == h32.steps == len(h16.loss) == 200
+    assert h16.mean_loss(last=40) <= 1.25 * h32.mean_loss(last=40)
+    assert h16.mean_loss(last=40) < 0.5 * h16.mean_loss(first=20)
+    p16.save(tmp_path / "p")
+    back = DiffusionPolicy.load(tmp_path / "p", device="cpu")
+    assert all(v.dtype == torch.float32 for v in back.model.state_dict().values())
+    assert all(torch.equal(v, p16.model.state_dict()[k])
+               for k, v in back.model.state_dict().items())
+    assert back.sample("right", 2, generator=0).shape == (2, 16, 2)
