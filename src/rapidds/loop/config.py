@@ -20,11 +20,11 @@ EXECUTIONS: tuple[str, ...] = ("planned", "reactive")
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
 _Count = Annotated[int, Field(ge=1)]
+_Weight = Annotated[float, Field(ge=0)]
 
 Device = Literal["auto", "cpu", "cuda"]
 DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
                "is available, else the CPU), cpu or cuda.")
-_Weight = Annotated[float, Field(ge=0)]
 
 
 class RunConfig(Settings):
