@@ -8,8 +8,10 @@ its Tweedie estimate x0_hat, and one candidate survives. Because the survivor's 
 prediction (needed for x0_hat) is exactly the one the next step needs, a step costs M network
 passes, all particles' candidates going through the network as one batch of B * M.
 
-Any callable (N, H, d) -> (N,) in world units can serve as value; lower is better.
-:func:`value_function` builds the paper's V from spatial cost callables.
+Any callable (N, H, d) -> (N,) in world units can serve as value; lower is better. A numpy one
+sees every step's candidates on the host; a :class:`TensorValue` is scored where the policy
+runs, so on a GPU the denoising loop never waits for the host. :func:`value_function` builds
+the paper's V (a TensorValue when its spatial costs are) from spatial cost callables.
 """
 
 from __future__ import annotations
