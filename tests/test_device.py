@@ -148,3 +148,27 @@ def test_mixed_precision_training_keeps_the_checkpoint_and_the_loss(toy, tmp_pat
     assert all(torch.equal(v, p16.model.state_dict()[k])
                for k, v in back.model.state_dict().items())
     assert back.sample("right", 2, generator=0).shape == (2, 16, 2)
+
+
+def test_a_tensor_value_sees_tensors_and_a_diverged_policy_still_stops(toy):
+    """On the device path the value gets tensors (never a host array), and samples holding NaN
+    stop the steering as on the host path: checked once, after the loop."""
+    import copy
+
+    from rapidds.errors import CheckpointError
+    from rapidds.motion.steering import steer, tensor_value
+
+    (policy, _), _ = toy
+    seen: list[type] = []
+
+    def value(xi: torch.Tensor) -> torch.Tensor:
+        seen.append(type(xi))
+        return xi[:, -1, 0]
+
+    steer(policy, "right", 4, tensor_value(value), num_candidates=2, generator=0)
+    assert seen and all(t is torch.Tensor for t in seen)
+    broken = copy.deepcopy(policy)
+    with torch.no_grad():
+        next(iter(broken.model.parameters())).fill_(float("nan"))
+    with pytest.raises(CheckpointError, match="non-finite"):
+        steer(broken, "right", 4, tensor_value(value), num_candidates=2, generator=0)
