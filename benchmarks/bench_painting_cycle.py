@@ -38,9 +38,10 @@ def _strip_timing(obj: object) -> object:
     return obj
 
 
-def run_seed(seed: int, cycles: int) -> dict[str, object]:
-    """One run in this process: per-cycle wall and CPU seconds, the wall parts, the records'
-    digest."""
+def run_seed(seed: int, cycles: int, device: str = "cpu") -> dict[str, object]:
+    """One run in this process on ``device`` (the CPU unless told: this benchmark is the CPU's
+    even on a machine with a GPU; bench_device.py measures both): per-cycle wall and CPU
+    seconds, the wall parts, the records' digest."""
     import torch
 
     from rapidds.loop.config import RunConfig
@@ -48,7 +49,8 @@ def run_seed(seed: int, cycles: int) -> dict[str, object]:
     from rapidds.worlds.painting import PaintingWorld
 
     torch.set_num_threads(1)
-    policy = load_policy(PaintingWorld())
+    policy = (load_policy(PaintingWorld()) if device == "cpu"  # checkouts before --device
+              else load_policy(PaintingWorld(), device=device))
     cfg = RunConfig(world="painting", human="left-slow", gamma=12.0, cycles=cycles, seed=seed)
     run = AdaptiveRun(cfg, policy)
     out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": []}

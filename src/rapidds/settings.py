@@ -138,8 +138,9 @@ class Settings(BaseModel):
         return error_line(exc, prefix=f"{cls.label}.", with_input=True, unknown="unknown field")
 
     def replace(self, **changes: Any) -> Any:
-        """A validated copy with ``changes`` applied."""
-        return type(self)(**{**self.model_dump(), **changes})
+        """A validated copy with ``changes`` applied (fields excluded from dumps kept too)."""
+        kept = {k: getattr(self, k) for k, f in type(self).model_fields.items() if f.exclude}
+        return type(self)(**{**self.model_dump(), **kept, **changes})
 
 
 def settings_dataclass(label: str, *, eq: bool = True, frozen: bool = True) -> Callable[[C], C]:

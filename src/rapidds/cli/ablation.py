@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from rapidds.cli import app
+from rapidds.cli._device import DeviceOption
 from rapidds.cli._progress import TrialProgress
 from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, AblationConfig
 from rapidds.loop.config import ADAPT_LEVELS
@@ -84,6 +85,7 @@ def ablation_cmd(
                                 "moving robot."),
     deviate: float = typer.Option(0.0, help="Probability per cycle that a simulated person "
                                   "deviates from the plan."),
+    device: DeviceOption = "auto",
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -112,7 +114,8 @@ def ablation_cmd(
         check_settings(study, store)  # before starting a cluster for nothing
         try:
             with dask_client(workers, scheduler) as client, TrialProgress() as bar:
-                outcome = run_ablation(study, store, client, bar.on_trial, bar.on_start)
+                outcome = run_ablation(study, store, client, bar.on_trial, bar.on_start,
+                                       device=device)
         except KeyboardInterrupt:
             n = len(store.run_ids())
             err.print(f"interrupted; {n} trials are stored in {out}; rerun the same command "

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 from rapidds.errors import RapiddsError
 
 if TYPE_CHECKING:
@@ -102,7 +103,8 @@ def _new_config(config: Path) -> Any:
 
 def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path | None,
                   run_id: str | None, policy: Path | None,
-                  comfort: int | None = None, body_id: str | None = None) -> CycleRecord:
+                  comfort: int | None = None, body_id: str | None = None,
+                  device: str = "auto") -> CycleRecord:
     """Plan the run's next cycle, realise it with what the bag recorded (and the person's
     ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
@@ -144,7 +146,7 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
                            "/rapidds/events, or by the mapping's boundaries) to learn from")
     # the store is written only now, with a usable bag in hand
     with RunStore(path, lock_as="rapidds observe") as store:
-        run = AdaptiveRun(cfg, load_policy(world, policy), store, world,
+        run = AdaptiveRun(cfg, load_policy(world, policy, device), store, world,
                           teammate=RecordedTeammate({}, answer=comfort,
                                                     too_close=tuple(recorded.too_close_times())))
         plan = run.plan()
@@ -181,6 +183,7 @@ def observe_cmd(
         "after the cycle (1-7); their 'too close' signals come from the bag "
         "(/rapidds/human/too_close).")] = None,
     threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
+    device: DeviceOption = "auto",
     as_json: Annotated[bool, typer.Option("--json", help="Print the cycle's record as JSON.")
                        ] = False,
 ) -> None:
@@ -192,7 +195,8 @@ def observe_cmd(
     torch.set_num_threads(threads)
     log_to_stderr()
     try:
-        rec = observe_cycle(run_dir, bag, mapping, config, run, policy, comfort, body_id)
+        rec = observe_cycle(run_dir, bag, mapping, config, run, policy, comfort, body_id,
+                            device)
     except RapiddsError as exc:
         fail(str(exc))
         return

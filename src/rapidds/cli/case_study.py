@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -40,6 +41,7 @@ def case_study_cmd(
     as_json: bool = typer.Option(False, "--json", help="One JSON object on stdout (table rows "
                                  "and behaviours); cycle rows go to stderr."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    device: DeviceOption = "auto",
 ) -> None:
     """Run the paper's painting settings (unconstrained gamma 12, constrained gamma 12,
     unconstrained gamma 25 and 85) with full adaptation and write the per-cycle table and the
@@ -67,7 +69,7 @@ def case_study_cmd(
              f"{', '.join(w.teammate_names)}")
     con = Console(stderr=True, soft_wrap=True) if as_json else console()
     set_threads(threads)
-    policy = load_policy(w)
+    policy = load_policy(w, device=device)
     runs, reacted = {}, {}
     behaviours = {}
     for setting in chosen:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 
 if TYPE_CHECKING:
@@ -94,6 +95,7 @@ def deploy_cmd(
     robot: str = typer.Option("reference", "--robot", help="Robot profile: the driver's "
                               "joint names, offsets and limits (reference, franka-panda, "
                               "franka-fr3)."),
+    device: DeviceOption = "auto",
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
     zenoh_config: Path | None = _zenoh_config_option(),
     wire: str = _wire_option(),
@@ -126,7 +128,7 @@ def deploy_cmd(
     cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
                     seed=seed, population=population, generations=generations,
                     samples=samples, particles=particles, candidates=candidates,
-                    execution=execution)
+                    execution=execution, device=device)
     w = make_world(cfg.world, cfg.variant)
     try:
         profile = robot_profile(robot)
@@ -149,7 +151,8 @@ def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None
     from rapidds.store import RunStore
 
     store = RunStore(out / "run.sqlite", lock_as="rapidds deploy")
-    run = AdaptiveRun(cfg, load_policy(w, policy), store, world=w, teammate=LinkTeammate())
+    run = AdaptiveRun(cfg, load_policy(w, policy, cfg.device), store, world=w,
+                      teammate=LinkTeammate())
     if run.next_cycle and not resume:
         fail(f"{out} already holds run '{run.config.run_id}' ({run.next_cycle} cycles); pass "
              "--resume to continue it or choose another --out")

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 
 if TYPE_CHECKING:
@@ -69,6 +70,7 @@ def play_cmd(
     speed: float = typer.Option(4.5, min=0.5, max=10.0, help="The avatar's speed, m/s."),
     hz: int = typer.Option(60, min=10, max=240, help="Game ticks (state updates) per second."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
+    device: DeviceOption = "auto",
     verbose: bool = typer.Option(False, help="Log every connection and refused message."),
 ) -> None:
     """Play the fetch game in a browser: rapidds plans the robot, learns your timing and your
@@ -79,7 +81,7 @@ def play_cmd(
                     **gamma_settings(gamma), gamma_prior=gamma_prior, gamma_plan=gamma_plan,
                     lam=lam, seed=seed, population=population, generations=generations,
                     samples=samples, particles=particles, candidates=candidates,
-                    execution=execution)
+                    execution=execution, device=device)
 
     from rapidds.web.server import allowed_hosts, listen, reach_line, serve, served_url
     from rapidds.web.session import STORE_NAME
@@ -163,7 +165,7 @@ def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: in
         if run.next_cycle:
             write_pictures(run, out)
 
-    return PlaySession(cfg, out, world=world, policy=load_policy(world, policy),
+    return PlaySession(cfg, out, world=world, policy=load_policy(world, policy, cfg.device),
                        player=BrowserPlayer(world, player, hz=hz, speed=speed, ask_comfort=ask),
                        resume=resume,
                        on_cycle=on_cycle, on_stop=on_stop)

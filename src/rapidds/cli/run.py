@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import DeviceOption
 from rapidds.loop.config import ADAPT_LEVELS, RunConfig
 
 if TYPE_CHECKING:
@@ -204,6 +205,7 @@ def run_cmd(
     surrogate: bool = typer.Option(False, help="Evaluate spatial costs with the MLP surrogate."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads (1 is fastest on "
                                 "small machines)."),
+    device: DeviceOption = "auto",
     change: str | None = typer.Option(None, help="The teammate becomes another one at a cycle: "
                                       "NAME@CYCLE[,NAME@CYCLE...], e.g. slow-outside@12."),
     drift: float = typer.Option(0.0, help="The teammate's durations grow by this fraction per "
@@ -247,7 +249,7 @@ def run_cmd(
     con = console()
     set_threads(threads)
     w = make_world(cfg.world, cfg.variant)
-    run = execute(cfg, load_policy(w, policy), out, resume, as_json, con)
+    run = execute(cfg, load_policy(w, policy, cfg.device), out, resume, as_json, con)
     if not as_json:
         _say_done(run, out, con)
 

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app
+from rapidds.cli._device import DeviceOption
 from rapidds.errors import StudyDesignError
 from rapidds.experiments.ablation import AblationConfig
 from rapidds.experiments.study.systems import SYSTEMS
@@ -170,6 +171,7 @@ def simulate_cmd(
                                          "e.g. tcp://host:8786, instead of a local cluster."),
     as_json: bool = _JSON,
     execution: str = _EXECUTION, reacts: bool = _REACTS, deviate: float = _DEVIATE,
+    device: DeviceOption = "auto",
 ) -> None:
     """The study's protocol with simulated participants drawn around their priming group, each
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
@@ -193,7 +195,8 @@ def simulate_cmd(
     with create_study(out, design, run, lock_as="rapidds study simulate") as store:
         try:
             with dask_client(workers, scheduler) as client, TrialProgress() as bar:
-                outcome = simulate_study(store, client, bar.on_trial, bar.on_start)
+                outcome = simulate_study(store, client, bar.on_trial, bar.on_start,
+                                         device=device)
         except KeyboardInterrupt:
             err.print(f"interrupted; finished runs are stored in {out}; rerun the same command "
                       "to finish", highlight=False)

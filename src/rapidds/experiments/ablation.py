@@ -149,11 +149,11 @@ def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
 # prior): a trial of the fetch study took 2.4 s, 0.2 s of it the prior when every trial made its
 # own. The run copies the prior before it learns, so sharing it changes no record.
 @lru_cache(maxsize=4)
-def _worker_policy(world: str) -> DiffusionPolicy:
-    """Loaded once per worker process, not once per trial (a load is ~0.3 s)."""
+def _worker_policy(world: str, device: str = "auto") -> DiffusionPolicy:
+    """Loaded once per worker process and device, not once per trial (a load is ~0.3 s)."""
     from rapidds.loop.run import load_policy
 
-    return load_policy(_worker_world(world, None))
+    return load_policy(_worker_world(world, None), device=device)
 
 
 @lru_cache(maxsize=2)
@@ -187,19 +187,20 @@ def worker_prior(cfg: RunConfig) -> HumanModel:
     return _worker_prior(cfg.world, cfg.variant, _prior_key(cfg))
 
 
-def run_trial(config: dict[str, Any]) -> dict[str, Any]:
-    """Run one trial (all its cycles) and return its records; the Dask task. Touches no files:
-    the client stores the result."""
+def run_trial(config: dict[str, Any], device: str = "auto") -> dict[str, Any]:
+    """Run one trial (all its cycles) on ``device`` and return its records; the Dask task.
+    Touches no files: the client stores the result."""
     import torch
 
     from rapidds.loop.run import AdaptiveRun
 
     torch.set_num_threads(1)  # one task per worker thread; more threads only fight
     t0 = time.perf_counter()
-    cfg = RunConfig(**config)
+    cfg = RunConfig(**config, device=device)
     world = _worker_world(cfg.world, cfg.variant)
     cfg = cfg.resolved(world)
-    run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, prior=worker_prior(cfg))
+    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device), world=world,
+                      prior=worker_prior(cfg))
     records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
             "seconds": time.perf_counter() - t0, "pid": os.getpid()}
@@ -262,10 +263,11 @@ def _task_key(cfg: RunConfig) -> str:
 
 def run_ablation(
     study: AblationConfig, store: RunStore, client: Client, on_trial: TrialCallback | None = None,
-    on_start: Callable[[int, int], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None, device: str = "auto",
 ) -> StudyOutcome:
     """Submit every trial not yet stored, store each as it finishes; returns the counts.
-    ``on_start(total, already_stored)`` is called once before the first result.
+    ``on_start(total, already_stored)`` is called once before the first result; every trial
+    runs its policy on ``device`` (not part of the stored settings).
 
     A trial that fails (a runtime fault, a bug) is kept as failed with its reason and the
     others run on; a user error raised on a worker (e.g. no bundled policy), which every trial
@@ -282,7 +284,8 @@ def run_ablation(
         on_start(outcome.total, outcome.skipped)
     t0 = time.perf_counter()
     # priority: in study order (Dask would otherwise pick freely among queued tasks)
-    futures = {client.submit(run_trial, cfg.model_dump(), key=_task_key(cfg), pure=False,
+    futures = {client.submit(run_trial, cfg.model_dump(), device, key=_task_key(cfg),
+                             pure=False,
                              retries=0, priority=len(todo) - k): cfg
                for k, cfg in enumerate(todo)}
     store_results(client, futures, store, outcome, on_trial, t0)

@@ -11,7 +11,8 @@ from rapidds.settings import Settings
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
-__all__ = ["ADAPT_LEVELS", "EXECUTIONS", "Adapt", "Execution", "RunConfig"]
+__all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "EXECUTIONS", "Adapt", "Device", "Execution",
+           "RunConfig"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
 Execution = Literal["planned", "reactive"]
@@ -20,6 +21,10 @@ ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle"
 
 _Count = Annotated[int, Field(ge=1)]
 _Weight = Annotated[float, Field(ge=0)]
+
+Device = Literal["auto", "cpu", "cuda"]
+DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
+               "is available, else the CPU), cpu or cuda.")
 
 
 class RunConfig(Settings):
@@ -80,6 +85,10 @@ class RunConfig(Settings):
     reacts: the simulated person slows down or pauses when the moving robot comes close.
     deviate: probability per cycle that the simulated person deviates from the plan (another
         order, a pause, or taking a robot task).
+
+    device: where the policy's network, the steering and the re-plans run (see
+        :data:`DEVICE_HELP`). Not stored with the run and not compared on ``--resume``: a run
+        may continue on another device; records, models and checkpoints hold no device.
     """
 
     world: str = "fetch"
@@ -120,6 +129,7 @@ class RunConfig(Settings):
     execution: Execution = "planned"
     reacts: bool = False
     deviate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    device: Device = Field("auto", exclude=True, description=DEVICE_HELP)
 
     @field_validator("change")
     @classmethod

@@ -97,15 +97,17 @@ LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) m
 }
 
 
-def load_policy(world: World, path: Path | None = None) -> DiffusionPolicy:
-    """The checkpoint at ``path``, or the world's bundled policy."""
+def load_policy(world: World, path: Path | None = None, device: str = "auto"
+                ) -> DiffusionPolicy:
+    """The checkpoint at ``path``, or the world's bundled policy, on ``device`` ("auto": a CUDA
+    GPU when there is one; "cuda" without one is a ConfigError, one line at the CLI)."""
     directory = path or world.bundled_policy()
     if directory is None:
         raise CheckpointError(
             f"no bundled {world.name} policy in this install; train one with "
             f"'rapidds train-policy --world {world.name} --out DIR' and pass --policy DIR"
         )
-    return DiffusionPolicy.load(directory, device="cpu")
+    return DiffusionPolicy.load(directory, device=device)
 
 
 def timeline_of(problem: Problem, record: CycleRecord) -> Timeline:
@@ -228,7 +230,7 @@ class AdaptiveRun:
         require_memory(8 * 8 * c.population * c.samples * n
                        + 4 * 256 * c.population * n * c.particles * c.candidates * h * d,
                        "this search (--population, --samples, --particles, --candidates)")
-        self.policy = policy or load_policy(self.world)
+        self.policy = policy or load_policy(self.world, device=c.device)
         self.store = store
         self.problem: Problem = self.world.problem().with_objective(
             gamma=self.config.gamma, lam=self.config.lam)
@@ -263,7 +265,8 @@ class AdaptiveRun:
         # a setting added since the run was stored ran with its default (which is the old
         # behaviour: every new setting's default is)
         stored = None if raw is None else {
-            **{k: f.default for k, f in RunConfig.model_fields.items() if k not in raw}, **raw}
+            **{k: f.default for k, f in RunConfig.model_fields.items()
+               if k not in raw and not f.exclude}, **raw}
         if stored is not None and stored != self.config.model_dump():
             mine = self.config.model_dump()
             diff = ", ".join(f"{k}={stored.get(k)!r} (asked {mine.get(k)!r})"

@@ -72,7 +72,7 @@ class _Upsample:
         even = torch.stack([wt[..., 3], wt[..., 1], zero], dim=-1)
         odd = torch.stack([zero, wt[..., 2], wt[..., 0]], dim=-1)
         self.weight = torch.cat([even, odd]).contiguous()         # (2 C_out, C_in, 3)
-        b = conv.bias.detach() if conv.bias is not None else torch.zeros(wt.shape[0])
+        b = conv.bias.detach() if conv.bias is not None else wt.new_zeros(wt.shape[0])
         self.bias = torch.cat([b, b]).contiguous()
         self.channels = wt.shape[0]
 

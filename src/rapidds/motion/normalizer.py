@@ -41,6 +41,8 @@ class MinMaxNormalizer:
         self.centre = (high + low) / 2
         half = (high - low) / 2
         self.half_range = np.where(half < _EPS, 1.0, half)
+        self._tensors: dict[tuple[torch.device, torch.dtype],
+                            tuple[torch.Tensor, torch.Tensor]] = {}
 
     @classmethod
     def fit(cls, points: np.ndarray) -> MinMaxNormalizer:
@@ -57,9 +59,13 @@ class MinMaxNormalizer:
 
     def _params(self, like: ArrayT) -> tuple[Any, Any]:
         if isinstance(like, torch.Tensor):
-            c = torch.as_tensor(self.centre, dtype=like.dtype, device=like.device)
-            h = torch.as_tensor(self.half_range, dtype=like.dtype, device=like.device)
-            return c, h
+            # kept per (device, dtype): a copy to a GPU on every call would stall the steering
+            key = (like.device, like.dtype)
+            if key not in self._tensors:
+                self._tensors[key] = (
+                    torch.as_tensor(self.centre, dtype=like.dtype, device=like.device),
+                    torch.as_tensor(self.half_range, dtype=like.dtype, device=like.device))
+            return self._tensors[key]
         return self.centre, self.half_range
 
     def _check(self, x: ArrayT) -> None:

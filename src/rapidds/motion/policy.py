@@ -65,14 +65,18 @@ def make_noise_scheduler(config: DiffusionConfig) -> NoiseScheduler:
     return DDPMScheduler(variance_type="fixed_small", **kwargs)
 
 
-def as_generator(generator: GeneratorLike) -> torch.Generator | None:
-    """A seed becomes a fresh CPU generator; a generator or None passes through."""
+def as_generator(generator: GeneratorLike, device: str | torch.device = "cpu"
+                 ) -> torch.Generator | None:
+    """A seed becomes a fresh generator on ``device`` (the CPU by default; the policy's device
+    for sampling, so noise is drawn where it is used and never copied from the host); a
+    generator or None passes through. The same seed gives the same numbers on the same
+    device, other numbers on another."""
     if generator is None or isinstance(generator, torch.Generator):
         return generator
     if isinstance(generator, bool) or not isinstance(generator, int | np.integer):
         raise TypeError(f"generator must be a torch.Generator, an int seed or None, got "
                         f"{type(generator).__name__}")
-    return torch.Generator("cpu").manual_seed(int(generator))
+    return torch.Generator(torch.device(device)).manual_seed(int(generator))
 
 
 def _sha256(path: Path) -> str:
@@ -250,8 +254,10 @@ class DiffusionPolicy:
 
     def predict_noise(self, x_t: Tensor, t: int, cond: Tensor) -> Tensor:
         """eps_theta(x_t, t, cond): (B, H, d) -> (B, H, d); one network pass per row."""
-        tt = torch.full((x_t.shape[0],), t, dtype=torch.long, device=x_t.device)
-        return self.denoiser()(x_t, tt, cond)
+        net = self.denoiser()
+        # FastUnet takes one step for the whole batch (no per-row check, no device sync)
+        shape = () if isinstance(net, FastUnet) else (x_t.shape[0],)
+        return net(x_t, torch.full(shape, t, dtype=torch.long, device=x_t.device), cond)
 
     def reverse_step(self, eps: Tensor, t: int, x_t: Tensor,
                      generator: torch.Generator | None = None) -> Tensor:
@@ -269,7 +275,8 @@ class DiffusionPolicy:
     def predict_x0(self, x_t: Tensor, eps: Tensor, t: int) -> Tensor:
         """Tweedie's estimate x0_hat = (x_t - sqrt(1 - abar_t) eps) / sqrt(abar_t), clipped to
         [-1, 1] when the sampler clips; (B, H, d) normalised."""
-        abar = self.noise_scheduler.alphas_cumprod[t].to(x_t.device, x_t.dtype)
+        # a 0-dim CPU tensor joins device arithmetic as a scalar: no host-to-device copy
+        abar = self.noise_scheduler.alphas_cumprod[t].to(dtype=x_t.dtype)
         x0 = (x_t - (1 - abar).sqrt() * eps) / abar.sqrt()
         return x0.clamp(-1.0, 1.0) if self.config.clip_sample else x0
 
@@ -283,12 +290,12 @@ class DiffusionPolicy:
         """n trajectories (n, H, d), float64, world units.
 
         task: one name or n names; start: (d,) or (n, d) for start-conditioned policies;
-        generator: seed or CPU generator (same seed -> same samples on the same device);
+        generator: seed or generator (same seed -> same samples on the same device);
         num_steps: reverse steps (default ``config.num_inference_steps``).
         """
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ValueError(f"n must be a positive integer, got {n!r}")
-        gen = as_generator(generator)
+        gen = as_generator(generator, self.device)
         cond = self.condition(task, n, start)
         self.model.eval()
         x = self.initial_noise(n, gen)

@@ -8,8 +8,10 @@ its Tweedie estimate x0_hat, and one candidate survives. Because the survivor's 
 prediction (needed for x0_hat) is exactly the one the next step needs, a step costs M network
 passes, all particles' candidates going through the network as one batch of B * M.
 
-Any callable (N, H, d) -> (N,) in world units can serve as value; lower is better.
-:func:`value_function` builds the paper's V from spatial cost callables.
+Any callable (N, H, d) -> (N,) in world units can serve as value; lower is better. A numpy one
+sees every step's candidates on the host; a :class:`TensorValue` is scored where the policy
+runs, so on a GPU the denoising loop never waits for the host. :func:`value_function` builds
+the paper's V (a TensorValue when its spatial costs are) from spatial cost callables.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -27,6 +30,29 @@ from rapidds.errors import CheckpointError
 from rapidds.motion.policy import DiffusionPolicy, GeneratorLike, as_generator
 
 ValueFn = Callable[[np.ndarray], np.ndarray]
+"""A value on the host: (N, H, d) float64 world-unit trajectories -> (N,) values."""
+TensorValueFn = Callable[[Any], Any]
+"""A value on the policy's device: (N, H, d) float64 world-unit tensor -> (N,) tensor."""
+
+
+class TensorValue:
+    """Marks a value computed with tensor operations on the policy's device (mark one with
+    :func:`tensor_value`). The steering then never leaves the device inside its denoising loop:
+    no copy to the host, no synchronisation. Terms add as tensors, so another term (a predicted
+    slowdown, say) joins as ``tensor_value(lambda xi: v(xi) + w * slowdown(xi))``.
+    A plain :data:`ValueFn` still works: its candidates are copied to the host once per step.
+    """
+
+    def __init__(self, fn: TensorValueFn):
+        self.fn = fn
+
+    def __call__(self, trajectories: Any) -> Any:
+        return self.fn(trajectories)
+
+
+def tensor_value(fn: TensorValueFn) -> TensorValue:
+    """``fn`` (a tensor function of world-unit trajectories) marked for on-device steering."""
+    return fn if isinstance(fn, TensorValue) else TensorValue(fn)
 
 
 @dataclass
@@ -70,41 +96,69 @@ class SteerResult:
         return self.trajectories[k], float(self.values[k])
 
 
+_NON_FINITE = ("policy produced non-finite trajectories; the checkpoint is corrupt or "
+               "diverged")
+
+
 def require_finite(trajectories: np.ndarray) -> np.ndarray:
     """``trajectories`` as they are when every coordinate is finite, else CheckpointError. A
     network whose samples hold NaN or inf has corrupt or diverged weights; scored anyway, a NaN
     path would count as done at once (completion index 0) and be preferred."""
     if not np.isfinite(trajectories).all():
-        raise CheckpointError("policy produced non-finite trajectories; the checkpoint is "
-                              "corrupt or diverged")
+        raise CheckpointError(_NON_FINITE)
     return trajectories
 
 
-def _score(value_fn: ValueFn, trajectories: np.ndarray) -> np.ndarray:
-    """V for (N, H, d) -> (N,) float64; NaN counts as +inf (never preferred). Every candidate,
-    final samples included, passes here: non-finite trajectories stop the steering."""
-    n = require_finite(trajectories).shape[0]
-    out = np.asarray(value_fn(trajectories), dtype=np.float64)
-    if out.shape != (n,):
-        raise ValueError(f"value_fn must return shape ({n},) for {n} trajectories, got "
-                         f"{out.shape}")
-    return np.where(np.isnan(out), np.inf, out)
+class _Scorer:
+    """V of normalised candidates (N, H, d) -> (N,) float64 on their device; NaN counts as +inf
+    (never preferred). Every candidate, final samples included, passes here: non-finite
+    trajectories stop the steering, at once for a host value, after the loop for a
+    :class:`TensorValue` (checking at once would synchronise the device every step)."""
+
+    def __init__(self, policy: DiffusionPolicy, value_fn: ValueFn | TensorValue):
+        self.policy, self.value_fn = policy, value_fn
+        self.on_device = isinstance(value_fn, TensorValue)
+        self.finite: torch.Tensor | None = None  # all candidates finite so far (device path)
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        n = x.shape[0]
+        if self.on_device:
+            world = self.policy.normalizer.unnormalize(x.detach().to(torch.float64))
+            ok = torch.isfinite(world).all()
+            self.finite = ok if self.finite is None else self.finite & ok
+            out = self.value_fn(world)
+            if not isinstance(out, torch.Tensor):
+                raise TypeError("a tensor_value must return a tensor")
+            out = out.to(torch.float64)
+        else:
+            host = np.asarray(self.value_fn(require_finite(self.policy.to_world(x))),
+                              dtype=np.float64)
+            out = torch.from_numpy(host).to(x.device)
+        if out.shape != (n,):
+            raise ValueError(f"value_fn must return shape ({n},) for {n} trajectories, got "
+                             f"{tuple(out.shape)}")
+        return torch.where(torch.isnan(out), torch.inf, out)
+
+    def check(self) -> None:
+        """Raise for non-finite candidates seen on the device path (one synchronisation)."""
+        if self.finite is not None and not bool(self.finite):
+            raise CheckpointError(_NON_FINITE)
 
 
-def _select(values: np.ndarray, alpha: np.ndarray, generator: torch.Generator | None
-            ) -> np.ndarray:
-    """Index of the kept candidate per particle from values (B, M): argmin where the particle's
-    alpha (B,) is 0, else a draw from softmax(-V / alpha)."""
-    pick = np.argmin(values, axis=1)  # all-inf rows pick candidate 0
-    soft = alpha > 0
-    if soft.any():
+def _select(values: torch.Tensor, alpha: torch.Tensor, soft: torch.Tensor | None,
+            generator: torch.Generator | None) -> torch.Tensor:
+    """Index of the kept candidate per particle from values (B, M), on their device: argmin
+    where the particle's alpha (B,) is 0, else a draw from softmax(-V / alpha) for the rows
+    ``soft`` (indices of the particles with alpha > 0, None for none)."""
+    pick = values.argmin(dim=1)  # all-inf rows pick candidate 0
+    if soft is not None:
         logits = -values[soft] / alpha[soft, None]
-        finite = np.isfinite(logits)
         # Rows where every candidate is infinitely bad: choose uniformly.
-        logits = np.where(finite.any(axis=1, keepdims=True), logits, 0.0)
-        logits = logits - logits.max(axis=1, keepdims=True)
-        probs = torch.as_tensor(np.exp(logits), dtype=torch.float64)
-        pick[soft] = torch.multinomial(probs, 1, generator=generator).squeeze(1).numpy()
+        logits = torch.where(torch.isfinite(logits).any(dim=1, keepdim=True), logits, 0.0)
+        probs = torch.exp(logits - logits.amax(dim=1, keepdim=True))
+        where = generator.device if generator is not None else probs.device
+        drawn = torch.multinomial(probs.to(where), 1, generator=generator).squeeze(1)
+        pick[soft] = drawn.to(pick.device)
     return pick
 
 
@@ -127,25 +181,9 @@ def particle_temperatures(n_particles: int, soft_share: float) -> np.ndarray:
     return alpha
 
 
-@torch.inference_mode()
-def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
-          value_fn: ValueFn, *, num_candidates: int = 8,
-          alpha: float | Sequence[float] | np.ndarray = 0.0,
-          start: np.ndarray | None = None, generator: GeneratorLike = None,
-          num_steps: int | None = None) -> SteerResult:
-    """Sample ``n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
-
-    task: one task name or one per particle; start: (d,) or (B, d) for start-conditioned
-    policies. value_fn: (N, H, d) world-unit trajectories -> (N,) values, lower is better.
-    num_candidates: M >= 1 draws from the reverse kernel per particle and step (M = 1 is plain
-    sampling: same seed, same trajectories as :meth:`DiffusionPolicy.sample`).
-    alpha: 0 keeps the best candidate (the SVDD authors' choice); alpha > 0 draws from
-    softmax(-V / alpha), V in value_fn's units; one value for all particles or one per
-    particle (see :func:`particle_temperatures`). generator: seed or CPU generator.
-    num_steps: reverse steps S (default: the policy's ``num_inference_steps``); a step costs M
-    network passes, so fewer steps are proportionally cheaper.
-    """
-    b, m = n_particles, num_candidates
+def _check_steer_args(policy: DiffusionPolicy, b: int, m: int,
+                      alpha: float | Sequence[float] | np.ndarray) -> np.ndarray:
+    """The per-particle temperatures (B,), or ValueError for unusable arguments."""
     if isinstance(b, bool) or not isinstance(b, int) or b < 1:
         raise ValueError(f"n_particles must be a positive integer, got {b!r}")
     if isinstance(m, bool) or not isinstance(m, int) or m < 1:
@@ -160,14 +198,46 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
             and policy.config.ddim_eta == 0):
         raise ValueError("SVDD steering needs a stochastic reverse kernel: this policy samples "
                          "with deterministic DDIM (ddim_eta = 0); use ddim_eta > 0 or DDPM")
+    return alphas
 
+
+@torch.inference_mode()
+def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
+          value_fn: ValueFn | TensorValue, *, num_candidates: int = 8,
+          alpha: float | Sequence[float] | np.ndarray = 0.0,
+          start: np.ndarray | None = None, generator: GeneratorLike = None,
+          num_steps: int | None = None) -> SteerResult:
+    """Sample ``n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
+
+    task: one task name or one per particle; start: (d,) or (B, d) for start-conditioned
+    policies. value_fn: (N, H, d) world-unit trajectories -> (N,) values, lower is better: a
+    numpy function, or a :class:`TensorValue` computed on the policy's device.
+    num_candidates: M >= 1 draws from the reverse kernel per particle and step (M = 1 is plain
+    sampling: same seed, same trajectories as :meth:`DiffusionPolicy.sample`).
+    alpha: 0 keeps the best candidate (the SVDD authors' choice); alpha > 0 draws from
+    softmax(-V / alpha), V in value_fn's units; one value for all particles or one per
+    particle (see :func:`particle_temperatures`). generator: a seed (a generator on the
+    policy's device) or a generator. num_steps: reverse steps S (default: the policy's
+    ``num_inference_steps``); a step costs M network passes, so fewer steps are cheaper.
+
+    Every request's candidates go through the network as one batch per step, and the loop
+    keeps values, selection and indices on the policy's device: with a :class:`TensorValue`
+    nothing returns to the host until the end.
+    """
+    b, m = n_particles, num_candidates
+    alphas = _check_steer_args(policy, b, m, alpha)
     t0 = time.perf_counter()
-    gen = as_generator(generator)
+    dev = policy.device
+    gen = as_generator(generator, dev)
     policy.model.eval()
     cond = policy.condition(task, b, start)                    # (B, c)
     cond_rep = cond.repeat_interleave(m, dim=0)                # (B*M, c), particle-major
     timesteps = policy.timesteps(num_steps)
     stats = SteerStats(b, m, len(timesteps))
+    score = _Scorer(policy, value_fn)
+    alpha_t = torch.as_tensor(alphas, device=dev)
+    soft = (torch.as_tensor(np.flatnonzero(alphas > 0), device=dev) if (alphas > 0).any()
+            else None)
 
     def network(x: torch.Tensor, t: int, c: torch.Tensor) -> torch.Tensor:
         stats.rows_per_call.append(int(x.shape[0]))
@@ -175,8 +245,8 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
 
     x = policy.initial_noise(b, gen)                           # x_T, (B, H, d)
     eps = network(x, timesteps[0], cond)
-    rows = torch.arange(b, device=x.device) * m
-    values = np.zeros(b)
+    rows = torch.arange(b, device=dev) * m
+    kept: list[torch.Tensor] = []
     for i, t in enumerate(timesteps):
         # M independent draws of x_{t-1} per particle from the model's own kernel.
         cand = policy.reverse_step(eps.repeat_interleave(m, dim=0), t,
@@ -187,72 +257,99 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
             x0_hat = policy.predict_x0(cand, cand_eps, t_next)
         else:
             cand_eps, x0_hat = None, cand                      # final samples: score directly
-        v = _score(value_fn, policy.to_world(x0_hat)).reshape(b, m)
+        v = score(x0_hat).reshape(b, m)
         stats.value_calls += 1
         stats.value_rows += b * m
-        pick = _select(v, alphas, gen)
-        keep = rows + torch.as_tensor(pick, device=x.device)
+        keep = rows + _select(v, alpha_t, soft, gen)
         x = cand[keep]
         if cand_eps is not None:
             eps = cand_eps[keep]                               # reused: no extra pass
-        values = v[np.arange(b), pick]
-        stats.kept_value.append(float(np.mean(values)))
-
+        kept.append(v.reshape(-1)[keep])
+    score.check()
+    kept_host = torch.stack(kept).cpu().numpy()                # (S, B): one copy at the end
+    stats.kept_value = [float(np.mean(k)) for k in kept_host]
     stats.network_passes = sum(stats.rows_per_call) // b
     stats.seconds = time.perf_counter() - t0
-    return SteerResult(policy.to_world(x), values, stats)
+    return SteerResult(policy.to_world(x), kept_host[-1].copy(), stats)
 
 
 # -- the paper's value function ---------------------------------------------------------------
-def completion_index(trajectories: np.ndarray, tol: float) -> np.ndarray:
+# Each works on a float64 numpy array (the host) and on a tensor (any device, tensor out), so a
+# value built from them steers on the policy's device (:class:`TensorValue`).
+Trajectories = np.ndarray | torch.Tensor
+
+
+def completion_index(trajectories: Trajectories, tol: float) -> Trajectories:
     """(N, H, d) -> (N,) int: first index from which the trajectory stays within ``tol`` of its
     final point, i.e. where the motion is done (demonstrations are padded with their last
-    point). 0 for a trajectory that never moves."""
+    point). 0 for a trajectory that never moves. A tensor in, a tensor out (same device)."""
+    if not tol > 0:
+        raise ValueError(f"tol must be > 0, got {tol}")
+    if isinstance(trajectories, torch.Tensor):
+        t = trajectories.to(torch.float64)
+        if t.ndim != 3:
+            raise ValueError(f"expected (N, H, d) trajectories, got shape {tuple(t.shape)}")
+        far_t = torch.linalg.vector_norm(t - t[:, -1:], dim=-1) > tol      # (N, H)
+        last = t.shape[1] - 1 - torch.argmax(far_t.flip(1).to(torch.int8), dim=1)
+        return torch.where(far_t.any(dim=1), last + 1, 0)
     traj = np.asarray(trajectories, dtype=np.float64)
     if traj.ndim != 3:
         raise ValueError(f"expected (N, H, d) trajectories, got shape {traj.shape}")
-    if not tol > 0:
-        raise ValueError(f"tol must be > 0, got {tol}")
     far = np.linalg.norm(traj - traj[:, -1:], axis=-1) > tol       # (N, H)
     h = traj.shape[1]
     last_far = h - 1 - np.argmax(far[:, ::-1], axis=1)
     return np.where(far.any(axis=1), last_far + 1, 0)
 
 
-def proximity_cost(points: np.ndarray, beta: float) -> ValueFn:
+def proximity_cost(points: np.ndarray, beta: float) -> TensorValue:
     """S(xi) = max over the trajectory and over ``points`` (P, d) of exp(-beta ||x - p||):
-    the paper's per-person spatial cost (Eq. 8) for someone standing at the given points."""
+    the paper's per-person spatial cost (Eq. 8) for someone standing at the given points.
+    Takes a numpy array or a tensor (then computed on its device)."""
     pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
     if not beta > 0:
         raise ValueError(f"beta must be > 0, got {beta}")
+    on: dict[torch.device, torch.Tensor] = {}  # the points, copied once per device
 
-    def cost(trajectories: np.ndarray) -> np.ndarray:
-        traj = np.asarray(trajectories, dtype=np.float64)
-        if traj.shape[-1] != pts.shape[1]:
+    def cost(trajectories: Trajectories) -> Trajectories:
+        if trajectories.shape[-1] != pts.shape[1]:
             raise ValueError(f"cost points have d={pts.shape[1]}, trajectories "
-                             f"d={traj.shape[-1]}")
+                             f"d={trajectories.shape[-1]}")
+        if isinstance(trajectories, torch.Tensor):
+            t = trajectories.to(torch.float64)
+            p = on.setdefault(t.device, torch.as_tensor(pts, device=t.device))
+            dist_t = torch.linalg.vector_norm(t[:, :, None, :] - p[None, None], dim=-1)
+            return torch.exp(-beta * dist_t.amin(dim=(1, 2)))
+        traj = np.asarray(trajectories, dtype=np.float64)
         dist = np.linalg.norm(traj[:, :, None, :] - pts[None, None], axis=-1)  # (N, H, P)
         return np.exp(-beta * dist.min(axis=(1, 2)))
 
-    return cost
+    return TensorValue(cost)
 
 
-def value_function(spatial_costs: Sequence[ValueFn], gamma: float, *, tol: float,
-                   dt: float = 1.0) -> ValueFn:
+def value_function(spatial_costs: Sequence[ValueFn | TensorValue], gamma: float, *, tol: float,
+                   dt: float = 1.0) -> ValueFn | TensorValue:
     """The paper's V(xi) = d(xi) + gamma * max_i S_i(xi), batched (N, H, d) -> (N,).
 
     d(xi) = completion_index * dt (seconds when dt is the time per trajectory point);
-    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only).
+    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only). When
+    every S_i is a :class:`TensorValue` (as :func:`proximity_cost`'s are), so is V: it takes
+    numpy arrays and tensors, and :func:`steer` keeps it on the policy's device.
     """
     costs = list(spatial_costs)
     if not (math.isfinite(gamma) and gamma >= 0):
         raise ValueError(f"gamma must be a finite number >= 0, got {gamma}")
 
-    def value(trajectories: np.ndarray) -> np.ndarray:
+    def value(trajectories: Trajectories) -> Trajectories:
+        if isinstance(trajectories, torch.Tensor):
+            vt = completion_index(trajectories, tol).to(torch.float64) * dt
+            if costs and gamma > 0:
+                st = torch.stack([c(trajectories).to(torch.float64) for c in costs])
+                vt = vt + gamma * st.amax(dim=0)
+            return vt
         v = completion_index(trajectories, tol).astype(np.float64) * dt
         if costs and gamma > 0:
             s = np.stack([np.asarray(c(trajectories), dtype=np.float64) for c in costs])
             v = v + gamma * s.max(axis=0)
         return v
 
-    return value
+    return TensorValue(value) if all(isinstance(c, TensorValue) for c in costs) else value

@@ -48,11 +48,15 @@ class _Ema:
         self.shadow = copy.deepcopy(model).eval().requires_grad_(False)
         self.updates = 0
 
+        self._pairs = (list(self.shadow.parameters()), list(model.parameters()))
+
     @torch.no_grad()
     def update(self, model: nn.Module) -> None:
         d = min(self.decay, (1 + self.updates) / (10 + self.updates))
-        for s, p in zip(self.shadow.parameters(), model.parameters(), strict=True):
-            s.lerp_(p.detach(), 1.0 - d)
+        shadow, params = self._pairs
+        # one multi-tensor call instead of a small kernel per parameter (the same per-tensor
+        # lerp on the CPU, so the same bits)
+        torch._foreach_lerp_(shadow, [p.detach() for p in params], 1.0 - d)
         for s, b in zip(self.shadow.buffers(), model.buffers(), strict=True):
             s.copy_(b)
         self.updates += 1
@@ -85,26 +89,54 @@ def total_steps(n_demos: int, config: DiffusionConfig) -> int:
     return config.epochs * math.ceil(n_demos / min(config.batch_size, n_demos))
 
 
+GPU_LOG_EVERY = 50
+"""Optimiser steps between two reads of the loss on a GPU (each read waits for the device)."""
+
+
 def train_policy(demos: Demonstrations, config: DiffusionConfig,
                  progress: ProgressFn | None = None,
                  device: str | torch.device | None = None,
+                 mixed_precision: bool | None = None,
                  ) -> tuple[DiffusionPolicy, TrainHistory]:
     """Train a policy from scratch on ``demos``.
 
     config: must match the demonstrations' horizon, state_dim and task names.
-    progress: called as progress(step, loss) after every optimiser step (step from 1).
+    progress: called as progress(step, loss) after every optimiser step on the CPU, every
+    :data:`GPU_LOG_EVERY` steps (and the last) on a GPU, whose loss is read only then.
     device: overrides ``config.device`` ("auto", "cpu", "cuda").
+    mixed_precision: the network's forward pass in bfloat16 autocast (weights, optimiser and
+    loss stay float32); None: on a GPU only. Checkpoints are the same float32 format.
     Returns the policy (EMA weights when ``config.use_ema``, in eval mode) and the history.
-    On CPU the same seed gives bit-identical weights.
+    On CPU the same seed gives bit-identical weights. The demonstrations, every batch's
+    indices and the random numbers live on the device: a step never waits for the host.
     """
     check_compatible(demos, config)
     dev = resolve_device(device, default=config.device)
+    amp = dev.type == "cuda" if mixed_precision is None else mixed_precision
     with cpu_threads(config.cpu_threads if dev.type == "cpu" else 0):
-        return _train(demos, config, progress, dev)
+        return _train(demos, config, progress, dev, amp)
+
+
+def _batches(config: DiffusionConfig, n: int, steps: int, dev: torch.device
+             ) -> tuple[torch.Tensor, list[int]]:
+    """Every step's demonstration indices, drawn up front (a fresh permutation per epoch, its
+    last batch maybe smaller: the numbers a step-by-step draw gives) and copied to ``dev``
+    once: (all indices, offsets), step k's batch being ``indices[offsets[k]:offsets[k + 1]]``."""
+    rng = np.random.default_rng(config.seed)
+    bs = min(config.batch_size, n)
+    parts, offsets = [], [0]
+    order = np.empty(0, dtype=np.int64)
+    for _ in range(steps):
+        if order.size == 0:
+            order = rng.permutation(n)
+        parts.append(order[:bs])
+        offsets.append(offsets[-1] + len(parts[-1]))
+        order = order[bs:]
+    return torch.as_tensor(np.concatenate(parts), device=dev), offsets
 
 
 def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn | None,
-           dev: torch.device) -> tuple[DiffusionPolicy, TrainHistory]:
+           dev: torch.device, amp: bool) -> tuple[DiffusionPolicy, TrainHistory]:
     policy = DiffusionPolicy.from_config(config, fit_normalizer(demos, config), device=dev)
     model = policy.model.train()
     ema = _Ema(model, config.ema_decay) if config.use_ema else None
@@ -113,7 +145,6 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
     task_idx = torch.as_tensor(demos.task_index, dtype=torch.long, device=dev)
     start = torch.as_tensor(demos.start_poses(), dtype=torch.float32, device=dev)
     n = len(demos)
-    bs = min(config.batch_size, n)
     steps = total_steps(n, config)
     warmup = min(config.lr_warmup_steps, steps - 1)
 
@@ -123,31 +154,31 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
         return 0.5 * (1.0 + math.cos(math.pi * (k - warmup) / max(steps - warmup, 1)))
 
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, betas=(0.95, 0.999),
-                            weight_decay=config.weight_decay)
+                            weight_decay=config.weight_decay,
+                            **({"fused": True} if dev.type == "cuda" else {}))
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_factor)
-    rng = np.random.default_rng(config.seed)
-    gen = torch.Generator("cpu").manual_seed(config.seed)
+    gen = torch.Generator(dev).manual_seed(config.seed)  # noise drawn where it is used
     history = TrainHistory(device=str(dev))
+    log_every = 1 if dev.type == "cpu" else GPU_LOG_EVERY
 
     t0 = time.perf_counter()
-    order = np.empty(0, dtype=np.int64)
+    index, offsets = _batches(config, n, steps, dev)
+    losses = torch.empty(steps, device=dev)
     for step in range(1, steps + 1):
-        if order.size == 0:  # new epoch: a fresh permutation; its last batch may be smaller
-            order = rng.permutation(n)
-        pick = torch.as_tensor(order[:bs], device=dev)
-        order = order[bs:]
+        pick = index[offsets[step - 1]:offsets[step]]
         batch = {"trajectory": traj[pick], "task_index": task_idx[pick], "start": start[pick]}
-        loss = policy.compute_loss(batch, generator=gen)
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
+            loss = policy.compute_loss(batch, generator=gen)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         sched.step()
         if ema is not None:
             ema.update(model)
-        value = float(loss.detach())
-        history.loss.append(value)
-        if progress is not None:
-            progress(step, value)
+        losses[step - 1] = loss.detach()
+        if progress is not None and (step % log_every == 0 or step == steps):
+            progress(step, float(losses[step - 1]))
+    history.loss = losses.tolist()  # one read at the end
     history.steps = steps
     history.seconds = time.perf_counter() - t0
 

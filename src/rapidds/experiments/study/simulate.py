@@ -111,9 +111,9 @@ def trials_to_run(store: StudyStore) -> tuple[list[Trial], int]:
 
 
 # -- worker side ---------------------------------------------------------------------------------
-def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
-    """Run one participant x system (all rounds) and return its records; the Dask task. Touches
-    no files: the client stores the result."""
+def run_trial(trial: dict[str, Any], device: str = "auto") -> dict[str, Any]:
+    """Run one participant x system (all rounds) on ``device`` and return its records; the Dask
+    task. Touches no files: the client stores the result."""
     import torch
 
     from rapidds.loop.run import AdaptiveRun
@@ -122,10 +122,11 @@ def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     t = Trial(**trial)
     world = _worker_world(t.config["world"], t.config["variant"])
-    cfg = RunConfig(**t.config).resolved(world)
+    cfg = RunConfig(**t.config, device=device).resolved(world)
     person = simulated_participant(world, t.participant, t.levels, t.study_seed, t.position)
     prior = worker_prior(cfg)
-    run = AdaptiveRun(cfg, _worker_policy(cfg.world), world=world, teammate=person, prior=prior)
+    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device), world=world,
+                      teammate=person, prior=prior)
     records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
             "seconds": time.perf_counter() - t0}
@@ -133,7 +134,8 @@ def run_trial(trial: dict[str, Any]) -> dict[str, Any]:
 
 # -- client side ---------------------------------------------------------------------------------
 def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | None = None,
-                   on_start: Callable[[int, int], None] | None = None) -> StudyOutcome:
+                   on_start: Callable[[int, int], None] | None = None,
+                   device: str = "auto") -> StudyOutcome:
     """Submit every participant x system not yet stored, store each as it finishes. A failed
     trial stops the study (the others are cancelled; what is stored stays)."""
     todo, total = trials_to_run(store)
@@ -142,7 +144,7 @@ def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | 
     if on_start is not None:
         on_start(total, outcome.skipped)
     t0 = time.perf_counter()
-    futures = {client.submit(run_trial, asdict(t), key=t.key, pure=False, retries=0,
+    futures = {client.submit(run_trial, asdict(t), device, key=t.key, pure=False, retries=0,
                              priority=len(todo) - k): t for k, t in enumerate(todo)}
     store_results(client, futures, store, outcome, on_trial, t0, noun="run")
     return outcome

@@ -1,0 +1,142 @@
+"""The painting cycle and painting-policy training on the CPU and, when there is one, on a CUDA
+GPU, in one run: the one script a session with a card runs (design notes, section 11).
+
+    .venv/bin/python benchmarks/bench_device.py [--seeds 0,1] [--cycles 5] [--train-steps 300]
+        [--devices cpu,cuda] [--json OUT.json]
+
+Per device, each in a fresh process (a CUDA context or a warmed allocator must not carry over):
+
+- the benchmark's painting run (``rapidds run painting --human left-slow --gamma 12``, full
+  adaptation, default search), one torch thread: wall and process CPU seconds of the first
+  cycle and the median of the later ones, the planning part, and the records' digest;
+- ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
+  per optimiser step after a warm-up of 20 steps, float32 and (on cuda) bf16 autocast, and
+  the mean loss of the last 50 steps.
+
+A GPU's numbers count only beside the CPU's of the same machine in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from _common import cpu_model, load_average, parse_seeds
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+
+def cycles_on(device: str, seed: int, cycles: int) -> dict[str, object]:
+    """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds."""
+    from bench_painting_cycle import run_seed
+
+    return run_seed(seed, cycles, device=device)
+
+
+def training_on(device: str, steps: int, amp: bool) -> dict[str, float]:
+    """ms per optimiser step of the painting policy at its shipped size on ``device``."""
+    import torch
+
+    from rapidds.cli.motion import _world_demos
+    from rapidds.motion.config import DiffusionConfig
+    from rapidds.motion.train import train_policy
+
+    torch.set_num_threads(1)
+    demos, fields = _world_demos("painting", 16, 0)
+    fields.update(horizon=demos.horizon, state_dim=demos.state_dim,
+                  task_names=list(demos.task_names), steps=20, device=device)
+    warm = DiffusionConfig.from_dict(fields)
+    train_policy(demos, warm, mixed_precision=amp)  # allocator, kernels, cuDNN choices
+    cfg = warm.replace(steps=steps)
+    w0, c0 = time.perf_counter(), time.process_time()
+    _, history = train_policy(demos, cfg, mixed_precision=amp)
+    if device == "cuda":
+        torch.cuda.synchronize()
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    return {"ms_per_step": 1000 * wall / steps, "cpu_ms_per_step": 1000 * cpu / steps,
+            "steps": steps, "final_loss": history.mean_loss(last=50)}
+
+
+def _child(what: str, *args: object) -> dict:
+    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{HERE}"}
+    code = (f"import json, bench_device as b; print(json.dumps(b.{what}"
+            f"({', '.join(map(repr, args))})))")
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def measure(devices: list[str], seeds: list[int], cycles: int, steps: int) -> dict:
+    out: dict[str, dict] = {}
+    for dev in devices:
+        runs = [_child("cycles_on", dev, s, cycles) for s in seeds]
+        first = [r["cpu"][0] for r in runs]
+        later = [c for r in runs for c in r["cpu"][1:]]
+        later_wall = [c for r in runs for c in r["wall"][1:]]
+        out[dev] = {
+            "first_cycle_wall": statistics.median(r["wall"][0] for r in runs),
+            "first_cycle_cpu": statistics.median(first),
+            "later_wall_median": statistics.median(later_wall),
+            "later_cpu_median": statistics.median(later),
+            "later_plan_median": statistics.median(p for r in runs for p in r["plan"][1:]),
+            "digests": [r["digest"] for r in runs],
+            "train_fp32": _child("training_on", dev, steps, False),
+        }
+        if dev == "cuda":
+            out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
+        print(f"{dev}: {json.dumps(out[dev])}", flush=True)
+    return out
+
+
+def markdown(res: dict, seeds: list[int], cycles: int, load0: str) -> str:
+    rows = []
+    for dev, r in res.items():
+        train = f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})"
+        if "train_bf16" in r:
+            train += (f"; bf16 {r['train_bf16']['ms_per_step']:.1f} "
+                      f"(loss {r['train_bf16']['final_loss']:.4f})")
+        rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f} | "
+                    f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f} | "
+                    f"{r['later_plan_median']:.2f} | {train} |")
+    gpu = ""
+    if "cuda" in res:
+        import torch
+
+        gpu = f", GPU {torch.cuda.get_device_name(0)}"
+    return (f"`benchmarks/bench_device.py --seeds {','.join(map(str, seeds))} --cycles "
+            f"{cycles}`: {cpu_model()}{gpu}, one torch thread; 1-min load average {load0} at "
+            f"start, {load_average()} at end.\n\n"
+            "| device | first cycle wall / CPU s | later cycles wall / CPU s (median) | "
+            "plan wall s (median) | training ms per step (final loss) |\n"
+            "|---|---:|---:|---:|---|\n" + "\n".join(rows) + "\n")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seeds", default="0,1")
+    ap.add_argument("--cycles", type=int, default=5)
+    ap.add_argument("--train-steps", type=int, default=300)
+    ap.add_argument("--devices", default=None, help="default: cpu, and cuda when available")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    import torch
+
+    devices = (args.devices.split(",") if args.devices
+               else ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
+    load0 = load_average()
+    seeds = parse_seeds(args.seeds)
+    res = measure(devices, seeds, args.cycles, args.train_steps)
+    print(markdown(res, seeds, args.cycles, load0))
+    if args.json is not None:
+        args.json.write_text(json.dumps(res, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
