@@ -137,7 +137,7 @@ class InCycle:
     pauses: tuple[Json, ...]
     replans: tuple[Json, ...]
     protective: Any
-    yields: tuple[Yield, ...] | None = None
+    yields: tuple[Yield, ...] | None = None  # None: stored before, or not reactive
 
     KEYS = ("executed", "deviation", "pauses", "replans", "protective", "yields")
 

@@ -220,11 +220,15 @@ def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, Motio
 def cycle_record(config: RunConfig, dep: Deployment,
                  deviation: Deviation | None) -> dict[str, Any]:
     """What a cycle's record says of execution inside it: nothing for the paper's execution
-    (its records stay as they were), else who did what, the pauses and the re-plans."""
+    (its records stay as they were), else who did what, the pauses and the re-plans, and under
+    reactive execution the robot's yields."""
     if not config.in_cycle:
         return {}
     sched = dep.timeline.schedule
     return {"executed": {"human": list(sched.tasks("human")), "robot": list(sched.tasks("robot"))},
             "deviation": None if deviation is None else deviation.to_json(),
             "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans],
-            "protective": dep.protective, "yields": [dict(y) for y in dep.yields]}
+            "protective": dep.protective,
+            # only where a policy can hold the robot (and so yield): other records unchanged
+            **({"yields": [dict(y) for y in dep.yields]} if config.execution == "reactive"
+               else {})}
