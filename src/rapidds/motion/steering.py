@@ -238,11 +238,13 @@ def proximity_cost(points: np.ndarray, beta: float) -> ValueFn:
 
 
 def value_function(spatial_costs: Sequence[ValueFn], gamma: float, *, tol: float,
-                   dt: float = 1.0) -> ValueFn:
+                   dt: float = 1.0, hold: ValueFn | None = None) -> ValueFn:
     """The paper's V(xi) = d(xi) + gamma * max_i S_i(xi), batched (N, H, d) -> (N,).
 
     d(xi) = completion_index * dt (seconds when dt is the time per trajectory point);
-    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only).
+    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only);
+    hold: the seconds a safety monitor would add to each motion (None: the paper's V), so
+    that V is the time the motion takes under the monitor (:mod:`rapidds.execution.slowdowns`).
     """
     costs = list(spatial_costs)
     if not (math.isfinite(gamma) and gamma >= 0):
@@ -253,6 +255,8 @@ def value_function(spatial_costs: Sequence[ValueFn], gamma: float, *, tol: float
         if costs and gamma > 0:
             s = np.stack([np.asarray(c(trajectories), dtype=np.float64) for c in costs])
             v = v + gamma * s.max(axis=0)
+        if hold is not None:
+            v = v + np.asarray(hold(trajectories), dtype=np.float64)
         return v
 
     return value
