@@ -26,10 +26,10 @@ ARRAY_NAME = re.compile(r"""["'`](?:human|robot)/|\}/\{(?:task|t|j)\}"""
 
 # a cycle record read as the stored dict: a key only a record has, on any mapping (not assigned),
 # or any stored key on a variable named as a record is
-_ONLY_A_RECORDS = "realised|plan_cost|gamma_belief|executed|replans|pauses"
+_ONLY_A_RECORDS = "realised|plan_cost|gamma_belief|executed|replans|pauses|yields"
 _STORED_KEYS = ("cycle|human|robot|routes|gamma|lambda|expected|realised|observed|belief|"
                 "plan_cost|search|changes|comfort|gamma_belief|executed|deviation|pauses|replans|"
-                "protective|live|seconds|run_id")
+                "protective|yields|live|seconds|run_id")
 RECORD_KEY = re.compile(
     rf"""(?:\[\s*["'](?:{_ONLY_A_RECORDS})["']\s*\](?!\s*=[^=])"""
     rf"""|\.get\(\s*["'](?:{_ONLY_A_RECORDS})["'])"""

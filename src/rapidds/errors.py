@@ -47,3 +47,9 @@ class StudyDesignError(RapiddsError):
 
 class StudyDataError(RapiddsError):
     """A study data table lacks columns, holds NaN, or is unbalanced for the analysis asked."""
+
+
+class RuntimeFault(RapiddsError):
+    """The run could not go on for a reason that is not in its input (a cycle that cannot
+    progress, a cell that stopped): the CLI prints one line and exits with code 3, not 2.
+    A :class:`RapiddsError` still, so every caller that reports a user's error reports it."""

@@ -22,7 +22,7 @@ from rapidds.problem import Agent
 from rapidds.schedule import Item, Schedule, parse_item
 
 __all__ = ["CycleRecord", "Execution", "InCycle", "PlanCost", "PlanPart", "Predicted",
-           "Realised", "Slowdowns"]
+           "Realised", "Slowdowns", "Yield"]
 
 Json = dict[str, Any]
 
@@ -104,27 +104,62 @@ class Realised:
 
 
 @dataclass(frozen=True)
+class Yield:
+    """One time the robot gave way to a person who waited for it (a mutual hold,
+    :mod:`rapidds.execution.yielding`): its task, the person's task then (None: they had
+    none), when it yielded (s from the cycle's start), how long both had been held, how many
+    seconds of its path it backed along, and when it went on (None: the cycle ended first)."""
+
+    task: str
+    person_task: str | None
+    start: float
+    held: float
+    retreat: float
+    end: float | None
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> Yield:
+        return cls(d["task"], d["person_task"], d["start"], d["held"], d["retreat"], d["end"])
+
+    def to_json(self) -> Json:
+        return {"task": self.task, "person_task": self.person_task, "start": self.start,
+                "held": self.held, "retreat": self.retreat, "end": self.end}
+
+
+@dataclass(frozen=True)
 class InCycle:
     """Execution inside the cycle (only for runs whose execution is not the paper's): who did
-    what, the person's deviation, the robot's pauses and re-plans, its protective stops."""
+    what, the person's deviation, the robot's pauses and re-plans, its protective stops, and
+    its yields (None: stored before they were kept)."""
 
     executed: dict[str, tuple[Item, ...]]
     deviation: Json | None
     pauses: tuple[Json, ...]
     replans: tuple[Json, ...]
     protective: Any
+    yields: tuple[Yield, ...] | None = None
 
-    KEYS = ("executed", "deviation", "pauses", "replans", "protective")
+    KEYS = ("executed", "deviation", "pauses", "replans", "protective", "yields")
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> InCycle:
+        ys = d.get("yields")
         return cls({a: _items(s) for a, s in d["executed"].items()}, d["deviation"],
-                   tuple(d["pauses"]), tuple(d["replans"]), d["protective"])
+                   tuple(d["pauses"]), tuple(d["replans"]), d["protective"],
+                   None if ys is None else tuple(Yield.from_json(y) for y in ys))
 
     def to_json(self) -> Json:
         return {"executed": {a: [str(x) for x in s] for a, s in self.executed.items()},
                 "deviation": self.deviation, "pauses": list(self.pauses),
-                "replans": list(self.replans), "protective": self.protective}
+                "replans": list(self.replans), "protective": self.protective,
+                **({"yields": [y.to_json() for y in self.yields]}
+                   if self.yields is not None else {})}
+
+    @property
+    def yielded(self) -> float:
+        """Seconds the robot spent giving way this cycle (0 where none were kept)."""
+        return sum((y.end if y.end is not None else y.start) - y.start
+                   for y in self.yields or ())
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """``rapidds`` command line. Each submodule registers its commands on :data:`app`.
 
 Errors a user can fix (:class:`~rapidds.errors.RapiddsError`, typer's usage errors, a file the
-system refuses) become one line on stderr and exit code 2; a closed pipe ends the output quietly;
-anything else is a bug and keeps its traceback.
+system refuses) become one line on stderr and exit code 2; a runtime fault
+(:class:`~rapidds.errors.RuntimeFault`: a cycle that cannot progress) one line and exit code 3;
+a closed pipe ends the output quietly; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import sys
 
 import typer
 
-from rapidds.errors import RapiddsError, os_error_line
+from rapidds.errors import RapiddsError, RuntimeFault, os_error_line
 
 app = typer.Typer(
     name="rapidds",
@@ -81,6 +82,9 @@ def main() -> None:
         _register()
         rc = app(standalone_mode=False)
         sys.stdout.flush()  # here, where a closed pipe is caught, not at interpreter exit
+    except RuntimeFault as exc:  # before its base class: a runtime fault exits 3
+        typer.echo(f"rapidds: error: {exc}", err=True)
+        sys.exit(3)
     except RapiddsError as exc:
         typer.echo(f"rapidds: error: {exc}", err=True)
         sys.exit(2)

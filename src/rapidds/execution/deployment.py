@@ -42,6 +42,8 @@ class Deployment:
     # instants the executor watched with the robot on a task, those at which it moved while a
     # person was inside the protective distance, and the smallest (separation - S_p) moving
     protective: dict[str, Any] | None = None
+    # reactive execution: the robot's yields to a person who waited for it (execution.yielding)
+    yields: tuple[dict[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -25,17 +25,19 @@ from typing import Any
 
 import numpy as np
 
-from rapidds.errors import RapiddsError
+from rapidds.errors import RapiddsError, RuntimeFault
 from rapidds.execution.deployment import Deployment, realise
 from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_check, separation
 from rapidds.execution.replan import MotionSupply, Remainder, replan_remainder, robot_concurrency
 from rapidds.execution.sources import (
     HumanSource,
+    PlannedRobot,
     RobotSource,
     RobotView,
     SimulatedHuman,
     SteerableRobot,
 )
+from rapidds.execution.yielding import YieldGuard, YieldRule
 from rapidds.motion.interface import MotionPlan
 from rapidds.problem import Problem
 from rapidds.schedule import Item, Schedule, Timeline, Wait
@@ -73,12 +75,13 @@ class CycleExecutor:
     """One cycle of ``schedule`` fed by a human and a robot source under a robot policy;
     ``replanning`` (None: never) re-plans the rest when the person deviates; ``limits``: the
     robot's safety numbers, against which every watched instant is checked (the result's
-    ``protective``), whichever policy runs."""
+    ``protective``), whichever policy runs; ``yielding``: when a held robot gives way to a
+    person who waits for it (:mod:`.yielding`; only a policy that holds the robot needs it)."""
 
     def __init__(self, world: World, problem: Problem, schedule: Schedule, human: HumanSource,
                  robot: RobotSource, policy: RobotPolicy | None = None, *, beta: float,
                  replanning: Replanning | None = None, limits: SafetyLimits | None = None,
-                 max_time: float = 600.0):
+                 max_time: float = 600.0, yielding: YieldRule | None = None):
         self.world, self.problem, self.human, self.robot = world, problem, human, robot
         self.policy = policy or OpenLoop()
         self.beta, self.replanning, self.max_time = beta, replanning, max_time
@@ -105,6 +108,7 @@ class CycleExecutor:
         self._stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
         reacts = getattr(human, "reaction", None) is not None
         self.watching = reacts or not isinstance(self.policy, OpenLoop)
+        self.guard = YieldGuard(yielding or YieldRule(), world.dt)
 
     # -- starting what may start ----------------------------------------------------------------
     def _gated(self, task: str) -> bool:
@@ -203,16 +207,32 @@ class CycleExecutor:
         sep = separation(h_pts, r_pts)
         v_r = self.robot.speed()
         rate = self.policy.rate(sep, self._vh, v_r)
+        rate = self._yield(now, h_pts, (rate, rate))
         self.trace.append((now, sep, self._vh, v_r, rate))
-        return rate, RobotView(r_pts, rate > 0.0 and v_r > 0.0)
+        return rate, RobotView(r_pts, rate != 0.0 and v_r > 0.0)
+
+    def _yield(self, now: float, h_pts: np.ndarray, rates: tuple[float, float]) -> float:
+        """The rate after the yield rule: the policy's, or backing/standing while the robot
+        gives way (only where it can say how far along its task it is)."""
+        at = self.robot.progress() if isinstance(self.robot, PlannedRobot) else None
+        if at is None:
+            return rates[0]
+        before = len(self.guard.yields)
+        rate = self.guard.rate(now, at, self.running["human"], h_pts, rates, len(self.finish))
+        if len(self.guard.yields) > before:
+            self._replan(now, "yield", at[0])
+        return rate
 
     def _log_robot(self, now: float, rate: float) -> None:
         kind = "" if rate >= 1.0 or self.running["robot"] is None else (
+            f"yield: {self.guard.phase}" if self.guard.phase else
             "stop" if rate <= 0.0 else "slow")
         if self._robot_held is not None and self._robot_held[1] != kind:
             since, was = self._robot_held
+            why = (f"yielded to the person ({was[7:]})" if was.startswith("yield")
+                   else f"protective distance ({was})")
             self._robot_pauses.append({"agent": "robot", "task": self._held_task, "start": since,
-                                       "end": now, "reason": f"protective distance ({was})"})
+                                       "end": now, "reason": why})
             self._robot_held = None
         if kind and self._robot_held is None:
             self._robot_held, self._held_task = (now, kind), self.running["robot"]
@@ -338,11 +358,14 @@ class CycleExecutor:
             until = min(self.human.next_event(now, view), self.robot.next_event(now, rate), limit)
             if self.watching:
                 until = min(until, (math.floor(now / dt + 1e-9) + 1) * dt)
+            if rate < 0.0:  # backing while it yields: no further than the rule says
+                at = self.robot.progress() if isinstance(self.robot, PlannedRobot) else None
+                until = min(until, now + self.guard.retreat_left(at[1] if at else 0.0) / -rate)
             if not math.isfinite(until) and self._unstick(now):
                 continue
             self._stalled = self._stalled + 1 if until <= now else 0
             if not math.isfinite(until) or until > self.max_time or self._stalled > 1000:
-                raise RapiddsError(f"the cycle is stuck at t = {now:.2f} s (running "
+                raise RuntimeFault(f"the cycle is stuck at t = {now:.2f} s (running "
                                    f"{self.running}, waiting {self.queue})")
             for agent, ended in (("human", self.human.advance(now, until, view)),
                                  ("robot", self.robot.advance(now, until, rate))):
@@ -381,11 +404,12 @@ class CycleExecutor:
                        for s, e, t, r in self.human.pauses]
         pauses.sort(key=lambda p: (p["start"], p["agent"]))
         return dataclasses.replace(dep, pauses=tuple(pauses), replans=tuple(self.replans),
-                                   protective=self._protective())
+                                   protective=self._protective(),
+                                   yields=tuple(self.guard.finish(self.now)))
 
     def _protective(self) -> dict[str, Any] | None:
         if self.limits is None or not self.watching:
             return None
         return protective_check(self.limits, len(self.trace),
-                                ((sep, vh, rate * vr) for _, sep, vh, vr, rate in self.trace
-                                 if rate > 0.0 and vr > 0.0))
+                                ((sep, vh, abs(rate) * vr) for _, sep, vh, vr, rate in self.trace
+                                 if rate != 0.0 and vr > 0.0))

@@ -216,4 +216,4 @@ def cycle_record(config: RunConfig, dep: Deployment,
     return {"executed": {"human": list(sched.tasks("human")), "robot": list(sched.tasks("robot"))},
             "deviation": None if deviation is None else deviation.to_json(),
             "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans],
-            "protective": dep.protective}
+            "protective": dep.protective, "yields": [dict(y) for y in dep.yields]}

@@ -278,4 +278,4 @@ class ReactiveFetchGame(FetchGame):
                         Timeline(self.problem, tl.schedule, start, tl.finish), obs, dep.robot,
                         beta=self.executor.beta)
         return dataclasses.replace(again, pauses=dep.pauses, replans=dep.replans,
-                                   protective=dep.protective)
+                                   protective=dep.protective, yields=dep.yields)
