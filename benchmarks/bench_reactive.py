@@ -27,10 +27,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _common import cpu_model, load_average, update_docs_section  # noqa: E402
 
-SYSTEMS = {  # name -> (adapt, execution)
-    "planned": ("full", "planned"),
-    "reactive": ("none", "reactive"),
-    "both": ("full", "reactive"),
+SYSTEMS = {  # name -> (adapt, execution, slowdowns)
+    "planned": ("full", "planned", None),
+    "reactive": ("none", "reactive", "off"),
+    "both": ("full", "reactive", "learned"),  # plans for the monitor's holds (issue 34)
+    "both, no holds": ("full", "reactive", "off"),  # the plan of an open-loop robot, monitored
 }
 SEARCH = {  # small searches: what this shared 2-core machine affords (stated in the docs)
     "fetch": dict(population=12, generations=10, samples=16, patience=4, particles=2,
@@ -48,10 +49,10 @@ def run_one(world: str, deviate: float, system: str, seed: int, cycles: int,
     from rapidds.worlds.registry import make_world
 
     names = make_world(world).teammate_names
-    adapt, execution = SYSTEMS[system]
+    adapt, execution, slowdowns = SYSTEMS[system]
     cfg = RunConfig(world=world, human=names[seed % len(names)], adapt=adapt, cycles=cycles,
                     seed=seed, execution=execution, reacts=True, deviate=deviate,
-                    **SEARCH[world])
+                    slowdowns=slowdowns, **SEARCH[world])  # type: ignore[arg-type]
     t0, c0 = time.perf_counter(), time.process_time()
     recs = [r.to_json() for r in AdaptiveRun(cfg, policy).run()]  # type: ignore[arg-type]
     r = [x["realised"] for x in recs]
@@ -84,8 +85,11 @@ def _held(rec: dict, agent: str) -> float:
 def _cycle(rec: dict) -> dict:
     """What one cycle's record says of reacting inside it (for the per-cycle decomposition)."""
     r = rec["realised"]
+    slow = rec.get("slowdowns") or {}
     return {
         "cycle": rec["cycle"], "deviation": (rec["deviation"] or {}).get("kind"),
+        "robot_lost_s": sum(slow.get("lost", {}).values()),
+        "robot_hold_predicted_s": sum(slow.get("predicted", {}).values()),
         "cost": r["cost"], "makespan": r["makespan"], "spatial": r["spatial"],
         "expected": rec["expected"]["objective"], "robot_held_s": _held(rec, "robot"),
         "person_held_s": _held(rec, "person"),
@@ -208,7 +212,7 @@ def bench(args: argparse.Namespace) -> None:
     policy = load_policy(make_world(args.world))
     for seed in range(args.first_seed, args.seeds):
         for deviate in args.deviations:
-            for system in SYSTEMS:
+            for system in args.systems:
                 key = (args.world, deviate, system, seed, args.cycles)
                 if key in done:
                     continue
@@ -403,6 +407,8 @@ def main() -> None:
     p.add_argument("--deviations", type=lambda s: [float(x) for x in s.split(",")],
                    default=[0.0, 0.3, 0.6])
     p.add_argument("--runs", default=os.environ.get("RAPIDDS_BENCH_RUNS", "reactive-runs.jsonl"))
+    p.add_argument("--systems", type=lambda s: s.split(","), default=list(SYSTEMS),
+                   help=f"Comma-separated, of: {', '.join(SYSTEMS)}.")
     p.add_argument("--report", action="store_true")
     p.add_argument("--decomposition", default="",
                    help="Run the per-part decomposition of cycle 0 into this JSONL file.")
