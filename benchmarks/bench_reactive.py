@@ -31,7 +31,7 @@ SYSTEMS = {  # name -> (adapt, execution, slowdowns)
     "planned": ("full", "planned", None),
     "reactive": ("none", "reactive", "off"),
     "both": ("full", "reactive", "learned"),  # plans for the monitor's holds (issue 34)
-    "both, no holds": ("full", "reactive", "off"),  # the plan of an open-loop robot, monitored
+    "both-noholds": ("full", "reactive", "off"),  # the plan of an open-loop robot, monitored
 }
 SEARCH = {  # small searches: what this shared 2-core machine affords (stated in the docs)
     "fetch": dict(population=12, generations=10, samples=16, patience=4, particles=2,

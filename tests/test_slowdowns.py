@@ -175,3 +175,33 @@ def test_a_planned_run_has_no_slowdowns_in_its_record_or_model(fetch_policy):
     assert rec.slowdowns is None and "slowdowns" not in rec.to_json()
     assert run.model.slowdowns is None
     assert not json.dumps(rec.to_json()).count("hold")
+
+
+def test_a_resumed_run_learns_its_slowdowns_as_an_uninterrupted_one(tmp_path):
+    from record_helpers import stored
+
+    from rapidds.store import RunStore
+
+    # painting: its arm passes the person's reach, so holds are predicted and learned
+    cfg = RunConfig(world="painting", cycles=2, seed=2, execution="reactive", reacts=True,
+                    population=8, generations=2, samples=8, patience=2, particles=1,
+                    candidates=2)
+    with RunStore(tmp_path / "a.sqlite") as store:
+        whole = AdaptiveRun(cfg, store=store).run()
+        state = store.state(cfg.resolved(make_world("painting")).run_id, 1)
+    with RunStore(tmp_path / "b.sqlite") as store:
+        AdaptiveRun(cfg, store=store).step()  # then the process dies
+    with RunStore(tmp_path / "b.sqlite") as store:
+        resumed = AdaptiveRun(cfg, store=store)
+        assert resumed.next_cycle == 1 and resumed.model.slowdowns is not None
+        rest = resumed.run()
+        assert store.state(resumed.config.run_id, 1) == state
+
+    def same(rec):
+        out = stored(rec)
+        out["replans"] = [{k: v for k, v in r.items() if k not in ("latency_s", "steer_s")}
+                          for r in out.get("replans", [])]
+        return out
+
+    assert [same(r) for r in whole[1:]] == [same(r) for r in rest]
+    assert all(r.slowdowns is not None for r in whole)
