@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rapidds.errors import RapiddsError
+from rapidds.errors import RapiddsError, RuntimeFault
 from rapidds.experiments.ablation import (
     LOCAL_WORKER_ENV,
     AblationConfig,
@@ -36,6 +36,7 @@ from rapidds.experiments.report import (
     table_markdown,
     table_rows,
     verdict,
+    write_report,
 )
 from rapidds.store import RunStore
 
@@ -230,6 +231,47 @@ def _run(main, args: list[str]) -> int:
     finally:
         sys.argv = old
     return 0
+
+
+def _fault(config: dict) -> dict:
+    raise RuntimeFault(f"the cycle cannot progress at t = 9.00 s ({config['human']})")
+
+
+def test_a_failed_trial_is_kept_with_its_reason_and_the_others_run_on(study, tmp_path):
+    """One trial raising a runtime fault on its worker (as the mutual hold of issue 34 did):
+    kept as failed with its reason, the other trials stored, the report counts it; storing the
+    trial later (a rerun that succeeds) clears it."""
+    from distributed import Client
+
+    from rapidds.experiments.ablation import StudyOutcome, store_results
+
+    first, *rest = STUDY.trials_in_order()
+    with RunStore.open_readonly(study[0] / "study.sqlite") as st:
+        done = {c.run_id: [{k: v for k, v in r.items() if k != "run_id"}
+                           for r in st.records(c.run_id)] for c in [first, *rest]}
+    out = tmp_path / "f"
+    outcome = StudyOutcome(total=len(rest) + 1, skipped=0)
+    with ablation_store(out) as store, Client(processes=False, n_workers=1,
+                                              threads_per_worker=1, dashboard_address=":0") as c:
+        futures = {c.submit(_fault, first.model_dump(), pure=False): first}
+        futures.update({c.submit(lambda cfg: {"run_id": cfg.run_id,
+                                              "config": cfg.model_dump(),
+                                              "records": done[cfg.run_id], "seconds": 1.0},
+                                 cfg, pure=False): cfg for cfg in rest})
+        store_results(c, futures, store, outcome, None, time.perf_counter())
+        assert outcome.ran == len(rest) and [r for r, _ in outcome.failed] == [first.run_id]
+        assert set(store.failures()) == {first.run_id}
+        assert store.failures()[first.run_id]["config"] == first.model_dump()
+    data = load_ablation(out)
+    assert data.failed == {first.run_id: "the cycle cannot progress at t = 9.00 s "
+                                         f"({first.human})"}
+    write_report(data)
+    assert "1 trial(s) failed and were left out" in (out / "report.md").read_text()
+    assert first.run_id in (out / "report.md").read_text()
+    with ablation_store(out) as store:
+        assert store.record_trial(first.run_id, first.model_dump(), done[first.run_id])
+        assert store.failures() == {}
+    assert load_ablation(out).failed == {}
 
 
 def test_bad_input_is_one_line_and_exit_2(study, tmp_path, capsys):

@@ -177,7 +177,7 @@ def test_the_monitor_counts_its_latencies_into_the_reaction_time() -> None:
         return monitor.tick(1.0, (person, vh, 1.0 - age), "t")
 
     sep = float(np.linalg.norm(person[:, None] - points[None], axis=-1).min())
-    world_rate = SpeedSeparation(limits).rate(sep, vh, 0.7)
+    world_rate = SpeedSeparation(limits).rate_at(sep, vh, 0.7)
     fresh, old = rate(0.0), rate(0.3)
     assert 0.0 < old < fresh < world_rate
     late = limits.reaction_time + 0.05 + DELIVERY

@@ -177,10 +177,10 @@ def test_speed_and_separation_slows_before_it_stops():
     ssm = SpeedSeparation(limits)
     still = protective_distance(limits, 1.0, 0.0)
     full = protective_distance(limits, 1.0, 2.0)
-    assert ssm.rate(still - 1e-6, 1.0, 2.0) == 0.0
-    assert 0.0 < ssm.rate((still + full) / 2, 1.0, 2.0) < 1.0
-    assert ssm.rate(full + 1e-6, 1.0, 2.0) == 1.0
-    r = ssm.rate((still + full) / 2, 1.0, 2.0)
+    assert ssm.rate_at(still - 1e-6, 1.0, 2.0) == 0.0
+    assert 0.0 < ssm.rate_at((still + full) / 2, 1.0, 2.0) < 1.0
+    assert ssm.rate_at(full + 1e-6, 1.0, 2.0) == 1.0
+    r = ssm.rate_at((still + full) / 2, 1.0, 2.0)
     assert protective_distance(limits, 1.0, r * 2.0) == pytest.approx((still + full) / 2)
 
 

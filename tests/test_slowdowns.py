@@ -36,7 +36,7 @@ def test_the_predicted_rate_is_the_monitors_rate():
     vr = np.where(rng.random(2000) < 0.1, 0.0, rng.uniform(0, 6, 2000))
     got = hold_rates(LIMITS, sep, vh, vr)
     monitor = SpeedSeparation(LIMITS)
-    want = np.array([monitor.rate(s, h, r) for s, h, r in zip(sep, vh, vr, strict=True)])
+    want = np.array([monitor.rate_at(s, h, r) for s, h, r in zip(sep, vh, vr, strict=True)])
     assert np.allclose(got, want, atol=1e-12)
     assert 0 < (got == 0).sum() < 2000 and 0 < (got == 1).sum() < 2000
 

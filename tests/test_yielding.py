@@ -126,3 +126,44 @@ def test_the_mutual_hold_of_issue_34_no_longer_stops_the_run(capsys, tmp_path):
     assert len(recs) == 4
     assert all(r.execution.in_cycle is not None and r.execution.in_cycle.yields is not None
                for r in recs)
+
+
+# -- directed speeds (issue 34 item 3) -----------------------------------------------------------
+def _scene(human_v, robot_v):
+    from rapidds.execution import Scene
+
+    human = np.array([[0.0, 0.0], [0.0, 0.5]])
+    robot = np.array([[2.0, 0.0], [3.0, 0.0]])
+    return Scene(human, np.array(human_v, float), robot,
+                 None if robot_v is None else np.array(robot_v, float), 4.0, 1.5)
+
+
+def test_directed_speeds_count_only_what_closes_in():
+    from rapidds.execution import directed_speeds
+
+    # the person walks towards the robot at 1 u/s, the robot comes towards them at 2 u/s
+    d, vh, vr = directed_speeds(_scene([[1.0, 0.0], [1.0, 0.0]], [[-2.0, 0.0], [-2.0, 0.0]]))
+    assert d == pytest.approx(2.0) and vh == pytest.approx(1.0) and vr == pytest.approx(2.0)
+    # walking away, or across: nothing towards (floored at 0, never a credit)
+    _, vh, vr = directed_speeds(_scene([[-1.5, 0.0], [-1.5, 0.0]], [[2.0, 0.0], [0.0, 2.0]]))
+    assert vh == 0.0 and vr == pytest.approx(0.0, abs=1e-12)
+    # the fastest point's component counts, not only the closest pair's
+    _, vh, _ = directed_speeds(_scene([[0.0, 0.0], [3.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]))
+    assert vh == pytest.approx(3.0 * 2.0 / np.hypot(2.0, 0.5))
+    # a direction the monitor cannot know: the speed it has counts as towards
+    _, vh, vr = directed_speeds(_scene([[-1.5, 0.0], [-1.5, 0.0]], None))
+    assert vr == 4.0
+
+
+def test_a_person_walking_away_no_longer_holds_the_robot():
+    from rapidds.execution import SpeedSeparation
+    from rapidds.worlds.reactions import SafetyLimits as Limits
+
+    ssm = SpeedSeparation(Limits(0.5, 0.5, 0.2, 0.1, 0.05))
+    away = _scene([[-1.5, 0.0], [-1.5, 0.0]], [[-4.0, 0.0], [-4.0, 0.0]])
+    towards = _scene([[1.5, 0.0], [1.5, 0.0]], [[-4.0, 0.0], [-4.0, 0.0]])
+    undirected = ssm.rate_at(2.0, 1.5, 4.0)  # what the monitor did with total speeds
+    assert ssm.rate(towards) == pytest.approx(undirected)
+    assert 0.0 < undirected < ssm.rate(away) < 1.0
+    # the robot backing off (a yield) goes away from the person: allowed at full rate
+    assert ssm.rate(towards.backwards()) == 1.0

@@ -479,7 +479,25 @@ class RunStore:
                 "INSERT INTO cycles VALUES (?, ?, ?, NULL, ?)",
                 [(run_id, int(r["cycle"]), _dumps(r), now) for r in records],
             )
+            db.execute("DELETE FROM meta WHERE key=?", (self._FAILED + run_id,))
         return True
+
+    # failed trials ------------------------------------------------------------------------
+    _FAILED: ClassVar[str] = "failed:"  # meta keys: every store has the table; old: none
+
+    def record_failure(self, run_id: str, config: dict[str, Any], reason: str) -> None:
+        """Keep that a study's trial failed and why (its cycles are not stored); a later
+        :meth:`record_trial` of the same run, which succeeded, clears it."""
+        entry = _dumps({"config": config, "reason": reason, "created": time.time()})
+        with self._tx() as db:
+            db.execute("INSERT INTO meta VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET "
+                       "value=excluded.value", (self._FAILED + run_id, entry))
+
+    def failures(self) -> dict[str, dict[str, Any]]:
+        """run_id -> {"config", "reason", "created"} of every trial kept as failed."""
+        rows = self._rows("SELECT key, value FROM meta WHERE key >= ? AND key < ? ORDER BY key",
+                          (self._FAILED, self._FAILED[:-1] + ";"))
+        return {k[len(self._FAILED):]: self._json(v, f"failure of '{k}'") for k, v in rows}
 
     def last_cycle(self, run_id: str) -> int | None:
         (last,) = self._rows("SELECT MAX(cycle) FROM cycles WHERE run_id=?", (run_id,))[0]

@@ -21,6 +21,7 @@ is recorded, :class:`CellFault` is raised; ``--resume`` continues from the last 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ from rapidds.bridge.live import (
     tracking_topic,
 )
 from rapidds.bridge.reactive import SpeedMonitor, planned_speeds
+from rapidds.bridge.replan import LiveReplanner
 from rapidds.bridge.ros2 import (
     EVENTS_TOPIC,
     JOINT_STATE_TOPIC,
@@ -54,6 +56,7 @@ from rapidds.bridge.ros2 import (
 )
 from rapidds.errors import RapiddsError
 from rapidds.execution.deployment import Reactions
+from rapidds.schedule import Schedule
 from rapidds.worlds.base import body_point_names, joint_names
 
 if TYPE_CHECKING:
@@ -102,6 +105,15 @@ def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
     motions = {t: replace(m, duration=robot.get(t, m.duration))
                for t, m in plan.best.motions.items()}
     return replace(plan, best=replace(plan.best, motions=motions))
+
+
+def _ran(plan: CyclePlan, obs: CycleObservation) -> Schedule | None:
+    """The schedule the cell ran where a re-plan changed the robot's order (the robot's tasks
+    in the order they started, no waits: a re-planned rest has none); None: the plan's."""
+    robot = sorted(plan.best.schedule.tasks("robot"), key=lambda t: obs.start.get(t, math.inf))
+    if robot == list(plan.best.schedule.tasks("robot")):
+        return None
+    return Schedule(plan.best.schedule.sequence("human"), tuple(robot))
 
 
 def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
@@ -163,19 +175,23 @@ class LiveCell:
         return LivePlan.parse(string_message(payload).data)
 
     def _dispatch(self, plan: CyclePlan, live: LivePlan, obs: CycleObservation,
-                  sent: set[str]) -> None:
-        """Send each robot trajectory whose prerequisites have all ended (and are past t0)."""
+                  sent: set[str], replanner: LiveReplanner | None = None) -> None:
+        """Send each robot trajectory whose prerequisites have all ended (and are past t0), in
+        the robot's order as last re-planned (the plan's without re-plans); the trajectory's
+        frame_id names its task."""
         if time.time_ns() < live.stamp_ns:
             return
         dt = self.run.world.dt
-        for task in live.order["robot"]:
-            if task in sent or not all(x in obs.end for x in live.after[task]):
+        order, after = ((live.order, live.after) if replanner is None
+                        else (replanner.order, replanner.after))
+        for task in order["robot"]:
+            if task in sent or not all(x in obs.end for x in after[task]):
                 continue
             motion = plan.best.motions[task]
             q = np.asarray(motion.trajectory, dtype=float)
             rows = min(len(q), int(np.ceil(motion.duration / dt - 1e-9)) + 1)
-            self.link.publish(TRAJECTORY_TOPIC, joint_trajectory(self.joints, q[:max(rows, 2)],
-                                                                 dt, stamp_ns=time.time_ns()))
+            self.link.publish(TRAJECTORY_TOPIC, joint_trajectory(
+                self.joints, q[:max(rows, 2)], dt, stamp_ns=time.time_ns(), frame_id=task))
             sent.add(task)
             log.info("cycle %d: dispatched %s (%d rows)", plan.cycle, task, rows)
 
@@ -221,22 +237,26 @@ class LiveCell:
         if now < tick:
             return tick
         running = next((t for t in live.order["robot"] if t in sent and t not in obs.end), None)
-        rate = monitor.tick(now, obs.latest(), running)
+        rate = monitor.tick(now, obs.latest(), running, obs.velocities())
         self.link.publish(SPEED_SCALING_TOPIC, float64_message(rate))
         period = 1.0 / self.options.scaling_rate
         return (np.floor(now / period + 1e-9) + 1) * period
 
-    def observe(self, plan: CyclePlan,
-                monitor: SpeedMonitor | None = None) -> CycleObservation:
+    def observe(self, plan: CyclePlan, monitor: SpeedMonitor | None = None,
+                replans: list[dict[str, Any]] | None = None) -> CycleObservation:
         """Run one cycle on the link and return what was observed; CellFault on a fault.
-        ``monitor``: reactive execution's, ticked while the cycle runs."""
+        ``monitor``: reactive execution's, ticked while the cycle runs; ``replans``: where
+        the re-plans of the rest go when the person deviates (None: the plan is followed)."""
         live = self._publish_plan(plan)
         obs = CycleObservation(live, self.points, gate=self._gate)
         sent: set[str] = set()
+        replanner = None if replans is None else self._replanner(plan, live)
         self._robot_seen = time.monotonic()
         tick = 0.0
         while not obs.done:
-            self._dispatch(plan, live, obs, sent)
+            if replanner is not None:
+                self._deviations(live, obs, sent, replanner)
+            self._dispatch(plan, live, obs, sent, replanner)
             wait = 0.02
             if monitor is not None:
                 tick = self._scale(live, obs, sent, monitor, tick)
@@ -249,6 +269,8 @@ class LiveCell:
             if live.cell_seconds(time.time_ns()) > self.options.cycle_timeout:
                 raise self._stop(plan.cycle, f"the cycle took over "
                                              f"{self.options.cycle_timeout:g} s")
+        if replanner is not None and replans is not None:
+            replans.extend(replanner.replans)
         # Zenoh keeps the order of messages per key only: the person's last tracked rows may
         # come after their last end event. A tracker streams at rest too, so read on until
         # every body point is tracked past that end (robot_timeout wall s at most).
@@ -261,6 +283,30 @@ class LiveCell:
             self._take(live, obs)
         return obs
 
+    def _replanner(self, plan: CyclePlan, live: LivePlan) -> LiveReplanner:
+        """The cycle's re-planner, with the learned models as they stand (as a simulated
+        reactive cycle's re-plans have them)."""
+        from rapidds.loop.execute import cycle_replanning
+
+        run = self.run
+        rp = cycle_replanning(run.world, run.problem, plan.best.motions,
+                              (run.model.temporal.mean(), run.model.temporal.std()),
+                              run.model.spatial)
+        return LiveReplanner(run.problem, {a: list(o) for a, o in live.order.items()},
+                             {t: list(v) for t, v in live.after.items()}, rp)
+
+    def _deviations(self, live: LivePlan, obs: CycleObservation, sent: set[str],
+                    replanner: LiveReplanner) -> None:
+        """Re-plan the robot's rest on each deviation of the person seen so far."""
+        now = live.cell_seconds(time.time_ns())
+        started = sorted((t for t in obs.start if live.agent.get(t) == "human"),
+                         key=lambda t: obs.start[t])
+        for reason, task in replanner.deviations(now, obs.start, obs.end, started):
+            entry = replanner.replan(now, reason, task, obs.start, obs.end, sorted(sent))
+            log.info("cycle %d: re-planned at %.2f s (%s %s): robot %s%s", live.cycle, now,
+                     reason, task, replanner.order["robot"],
+                     "" if entry["changed"] else " (unchanged)")
+
     def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
         """Plan, run over the link, learn, record. Returns the result and what the link saw
         beyond the deployment (the robot's realised durations, contacts; also the record's
@@ -270,12 +316,14 @@ class LiveCell:
         run = self.run
         plan = run.plan()
         monitor = self._monitor(plan)
-        obs = self.observe(plan, monitor)
+        replans: list[dict[str, Any]] | None = [] if monitor is not None else None
+        obs = self.observe(plan, monitor, replans)
         reacted = None
         if monitor is not None:
             monitor.close(max(obs.end.values(), default=0.0))
             self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
-            reacted = Reactions(tuple(monitor.pauses), (), monitor.protective())
+            reacted = Reactions(tuple(monitor.pauses), tuple(replans or ()),
+                                monitor.protective(), _ran(plan, obs))
         try:
             human = obs.human_executions(run.world.dt)
         except MessageError as exc:

@@ -201,6 +201,19 @@ class CycleObservation:
         return (np.stack([self._tracks[n][-1][1] for n in self.points]), speed,
                 min(self._tracks[n][-1][0] for n in self.points))
 
+    def velocities(self) -> np.ndarray | None:
+        """Each body point's velocity (P, 3) between its last two samples, by their stamps (0
+        for a point with one sample); None until every point is tracked. For the person's
+        speed towards the robot (ISO/TS 15066's directed v_h)."""
+        if not all(self._tracks.get(n) for n in self.points):
+            return None
+        out = np.zeros((len(self.points), 3))
+        for k, n in enumerate(self.points):
+            track = self._tracks[n]
+            if len(track) > 1 and track[-1][0] > track[-2][0]:
+                out[k] = (track[-1][1] - track[-2][1]) / (track[-1][0] - track[-2][0])
+        return out
+
     def tracked_past(self, t: float) -> bool:
         """Every body point has a sample stamped at cell time ``t`` or later."""
         return all(self._tracks.get(n) and self._tracks[n][-1][0] >= t for n in self.points)

@@ -32,7 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from rapidds.execution.policies import SpeedSeparation, protective_check, separation
+from rapidds.execution.policies import (
+    Scene,
+    SpeedSeparation,
+    directed_speeds,
+    protective_check,
+)
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import SafetyLimits, cell_reactions
 
@@ -101,10 +106,12 @@ class SpeedMonitor:
         return pts[1], speed
 
     def tick(self, now: float, person: tuple[np.ndarray, float, float] | None,
-             task: str | None) -> float:
+             task: str | None, velocity: np.ndarray | None = None) -> float:
         """The rate at cell time ``now`` with the person's body points, speed and the time of
         their oldest sample ``person`` (None: not tracked yet) while robot task ``task`` runs
-        (None: idle, full rate). Untracked or stale: held."""
+        (None: idle, full rate); ``velocity``: their points' velocities (K, 3), for their
+        speed towards the robot (None: their speed counts as towards it). Untracked or stale:
+        held."""
         robot = self._robot()
         why = "protective distance"
         if task is None:
@@ -112,9 +119,12 @@ class SpeedMonitor:
         elif person is None or robot is None or now - person[2] > STALE:
             rate, why = 0.0, "no tracking"
         else:
-            (human, vh, _), (points, vr) = person, robot
-            sep = separation(human, points)
-            rate = self.policy_now(now - person[2]).rate(sep, vh, self.speeds.get(task, 0.0))
+            (human, speed, _), (points, vr) = person, robot
+            # the robot's direction along its path is unknown here (a held arm's, at full
+            # rate): its planned fastest speed counts as towards the person, the bound
+            scene = Scene(human, velocity, points, None, self.speeds.get(task, 0.0), speed)
+            sep, vh, _ = directed_speeds(scene)
+            rate = self.policy_now(now - person[2]).rate(scene)
             self.trace.append((now, sep, vh, vr, self.rate))
         self._log(now, rate, task, why)
         self.rate = rate

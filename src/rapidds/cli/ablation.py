@@ -124,6 +124,10 @@ def ablation_cmd(
     log_session(out, outcome, where, study=study.model_dump())
     err.print(f"{outcome.ran} trials run, {outcome.skipped} already stored, "
               f"{outcome.wall_s:.1f} s on {outcome.workers} workers ({where})", highlight=False)
+    if outcome.failed:
+        rid, why = outcome.failed[0]
+        err.print(f"{len(outcome.failed)} trial(s) failed, kept with their reasons (report.md; "
+                  f"a rerun retries them); {rid}: {why}", highlight=False, markup=False)
     _print_report(out, as_json, console)
 
 

@@ -115,7 +115,8 @@ def _summary(store: StudyStore, out: Path) -> dict[str, Any]:
             "items": list(store.items.ids),
             "runs_finished": sum(store.rounds_done(p.id, s) >= design.rounds
                                  for p in store.participants() for s in p.systems),
-            "participants_done": sum(s.kind == "done" for s in steps.values())}
+            "participants_done": sum(s.kind == "done" for s in steps.values()),
+            **({"runs_failed": failed} if (failed := store.failures()) else {})}
 
 
 @study_app.command("design")
@@ -205,6 +206,10 @@ def simulate_cmd(
     err.print(f"{outcome.ran} runs simulated, {outcome.skipped} already stored, "
               f"{outcome.wall_s:.1f} s on {outcome.workers} workers ({where}); "
               f"analyse with: rapidds study analyze {out}", highlight=False)
+    if outcome.failed:
+        rid, why = outcome.failed[0]
+        err.print(f"{len(outcome.failed)} run(s) failed, kept with their reasons (a rerun "
+                  f"retries them); {rid}: {why}", highlight=False, markup=False)
 
 
 @study_app.command("analyze")

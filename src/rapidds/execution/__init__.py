@@ -11,7 +11,14 @@ the cycle, :class:`Replanning`). What it returns is the realised cycle as a
 
 from rapidds.execution.deployment import Deployment, realise
 from rapidds.execution.executor import CycleExecutor, Replanning
-from rapidds.execution.policies import OpenLoop, RobotPolicy, SpeedSeparation, protective_distance
+from rapidds.execution.policies import (
+    OpenLoop,
+    RobotPolicy,
+    Scene,
+    SpeedSeparation,
+    directed_speeds,
+    protective_distance,
+)
 from rapidds.execution.replan import MotionSupply
 from rapidds.execution.sources import (
     HumanSource,
@@ -33,9 +40,11 @@ __all__ = [
     "RobotPolicy",
     "RobotSource",
     "RobotView",
+    "Scene",
     "SimulatedHuman",
     "SpeedSeparation",
     "SteerableRobot",
+    "directed_speeds",
     "protective_distance",
     "realise",
 ]

@@ -17,7 +17,7 @@ import numpy as np
 
 from rapidds.human.spatial import point_cost
 from rapidds.problem import Problem
-from rapidds.schedule import Timeline
+from rapidds.schedule import Schedule, Timeline
 from rapidds.worlds.base import HumanExecution, World, body_points
 
 __all__ = ["Deployment", "Reactions", "cycle_positions", "min_separation", "realise",
@@ -49,11 +49,14 @@ class Deployment:
 @dataclass(frozen=True)
 class Reactions:
     """What a reactive layer outside the executor did in a cycle (a live cell's monitor): the
-    robot's pauses, its re-plans, and the protective-distance check, as a Deployment keeps them."""
+    robot's pauses, its re-plans, and the protective-distance check, as a Deployment keeps them;
+    ``schedule``: the order the cell ran where its re-plans changed the plan's (None: the
+    plan's), which the cycle is realised with."""
 
     pauses: tuple[dict[str, Any], ...] = ()
     replans: tuple[dict[str, Any], ...] = ()
     protective: dict[str, Any] | None = None
+    schedule: Schedule | None = None
 
 
 def _positions(

@@ -27,7 +27,13 @@ import numpy as np
 
 from rapidds.errors import RapiddsError, RuntimeFault
 from rapidds.execution.deployment import Deployment, realise
-from rapidds.execution.policies import OpenLoop, RobotPolicy, protective_check, separation
+from rapidds.execution.policies import (
+    OpenLoop,
+    RobotPolicy,
+    Scene,
+    directed_speeds,
+    protective_check,
+)
 from rapidds.execution.replan import MotionSupply, Remainder, replan_remainder, robot_concurrency
 from rapidds.execution.sources import (
     HumanSource,
@@ -92,8 +98,9 @@ class CycleExecutor:
         self.doer: dict[str, str] = {}
         self.running: dict[str, str | None] = {a: None for a in AGENTS}
         self.replans: list[dict[str, Any]] = []
-        # every instant watched while the robot had a task: (t, separation, person's speed,
-        # robot's speed at full rate, rate), for checks of the protective distance
+        # every instant watched while the robot had a task: (t, separation, person's speed
+        # towards the robot, robot's towards the person at full rate in the direction it went,
+        # rate), for checks of the protective distance
         self.trace: list[tuple[float, float, float, float, float]] = []
         self._robot_held: tuple[float, str] | None = None  # since when, "stop" or "slow"
         self._held_task: str | None = None
@@ -102,7 +109,7 @@ class CycleExecutor:
         self._claimed: frozenset[str] = frozenset()  # robot tasks the person took
         self._steered: dict[str, MotionPlan] = {}  # motions re-plans gave the robot
         self._last: tuple[float, np.ndarray] | None = None
-        self._vh = 0.0
+        self._vel_h: np.ndarray | None = None  # the person's body points' velocities
         self.now = 0.0  # the executor's clock: every instant before it has been run
         self.rate = 1.0  # the robot's rate from the last instant run (what a live page shows)
         self._stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
@@ -199,17 +206,20 @@ class CycleExecutor:
             return 1.0, RobotView(r_pts, self.running["robot"] is not None)
         h_pts = self.human.points()
         if self._last is not None and now - self._last[0] > 1e-6:
-            step = np.linalg.norm(h_pts - self._last[1], axis=-1).max()
-            self._vh = float(step / (now - self._last[0]))
+            self._vel_h = (h_pts - self._last[1]) / (now - self._last[0])
         self._last = (now, h_pts)
         if self.running["robot"] is None:
             return 1.0, RobotView(r_pts, False)
-        sep = separation(h_pts, r_pts)
-        v_r = self.robot.speed()
-        rate = self.policy.rate(sep, self._vh, v_r)
-        rate = self._yield(now, h_pts, (rate, rate))
-        self.trace.append((now, sep, self._vh, v_r, rate))
-        return rate, RobotView(r_pts, rate != 0.0 and v_r > 0.0)
+        speed = self.robot.speed()
+        scene = Scene(h_pts, np.zeros_like(h_pts) if self._vel_h is None else self._vel_h,
+                      r_pts, self.robot.velocity(), speed)
+        forward = self.policy.rate(scene)
+        back = (self.policy.rate(scene.backwards()) if forward < 1.0 or self.guard.phase
+                else 0.0)
+        rate = self._yield(now, h_pts, (forward, back))
+        self.trace.append((now, *directed_speeds(scene if rate >= 0 else scene.backwards()),
+                           rate))
+        return rate, RobotView(r_pts, rate != 0.0 and speed > 0.0)
 
     def _yield(self, now: float, h_pts: np.ndarray, rates: tuple[float, float]) -> float:
         """The rate after the yield rule: the policy's, or backing/standing while the robot

@@ -3,36 +3,87 @@
 :class:`OpenLoop` is the paper's execution: the robot follows its plan whatever happens.
 :class:`SpeedSeparation` is speed and separation monitoring after ISO/TS 15066:2016, clause
 5.5.4 (the protective separation distance of its Eq. 1, with ISO 13855 for the person's
-speed): the robot may only move at a rate r of its planned speed v_r while the smallest
-distance d between any of its body points and any of the person's is at least
+speed): the robot may only move at a rate r of its planned speed while the smallest distance d
+between any of its body points and any of the person's is at least
 
     S_p(r) = v_h (T_r + T_s) + r v_r T_r + r v_r T_s / 2 + C + Z_d + Z_r
 
-with v_h the person's measured speed (the fastest of their body points over the last tick),
-T_r the robot's reaction time, T_s its stopping time (a constant deceleration from r v_r, so
-S_s = r v_r T_s / 2), C the intrusion distance and Z_d, Z_r the sensing and position
-uncertainties (:class:`rapidds.worlds.reactions.SafetyLimits`). It takes the largest such
-r in [0, 1]: full speed when clear, slower as the person nears, stopped inside S_p(0).
-Re-planning the rest of the cycle is the third policy, in :mod:`.replan`.
+with v_h the person's speed *towards the robot* and v_r the robot's *towards the person* at
+full rate (the standard's directed speeds, :func:`directed_speeds`, floored at 0: one who
+moves away counts as standing, never as a credit), T_r the robot's reaction time, T_s its
+stopping time (a constant deceleration from r v_r, so S_s = r v_r T_s / 2), C the intrusion
+distance and Z_d, Z_r the sensing and position uncertainties
+(:class:`rapidds.worlds.reactions.SafetyLimits`). It takes the largest such r in [0, 1]: full
+speed when clear, slower as the person nears, stopped inside S_p(0). A policy sees one
+:class:`Scene` per instant: both agents' body points and velocities. Re-planning the rest of
+the cycle is the third policy, in :mod:`.replan`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from rapidds.worlds.reactions import SafetyLimits
 
-__all__ = ["OpenLoop", "RobotPolicy", "SpeedSeparation", "protective_check",
-           "protective_distance", "separation"]
+__all__ = ["OpenLoop", "RobotPolicy", "Scene", "SpeedSeparation", "directed_speeds",
+           "protective_check", "protective_distance", "separation"]
 
 
 def separation(a: np.ndarray, b: np.ndarray) -> float:
     """d: the smallest distance between any of the points ``a`` (n, k) and ``b`` (m, k)."""
     return float(np.linalg.norm(a[:, None] - b[None], axis=-1).min())
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One instant as a monitor sees it. human: the person's body points (K, d);
+    human_velocity: theirs (K, d, units/s); robot: the robot's (P, d); robot_velocity: its
+    points' velocities at full rate (P, d). A velocity is None where the monitor cannot know
+    its direction: then the speed beside it (the fastest point's; the robot's at full rate)
+    counts as towards the other."""
+
+    human: np.ndarray
+    human_velocity: np.ndarray | None
+    robot: np.ndarray
+    robot_velocity: np.ndarray | None
+    robot_speed: float = 0.0
+    human_speed: float = 0.0
+
+    def backwards(self) -> Scene:
+        """The robot going back along its path (a yield): its velocities reversed."""
+        v = None if self.robot_velocity is None else -self.robot_velocity
+        return replace(self, robot_velocity=v)
+
+
+def _towards(points: np.ndarray, velocity: np.ndarray, other: np.ndarray) -> float:
+    """The fastest of ``points``' speeds towards the nearest of ``other``'s (0 if none
+    approaches): each point's velocity along the unit vector to its nearest other point."""
+    diff = other[None] - points[:, None]  # (n, m, d)
+    dist = np.linalg.norm(diff, axis=-1)
+    near = dist.argmin(axis=1)
+    rows = np.arange(len(points))
+    unit = diff[rows, near] / np.maximum(dist[rows, near], 1e-12)[:, None]
+    return max(float(np.einsum("nd,nd->n", velocity, unit).max(initial=0.0)), 0.0)
+
+
+def directed_speeds(scene: Scene) -> tuple[float, float, float]:
+    """(d, v_h, v_r) of ISO/TS 15066 5.5.4: the separation; the person's speed towards the
+    robot (the fastest of their body points' velocity components towards the robot's nearest
+    point); the robot's towards the person at full rate, likewise (where a direction is
+    unknown, the speed the scene gives). Both floored at 0: a person walking away counts as
+    standing (the standard allows the directed speed; a floor of 0 is the common and
+    conservative choice). The fastest point's, not only the closest pair's: a hand may close
+    in faster than the nearest point does."""
+    sep = separation(scene.human, scene.robot)
+    v_h = (scene.human_speed if scene.human_velocity is None
+           else _towards(scene.human, scene.human_velocity, scene.robot))
+    v_r = (scene.robot_speed if scene.robot_velocity is None
+           else _towards(scene.robot, scene.robot_velocity, scene.human))
+    return sep, v_h, v_r
 
 
 def protective_distance(limits: SafetyLimits, human_speed: float, robot_speed: float) -> float:
@@ -45,8 +96,9 @@ def protective_distance(limits: SafetyLimits, human_speed: float, robot_speed: f
 def protective_check(limits: SafetyLimits, watched: int,
                      moving: Iterable[tuple[float, float, float]]) -> dict[str, Any]:
     """A cycle's check against the protective distance: of ``watched`` instants, those at which
-    the robot moved, given as (separation, person's speed, robot's speed), how many of them were
-    inside S_p and the closest margin (separation - S_p)."""
+    the robot moved, given as (separation, person's speed, robot's speed; directed, as the
+    policy saw them), how many of them were inside S_p and the closest margin (separation -
+    S_p)."""
     margins = [sep - protective_distance(limits, vh, vr) for sep, vh, vr in moving]
     return {"watched": watched, "moving": len(margins),
             "moving_inside": sum(m < -1e-9 for m in margins),
@@ -56,23 +108,27 @@ def protective_check(limits: SafetyLimits, watched: int,
 class RobotPolicy(Protocol):
     """Decides the robot's rate (fraction of its planned speed) at one instant."""
 
-    def rate(self, separation: float, human_speed: float, robot_speed: float) -> float: ...
+    def rate(self, scene: Scene) -> float: ...
 
 
 class OpenLoop:
     """The paper: the plan runs as planned."""
 
-    def rate(self, separation: float, human_speed: float, robot_speed: float) -> float:
+    def rate(self, scene: Scene) -> float:
         return 1.0
 
 
 @dataclass(frozen=True)
 class SpeedSeparation:
-    """Speed and separation monitoring with the robot's ``limits``."""
+    """Speed and separation monitoring with the robot's ``limits``, on directed speeds."""
 
     limits: SafetyLimits
 
-    def rate(self, separation: float, human_speed: float, robot_speed: float) -> float:
+    def rate(self, scene: Scene) -> float:
+        return self.rate_at(*directed_speeds(scene))
+
+    def rate_at(self, separation: float, human_speed: float, robot_speed: float) -> float:
+        """The largest r in [0, 1] with separation >= S_p(r), for the (directed) speeds."""
         still = protective_distance(self.limits, human_speed, 0.0)
         if separation < still:
             return 0.0

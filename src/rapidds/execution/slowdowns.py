@@ -44,7 +44,7 @@ def hold_rates(limits: SafetyLimits, separation: np.ndarray, human_speed: np.nda
                robot_speed: np.ndarray) -> np.ndarray:
     """The monitor's rate for arrays of (d, v_h, v_r): the largest r in [0, 1] with
     d >= S_p(r); S_p is affine in the robot's speed, so r = (d - S_p(0)) / (S_p(v_r) - S_p(0)).
-    Equal to ``SpeedSeparation(limits).rate`` elementwise (tests/test_slowdowns.py checks)."""
+    Equal to ``SpeedSeparation(limits).rate_at`` elementwise (tests/test_slowdowns.py checks)."""
     still = protective_distance(limits, human_speed, 0.0 * robot_speed)
     per_rate = protective_distance(limits, human_speed, robot_speed) - still
     room = separation - still

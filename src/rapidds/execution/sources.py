@@ -93,6 +93,10 @@ class RobotSource(Protocol):
         """The fastest of its body points' speeds at full rate where it is now (units / s)."""
         ...
 
+    def velocity(self) -> np.ndarray:
+        """(P, d_ws) its body points' velocities at full rate where it is now (units / s)."""
+        ...
+
     def realised(self) -> dict[str, np.ndarray]:
         """Per finished task the trajectory (H', d) it followed, row k at k * dt."""
         ...
@@ -149,6 +153,7 @@ class PlannedRobot:
     _run: Progress | None = None
     _points: dict[str, np.ndarray] = field(default_factory=dict)
     _speed: dict[str, np.ndarray] = field(default_factory=dict)
+    _velocity: dict[str, np.ndarray] = field(default_factory=dict)
     _done: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -162,8 +167,11 @@ class PlannedRobot:
             return
         pts = self.world.robot_points(np.asarray(m.trajectory, float))  # (H, P, d_ws)
         self._points[m.task] = pts
-        step = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max(axis=-1) / self.world.dt
-        self._speed[m.task] = np.append(step, 0.0)
+        step = np.diff(pts, axis=0)
+        self._speed[m.task] = np.append(np.linalg.norm(step, axis=-1).max(axis=-1)
+                                        / self.world.dt, 0.0)
+        # row k: on to row k + 1, as the robot goes on from k
+        self._velocity[m.task] = np.concatenate([step, np.zeros_like(pts[:1])]) / self.world.dt
 
     def follow(self, plan: MotionPlan) -> None:
         """Do ``plan.task`` with ``plan`` (the task has not started)."""
@@ -172,6 +180,7 @@ class PlannedRobot:
         self.motions = {**self.motions, plan.task: plan}
         self._points.pop(plan.task, None)
         self._speed.pop(plan.task, None)
+        self._velocity.pop(plan.task, None)
         self._prepare(plan)
 
     def start(self, task: str, now: float) -> None:
@@ -216,6 +225,10 @@ class PlannedRobot:
     def speed(self) -> float:
         at = self._row()
         return 0.0 if at is None else float(self._speed[at[0]][at[1]])
+
+    def velocity(self) -> np.ndarray:
+        at = self._row()
+        return np.zeros_like(self._rest) if at is None else self._velocity[at[0]][at[1]]
 
     def realised(self) -> dict[str, np.ndarray]:
         return dict(self._done)

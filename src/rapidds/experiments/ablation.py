@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 from pydantic import Field, field_validator
 
-from rapidds.errors import RapiddsError, StateError
+from rapidds.errors import RapiddsError, RuntimeFault, StateError
 from rapidds.loop.config import ADAPT_LEVELS, Execution, RunConfig, Slowdowns
 from rapidds.settings import Flag, Int, Real, Settings
 from rapidds.store import RunStore
@@ -212,7 +212,8 @@ def run_trial(config: dict[str, Any]) -> dict[str, Any]:
 
 @dataclass
 class StudyOutcome:
-    """total: trials in the study; skipped: already stored before; ran: stored by this call."""
+    """total: trials in the study; skipped: already stored before; ran: stored by this call;
+    failed: (run_id, reason) of each trial that failed in this call (kept in the store)."""
 
     total: int
     skipped: int
@@ -220,6 +221,7 @@ class StudyOutcome:
     wall_s: float = 0.0
     workers: int = 0
     trial_seconds: list[float] = field(default_factory=list)
+    failed: list[tuple[str, str]] = field(default_factory=list)
 
 
 TrialCallback = Callable[[dict[str, Any], int, int], None]
@@ -266,8 +268,9 @@ def run_ablation(
     """Submit every trial not yet stored, store each as it finishes; returns the counts.
     ``on_start(total, already_stored)`` is called once before the first result.
 
-    A failed trial stops the study (the others in flight are cancelled; everything stored so
-    far stays): a user error raised on a worker (e.g. no bundled policy) is re-raised as is.
+    A trial that fails (a runtime fault, a bug) is kept as failed with its reason and the
+    others run on; a user error raised on a worker (e.g. no bundled policy), which every trial
+    would raise, stops the study (see :func:`store_results`). A rerun retries failed trials.
     """
     check_settings(study, store)
     done = finished_run_ids(store, study.cycles)
@@ -290,27 +293,37 @@ def run_ablation(
 def store_results(client: Client, futures: dict[Any, Any], store: RunStore,
                   outcome: StudyOutcome, on_trial: TrialCallback | None, t0: float,
                   noun: str = "trial") -> None:
-    """Store each submitted run as its Dask future finishes (``futures``: future -> anything with
-    a ``run_id``), counting into ``outcome``. A failed run stops everything: the runs still in
-    flight are cancelled, what is stored stays, and a user error raised on a worker is re-raised
-    as is. Shared by the ablation study and the simulated user study."""
+    """Store each submitted run as its Dask future finishes (``futures``: future -> its
+    :class:`~rapidds.loop.config.RunConfig` or anything with a ``run_id`` and a ``config``
+    dict), counting into ``outcome``. A run that failed on its own (a
+    :class:`~rapidds.errors.RuntimeFault`, an unexpected exception) is kept as failed with its
+    reason (:meth:`~rapidds.store.RunStore.record_failure`) and the others go on; a user error
+    raised on a worker (every run would raise it) or a worker killed repeatedly stops
+    everything: the runs still in flight are cancelled, what is stored stays. Shared by the
+    ablation study and the simulated user study."""
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
     stored = outcome.skipped
     try:
         for fut in as_completed(list(futures)):
-            run_id = futures.pop(fut).run_id
+            item = futures.pop(fut)
+            run_id = item.run_id
             if fut.status == "error":
                 exc = fut.exception()
-                if isinstance(exc, RapiddsError):
+                if isinstance(exc, RapiddsError) and not isinstance(exc, RuntimeFault):
                     raise exc
                 if isinstance(exc, KilledWorker):
                     raise RapiddsError(f"{noun} {run_id} killed its worker repeatedly "
                                        f"(out of memory?); {stored} {noun}s are stored, "
                                        "rerun to continue") from exc
-                raise RuntimeError(f"{noun} {run_id} failed: {type(exc).__name__}: {exc}; "
-                                   f"{stored} {noun}s are stored") from exc
+                reason = (str(exc) if isinstance(exc, RuntimeFault)
+                          else f"{type(exc).__name__}: {exc}")
+                config = item.model_dump() if hasattr(item, "model_dump") else dict(item.config)
+                store.record_failure(run_id, config, reason)
+                outcome.failed.append((run_id, reason))
+                fut.release()
+                continue
             if fut.status == "cancelled":
                 raise RapiddsError(f"{noun} {run_id} was cancelled by the Dask scheduler; "
                                    f"{stored} {noun}s are stored, rerun to continue")

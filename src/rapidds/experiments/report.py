@@ -70,6 +70,7 @@ class AblationData:
     trials: dict[str, dict[str, dict[int, np.ndarray]]]
     incomplete: list[str] = field(default_factory=list)
     sessions: list[dict[str, Any]] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)  # run_id -> why (kept by the store)
 
     def metric(self, human: str, level: str, name: str = "cost") -> np.ndarray:
         """(trials, cycles), rows in trial-seed order (so rows of two levels pair up)."""
@@ -103,7 +104,8 @@ def _ordered(keys: set[str], order: tuple[str, ...]) -> list[str]:
 
 
 def load_ablation(out: Path) -> AblationData:
-    """Read ``out/study.sqlite``; a run missing cycles is listed in ``incomplete``, not used."""
+    """Read ``out/study.sqlite``; a run missing cycles is listed in ``incomplete``, a trial
+    that failed in ``failed`` (with its reason); neither is used."""
     path = out / STORE_NAME
     if not path.is_file():
         raise StateError(f"{out} holds no study ({STORE_NAME} missing); "
@@ -113,6 +115,7 @@ def load_ablation(out: Path) -> AblationData:
     cycles: int | None = None
     settings: dict[str, Any] | None = None
     with RunStore.open_readonly(path) as store:
+        failed = {rid: str(f.get("reason")) for rid, f in store.failures().items()}
         by_run: dict[str | None, list[CycleRecord]] = {}
         for rec in store.cycle_records():
             by_run.setdefault(rec.run_id, []).append(rec)
@@ -134,7 +137,7 @@ def load_ablation(out: Path) -> AblationData:
         raise StateError(f"{out} holds no finished trial yet")
     trials = {h: {lv: raw[h][lv] for lv in _ordered(set(raw[h]), _LEVEL_ORDER)}
               for h in _ordered(set(raw), PAPER_HUMANS)}
-    return AblationData(out, cycles, settings, trials, incomplete, read_sessions(out))
+    return AblationData(out, cycles, settings, trials, incomplete, read_sessions(out), failed)
 
 
 def _plan_cost(record: CycleRecord) -> float:
@@ -267,9 +270,11 @@ def check_claims(data: AblationData, resamples: int = RESAMPLES, seed: int = BOO
 def summarise(data: AblationData) -> dict[str, Any]:
     """The ``--json`` summary: per-cycle curves of the realised cost per archetype and level,
     plus ``claims``; with plan costs stored, also ``plan_cost`` (the same curves) and
-    ``claims_plan_cost``."""
+    ``claims_plan_cost``; where trials failed, ``failed`` (run_id -> reason)."""
     out: dict[str, Any] = dict(summarise_curves(data))
     out["claims"] = check_claims(data)
+    if data.failed:
+        out["failed"] = dict(sorted(data.failed.items()))
     if data.has_plan_cost:
         out["plan_cost"] = summarise_curves(data, "plan_cost")
         out["claims_plan_cost"] = check_claims(data, measure="plan_cost")
@@ -415,6 +420,10 @@ def report_markdown(data: AblationData, md_table: str, claims: dict[str, Any],
         f"workers ({x['cluster']}); {x['skipped']} already stored\n" for x in wall)
     incomplete = (f"\n{len(data.incomplete)} run(s) missing cycles were left out: "
                   f"{', '.join(data.incomplete[:5])}\n" if data.incomplete else "")
+    incomplete += (f"\n{len(data.failed)} trial(s) failed and were left out (a rerun retries "
+                   "them):\n" + "".join(f"- {rid}: {why}\n"
+                                        for rid, why in sorted(data.failed.items()))
+                   if data.failed else "")
     return (
         f"# Fetch ablation study\n\n{n} finished trials in `{data.path / STORE_NAME}`; "
         f"{settings}.\n{incomplete}\n![realised cost per cycle](ablation.png)\n\n"

@@ -17,12 +17,13 @@ SESSIONS_NAME = "sessions.jsonl"
 
 def log_session(out: Path, outcome: Any, where: str, **extra: Any) -> dict[str, Any]:
     """Append this invocation's line and return it. ``outcome``: the study's counts (total,
-    skipped, ran, wall_s, workers, trial_seconds); ``where``: the cluster; ``extra``: more keys
-    (the ablation stores its settings under ``study``)."""
+    skipped, ran, wall_s, workers, trial_seconds, failed); ``where``: the cluster; ``extra``:
+    more keys (the ablation stores its settings under ``study``)."""
     line = {"finished": time.strftime("%Y-%m-%d %H:%M:%S"), "wall_s": round(outcome.wall_s, 2),
             "ran": outcome.ran, "skipped": outcome.skipped, "total": outcome.total,
             "workers": outcome.workers, "cluster": where,
             "trial_seconds_sum": round(sum(outcome.trial_seconds), 2),
+            "failed": len(outcome.failed),
             "load_average": [round(x, 2) for x in os.getloadavg()], **extra}
     with open(out / SESSIONS_NAME, "a") as fh:  # append-only: a line per invocation
         fh.write(json.dumps(line) + "\n")

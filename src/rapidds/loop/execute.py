@@ -182,28 +182,39 @@ def cycle_executor(
     with the learned models as they stand (``beliefs``, ``spatial``); steering, memory,
     monitor, replan as in :func:`execute_cycle`."""
     _, limits = cell_reactions(world)
-    replanning = None
-    if config.execution == "reactive" and replan:
-        cost = workspace_cost(world, spatial)
-        mean, std = beliefs
-        ids = problem.ids
-
-        def spatial_cost(j: str, near: frozenset[str]) -> float:
-            traj = motions[j].trajectory
-            return 0.0 if traj is None else float(cost(near, np.asarray(traj)[None])[0])
-
-        replanning = Replanning(
-            mean={t: float(m) for t, m in zip(ids, mean, strict=True) if np.isfinite(m)},
-            std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
-            robot={j: m.duration + m.hold for j, m in motions.items()
-                   if m.trajectory is not None},
-            spatial=spatial_cost, gamma=problem.objective.gamma,
-            motions=None if steering is None else CycleMotions(motions, memory or {}, steering,
-                                                                cost))
+    replanning = (cycle_replanning(world, problem, motions, beliefs, spatial,
+                                   steering=steering, memory=memory)
+                  if config.execution == "reactive" and replan else None)
     return CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
         SpeedSeparation(limits) if config.execution == "reactive" and monitor else None,
         beta=beta, replanning=replanning, limits=limits, max_time=max_time)
+
+
+def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, MotionPlan],
+                     beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel, *,
+                     steering: MotionModel | None = None,
+                     memory: Mapping[MotionKey, MotionPlan] | None = None) -> Replanning:
+    """What a cycle's re-plans use (the simulated, browser and live cells alike): the learned
+    ``beliefs`` (mean, std per task) and ``spatial`` model as they stand, the robot's
+    ``motions``; with ``steering``, motions steered where a re-plan changes what runs beside
+    them (``memory``: those the plan's search steered)."""
+    cost = workspace_cost(world, spatial)
+    mean, std = beliefs
+    ids = problem.ids
+
+    def spatial_cost(j: str, near: frozenset[str]) -> float:
+        traj = motions[j].trajectory
+        return 0.0 if traj is None else float(cost(near, np.asarray(traj)[None])[0])
+
+    return Replanning(
+        mean={t: float(m) for t, m in zip(ids, mean, strict=True) if np.isfinite(m)},
+        std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
+        robot={j: m.duration + m.hold for j, m in motions.items()  # hold: 0 open loop
+               if m.trajectory is not None},
+        spatial=spatial_cost, gamma=problem.objective.gamma,
+        motions=None if steering is None else CycleMotions(motions, memory or {}, steering,
+                                                            cost))
 
 
 def cycle_record(config: RunConfig, dep: Deployment,

@@ -432,8 +432,9 @@ class AdaptiveRun:
                else self.config.model_copy(update={"execution": "planned"}))
         steering = replan_steering(self.world, self.problem, cfg, plan.cycle, self.policy,
                                    self._spatial())
+        ran = plan.best.schedule if reacted is None else reacted.schedule or plan.best.schedule
         dep, self._deviations[plan.cycle] = execute_cycle(
-            self.world, self.problem, cfg, plan.cycle, plan.best.schedule,
+            self.world, self.problem, cfg, plan.cycle, ran,
             plan.best.motions, human, self.teammate, self._reaction,
             (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
             beta=self.model.spatial.config.beta,

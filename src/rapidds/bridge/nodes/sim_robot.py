@@ -4,7 +4,7 @@ It takes ``trajectory_msgs/JointTrajectory`` on ``/rapidds/robot/trajectory`` (s
 header stamp, or on arrival when that has passed; one queued behind the other), runs them with
 :class:`~rapidds.bridge.nodes.arm.PhysicsArm` in control periods of 1/``rate`` simulated s,
 publishes ``sensor_msgs/JointState`` after each pass (every period while the machine keeps
-up), the robot's task events (the k-th trajectory of a cycle is the
+up), the robot's task events (a trajectory is the task its header's frame_id names, else the
 k-th robot task of its plan) and every new touch of the arm on the person's bodies, whom it
 places where the tracking says. ``/rapidds/stop`` holds the arm where it is and drops the
 cycle's queue. ``/rapidds/robot/speed_scaling`` (``std_msgs/Float64`` in [0, 1]) sets the rate
@@ -144,7 +144,13 @@ class SimRobot:
         if self.plan is None or not self._tasks:
             log.warning("sim-robot dropped a trajectory: no robot task is left in the plan")
             return
-        self._queue.append(_Queued(self._tasks.popleft(), q[:, rows], t, stamp_ns(msg.header)))
+        named = msg.header.frame_id  # the hub names the task (its order may be re-planned)
+        if named in self._tasks:
+            self._tasks.remove(named)
+            task = named
+        else:
+            task = self._tasks.popleft()
+        self._queue.append(_Queued(task, q[:, rows], t, stamp_ns(msg.header)))
 
     def _event(self, task: str, kind: str, stamp: int) -> None:
         self.link.publish(EVENTS_TOPIC, event_message(Event(task, "robot", kind, stamp)))  # type: ignore[arg-type]

@@ -118,8 +118,14 @@ def analyze_study(folder: str | Path) -> Analysis:
         rankings = store.rankings()
         survey = store.survey_frame()
         comfort = comfort_table(store) if design.comfort else None
+        failed = {rid: str(f.get("reason")) for rid, f in store.failures().items()}
     systems = list(design.systems)
     s, md = _design_section(design, run, systems)
+    if failed:  # simulated runs that failed (kept by simulate): counted, left out
+        s["runs_failed"] = failed
+        md += [f"{len(failed)} simulated run(s) failed and are left out (a rerun of simulate "
+               "retries them):", "", *(f"- {rid}: {why}" for rid, why in sorted(failed.items())),
+               ""]
     files: list[Path] = []
     for key, title, (part, lines, drawn) in (
             ("objective", "Objective measures",
