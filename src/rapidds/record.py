@@ -22,7 +22,7 @@ from rapidds.problem import Agent
 from rapidds.schedule import Item, Schedule, parse_item
 
 __all__ = ["CycleRecord", "Execution", "InCycle", "PlanCost", "PlanPart", "Predicted",
-           "Realised", "Yield"]
+           "Realised", "Slowdowns", "Yield"]
 
 Json = dict[str, Any]
 
@@ -182,10 +182,39 @@ class PlanCost:
         return {"cost": self.cost, "makespan": self.makespan, "spatial": self.spatial}
 
 
+@dataclass(frozen=True)
+class Slowdowns:
+    """A reactive cycle's slowdowns (:mod:`rapidds.loop.slowdowns`). mode: ``learned``,
+    ``predicted`` or ``off``; predicted: robot task -> the hold the plan expected (s); lost:
+    robot task -> the time the monitor really cost it (s); pairs: ``ROBOT|PERSON`` -> (the
+    uncorrected prediction, the lost time put to that pair); belief: the learned correction
+    per pair after this cycle ({factor, sd, n}; None unless learned)."""
+
+    mode: str
+    predicted: dict[str, float]
+    lost: dict[str, float]
+    pairs: dict[str, tuple[float, float]]
+    belief: Json | None = None
+
+    @property
+    def total_lost(self) -> float:
+        return float(sum(self.lost.values()))
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> Slowdowns:
+        return cls(str(d["mode"]), dict(d["predicted"]), dict(d["lost"]),
+                   {k: (float(v[0]), float(v[1])) for k, v in d["pairs"].items()},
+                   d.get("belief"))
+
+    def to_json(self) -> Json:
+        return {"mode": self.mode, "predicted": dict(self.predicted), "lost": dict(self.lost),
+                "pairs": {k: list(v) for k, v in self.pairs.items()}, "belief": self.belief}
+
+
 # the top-level keys in the order the loop writes them; optional parts marked by their field
 _KNOWN = ("cycle", "human", "robot", "routes", "gamma", "lambda", "expected", "realised",
           "observed", "belief", "plan_cost", "search", "changes", "comfort", "gamma_belief",
-          *InCycle.KEYS, "live", "seconds", "run_id")
+          *InCycle.KEYS, "slowdowns", "live", "seconds", "run_id")
 
 
 @dataclass(frozen=True)
@@ -198,6 +227,8 @@ class CycleRecord:
     (``has_comfort`` False: the run does not ask; the evidence may be None when it asked and
     learned nothing); gamma_belief: the gamma posterior's summary when the run learns gamma;
     live: what a live cell saw beyond the deployment (only in a live cell's records);
+    slowdowns: what the plan expected of the safety monitor and what it cost (reactive runs
+    only, :class:`Slowdowns`; None in every other record and in those stored before it);
     seconds: time per step (None in records stored before it was kept)."""
 
     cycle: int
@@ -212,6 +243,7 @@ class CycleRecord:
     has_comfort: bool = False
     comfort: Json | None = None
     gamma_belief: Json | None = None
+    slowdowns: Slowdowns | None = None
     live: Json | None = None
     seconds: dict[str, float] | None = None
     run_id: str | None = None
@@ -243,6 +275,7 @@ class CycleRecord:
                 changes=d.get("changes"),
                 has_comfort="comfort" in d, comfort=d.get("comfort"),
                 gamma_belief=d.get("gamma_belief"), live=d.get("live"),
+                slowdowns=Slowdowns.from_json(d["slowdowns"]) if "slowdowns" in d else None,
                 seconds=d.get("seconds"),
                 run_id=d.get("run_id"),
                 extra={k: v for k, v in d.items() if k not in _KNOWN})
@@ -266,6 +299,7 @@ class CycleRecord:
             **({"comfort": self.comfort} if self.has_comfort else {}),
             **({"gamma_belief": self.gamma_belief} if self.gamma_belief is not None else {}),
             **(ex.in_cycle.to_json() if ex.in_cycle is not None else {}),
+            **({"slowdowns": self.slowdowns.to_json()} if self.slowdowns is not None else {}),
             **({"live": self.live} if self.live is not None else {}),
             **({"seconds": self.seconds} if self.seconds is not None else {}),
             **self.extra,

@@ -86,6 +86,9 @@ def ablation_cmd(
     deviate: float = typer.Option(0.0, help="Probability per cycle that a simulated person "
                                   "deviates from the plan."),
     device: DeviceOption = "auto",
+    slowdowns: str | None = typer.Option(None, help="With --execution reactive: plan for the "
+                                         "safety monitor's slowdowns (learned, predicted) or "
+                                         "not (off).", show_default="learned when reactive"),
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -102,7 +105,7 @@ def ablation_cmd(
                         cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
                         generations=generations, samples=samples, patience=patience,
                         particles=particles, candidates=candidates, execution=execution,
-                        reacts=reacts, deviate=deviate)
+                        reacts=reacts, deviate=deviate, slowdowns=slowdowns)
     from rich.console import Console
 
     console = Console(soft_wrap=True)

@@ -236,6 +236,15 @@ def run_cmd(
     deviate: float = typer.Option(0.0, help="Probability per cycle that the simulated person "
                                   "deviates from the plan (another order, a pause, a robot "
                                   "task taken)."),
+    slowdowns: str | None = typer.Option(None, help="With --execution reactive: plan for the "
+                                         "safety monitor's slowdowns, learned (the prediction "
+                                         "corrected by what it really cost), predicted, or off "
+                                         "(the paper's open-loop plan).",
+                                         show_default="learned under reactive execution"),
+    slowdown_mean: float = typer.Option(_D["slowdown_mean"].default, help="Prior mean of the "
+                                        "learned correction of predicted slowdowns (a factor)."),
+    slowdown_sd: float = typer.Option(_D["slowdown_sd"].default, help="Prior spread of that "
+                                      "correction."),
 ) -> None:
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 from pydantic import Field, field_validator
 
 from rapidds.errors import RapiddsError, RuntimeFault, StateError
-from rapidds.loop.config import ADAPT_LEVELS, Execution, RunConfig
+from rapidds.loop.config import ADAPT_LEVELS, Execution, RunConfig, Slowdowns
 from rapidds.settings import Flag, Int, Real, Settings
 from rapidds.store import RunStore
 
@@ -94,6 +94,7 @@ class AblationConfig(Settings):
     execution: Execution = "planned"  # inside the cycle (RunConfig's)
     reacts: Flag = False
     deviate: Annotated[Real, Field(ge=0, le=1)] = 0.0
+    slowdowns: Slowdowns | None = None  # RunConfig's: None is learned under reactive execution
 
     _humans = field_validator("humans")(_levels_field("humans", ARCHETYPES))
     _levels = field_validator("levels")(_levels_field("levels", ADAPT_LEVELS))
@@ -112,7 +113,7 @@ class AblationConfig(Settings):
                          samples=self.samples, patience=self.patience,
                          particles=self.particles, candidates=self.candidates,
                          execution=self.execution, reacts=self.reacts,  # type: ignore[arg-type]
-                         deviate=self.deviate)
+                         deviate=self.deviate, slowdowns=self.slowdowns)
 
     def run_config(self, human: str, level: str, index: int) -> RunConfig:
         """The trial's settings, resolved against the fetch world (what is stored)."""

@@ -12,10 +12,11 @@ if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
 __all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "EXECUTIONS", "Adapt", "Device", "Execution",
-           "RunConfig"]
+           "RunConfig", "Slowdowns"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
 Execution = Literal["planned", "reactive"]
+Slowdowns = Literal["learned", "predicted", "off"]
 EXECUTIONS: tuple[str, ...] = ("planned", "reactive")
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
@@ -89,6 +90,13 @@ class RunConfig(Settings):
     device: where the policy's network, the steering and the re-plans run (see
         :data:`DEVICE_HELP`). Not stored with the run and not compared on ``--resume``: a run
         may continue on another device; records, models and checkpoints hold no device.
+    slowdowns: whether the plan expects the safety monitor (only under reactive execution,
+        where it runs; docs/design-notes.md "Plans that expect the safety monitor"):
+        ``learned`` (the default there) adds to every robot motion the time the monitor is
+        predicted to slow or hold it, corrected per (robot task, person's task) by what it
+        really lost in earlier cycles; ``predicted`` the prediction alone; ``off`` plans for an
+        open-loop robot as the paper does. slowdown_mean, slowdown_sd: the prior of that
+        correction (a factor on the prediction; 1 trusts it).
     """
 
     world: str = "fetch"
@@ -130,6 +138,9 @@ class RunConfig(Settings):
     reacts: bool = False
     deviate: Annotated[float, Field(ge=0, le=1)] = 0.0
     device: Device = Field("auto", exclude=True, description=DEVICE_HELP)
+    slowdowns: Slowdowns | None = None
+    slowdown_mean: Annotated[float, Field(gt=0, le=1000)] = 1.0
+    slowdown_sd: Annotated[float, Field(gt=0, le=1000)] = 1.0
 
     @field_validator("change")
     @classmethod
@@ -147,6 +158,14 @@ class RunConfig(Settings):
             raise ValueError("needs --detect (it acts on detected changes)")
         return v
 
+    @field_validator("slowdowns")
+    @classmethod
+    def _check_slowdowns(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v in ("learned", "predicted") and info.data.get("execution") != "reactive":
+            raise ValueError("needs --execution reactive (only there does a monitor slow the "
+                             "robot)")
+        return v
+
     @field_validator("gamma_prior")
     @classmethod
     def _check_gamma_prior(cls, v: str | None, info: ValidationInfo) -> str | None:
@@ -157,6 +176,13 @@ class RunConfig(Settings):
 
             parse_gamma_prior(v)
         return v
+
+    @property
+    def slowdown_mode(self) -> Slowdowns:
+        """What the plan expects of the monitor, ``slowdowns`` with its default filled in."""
+        if self.execution != "reactive":
+            return "off"
+        return self.slowdowns or "learned"
 
     @property
     def simulates_comfort(self) -> bool:
@@ -174,6 +200,7 @@ class RunConfig(Settings):
             lam=problem.objective.lam if self.lam is None else self.lam,
             beta=world.spatial_beta if self.beta is None else self.beta,
             grid_points=world.spatial_grid if self.grid_points is None else self.grid_points,
+            slowdowns=self.slowdowns or ("learned" if self.execution == "reactive" else None),
         )
 
     @property
@@ -196,7 +223,9 @@ class RunConfig(Settings):
     @property
     def cell_suffix(self) -> str:
         """What the run id says of execution inside the cycle; empty for the paper's."""
-        return ("-reactive" * (self.execution == "reactive") + "-reacts" * self.reacts
+        slow = {"off": "-noslow", "predicted": "-slowpred"}.get(str(self.slowdowns), "")
+        return ("-reactive" * (self.execution == "reactive") + slow * (self.execution ==
+                "reactive") + "-reacts" * self.reacts
                 + (f"-dev{self.deviate:g}" if self.deviate else ""))
 
     @property

@@ -211,7 +211,8 @@ def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, Motio
     return Replanning(
         mean={t: float(m) for t, m in zip(ids, mean, strict=True) if np.isfinite(m)},
         std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
-        robot={j: m.duration for j, m in motions.items() if m.trajectory is not None},
+        robot={j: m.duration + m.hold for j, m in motions.items()  # hold: 0 open loop
+               if m.trajectory is not None},
         spatial=spatial_cost, gamma=problem.objective.gamma,
         motions=None if steering is None else CycleMotions(motions, memory or {}, steering,
                                                             cost))

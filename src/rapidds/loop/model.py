@@ -13,6 +13,7 @@ import numpy as np
 
 from rapidds.errors import RapiddsError, StateError
 from rapidds.human.gamma import DEFAULT_SPREAD, GammaBelief, parse_gamma_prior
+from rapidds.human.slowdowns import SlowdownBelief
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
@@ -69,6 +70,7 @@ class HumanModel:
     motions: dict[MotionKey, Stamped] = field(default_factory=dict)
     changes: ChangeLog = field(default_factory=ChangeLog)
     gamma: GammaBelief | None = None  # only when the run learns gamma
+    slowdowns: SlowdownBelief | None = None  # only when the run learns the monitor's holds
 
     def to_bytes(self) -> bytes:
         doc = {"temporal": self.temporal.to_dict(), "spatial": self.spatial.to_dict(),
@@ -76,6 +78,8 @@ class HumanModel:
                "changes": self.changes.to_dict()}
         if self.gamma is not None:  # absent otherwise: models of fixed-gamma runs unchanged
             doc["gamma"] = self.gamma.to_dict()
+        if self.slowdowns is not None:  # likewise
+            doc["slowdowns"] = self.slowdowns.to_dict()
         return zlib.compress(json.dumps(doc, allow_nan=False).encode())
 
     @classmethod
@@ -87,7 +91,9 @@ class HumanModel:
                        AllocationHistory.from_dict(doc["history"]),
                        decode_plans(doc.get("motions", [])),
                        ChangeLog.from_dict(doc["changes"]) if "changes" in doc else ChangeLog(),
-                       GammaBelief.from_dict(doc["gamma"]) if "gamma" in doc else None)
+                       GammaBelief.from_dict(doc["gamma"]) if "gamma" in doc else None,
+                       SlowdownBelief.from_dict(doc["slowdowns"]) if "slowdowns" in doc
+                       else None)
         except (zlib.error, ValueError, TypeError, KeyError) as exc:
             raise StateError(f"stored human model is corrupt ({exc})") from None
 

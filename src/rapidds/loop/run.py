@@ -55,6 +55,7 @@ from rapidds.loop.model import (
     prior_model,
     workspace_cost,
 )
+from rapidds.loop.slowdowns import Slowdowns
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
@@ -74,16 +75,8 @@ from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, Wor
 from rapidds.worlds.reactions import Deviation
 from rapidds.worlds.registry import make_world
 
-__all__ = [
-    "AdaptiveRun",
-    "CyclePlan",
-    "CycleResult",
-    "FreeOrderTeammate",
-    "LiveTeammate",
-    "ReactiveTeammate",
-    "load_policy",
-    "timeline_of",
-]
+__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "FreeOrderTeammate", "LiveTeammate",
+           "ReactiveTeammate", "load_policy", "timeline_of"]
 
 PLAN_COST_SAMPLES = 256  # true-duration samples behind a cycle's plan cost (s.e. ~0.01 s)
 
@@ -256,6 +249,8 @@ class AdaptiveRun:
         if self._reaction is not None and self.comfort is not None:
             self._reaction = self.comfort.reaction(self._reaction, self.model.spatial.config.beta)
         self._deviations: dict[int, Deviation | None] = {}
+        self.slowdowns, self._slowed = Slowdowns(self.world, self.config), {}
+        self.model.slowdowns = self.model.slowdowns or self.slowdowns.belief()
         if store is not None:
             self._attach(store)
 
@@ -370,26 +365,28 @@ class AdaptiveRun:
         exact = cfg.adapt == "exact"
         gamma = 0.0 if exact else self.problem.objective.gamma  # the CP-SAT user ignores proximity
         spatial = self._spatial()
+        holds = self.slowdowns.model(spatial, self.model.slowdowns)  # None: open-loop robot
         motion: MotionModel = DiffusionMotion(
             self.policy, self.world.completion_time,
             workspace_cost(self.world, spatial), gamma,
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
             duration=getattr(self.world, "robot_duration", None),
-        )
+            hold=None if holds is None else holds.hold)
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
+        held = self.slowdowns.wrap(carried, holds)
         ga_seed = int(rng.integers(2**31))
         lam = 0.0 if exact else cfg.lam_at(c, self.model.changes.last_change)
         if exact:
-            best, search = self._plan_exact(carried, samples, mean)
+            best, search = self._plan_exact(held, samples, mean)
         else:
             # The GA's runner-up polishes off: every new (j, C_j) they reach is a steering
             # call, and they made a fetch trial ~50 % dearer (5.5 s against 3.6 s in the full
             # study) for a 4-task job the GA already solves. The order search off too: on this
             # job it changed no plan and no motion request in 32 cycles, and off keeps the
             # plans of the committed study (docs/reproduction.md).
-            ga = GeneticScheduler(self.problem.with_objective(lam=lam), carried, GAConfig(
+            ga = GeneticScheduler(self.problem.with_objective(lam=lam), held, GAConfig(
                 population=cfg.population, generations=cfg.generations, samples=cfg.samples,
                 patience=cfg.patience, polish_allocations=1, order_search_nodes=0,
                 seed=ga_seed))
@@ -485,6 +482,8 @@ class AdaptiveRun:
         self._check_current(plan)
         t0 = time.perf_counter()
         learn_time, learn_space = LEARNS[self.config.adapt]
+        self._slowed[plan.cycle] = self.slowdowns.observe(  # before the path belief moves
+            self._spatial(), plan.best.motions, deployment, self.model.slowdowns)
         for task, ex in deployment.human.items():
             if learn_time:
                 self.model.temporal.observe(task, ex.duration)
@@ -563,7 +562,7 @@ class AdaptiveRun:
             changes=self._changes.pop(plan.cycle, []) if cfg.detect else None,
             has_comfort=comfort, comfort=self._evidence.pop(plan.cycle, None) if comfort else None,
             gamma_belief=self.model.gamma.summary() if self.model.gamma else None,
-            live=live,
+            live=live, slowdowns=self._slowed.pop(plan.cycle, None),
             seconds={"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                      "total": plan.seconds + deploy_s + update_s},
         )

@@ -24,6 +24,8 @@ SpatialCost = Callable[[Iterable[str], np.ndarray], np.ndarray]
 """(task_ids, xi (N, H, d)) -> (N,): max over the tasks of S_i; 0 for no tasks."""
 CompletionTime = Callable[[str, np.ndarray], np.ndarray]
 """(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
+HoldTime = Callable[[str, Iterable[str], np.ndarray], np.ndarray]
+"""(task, C_j, xi (N, H, d)) -> (N,) seconds the safety monitor is predicted to add."""
 
 
 class SteeringConfig(Settings):
@@ -73,6 +75,7 @@ class DiffusionMotion:
         config: SteeringConfig | None = None,
         nominal: Callable[[Problem], np.ndarray] | None = None,
         duration: Callable[[str, np.ndarray], float] | None = None,
+        hold: HoldTime | None = None,
     ):
         self.policy = policy
         self.completion_time = completion_time
@@ -83,6 +86,8 @@ class DiffusionMotion:
         # the chosen trajectory's d_j^r: the arm's time-parameterized time (the world's
         # robot_duration) where it has one; steering scores the path with completion_time
         self._duration = duration
+        # planning for the safety monitor: V gains the time it would take (None: the paper's V)
+        self.hold = hold
         self.calls = 0
         self.rows = 0
 
@@ -103,6 +108,8 @@ class DiffusionMotion:
             v[sl] = self.completion_time(task, xi[sl])
             if concurrent and self.gamma > 0:
                 v[sl] += self.gamma * self.spatial_cost(concurrent, xi[sl])
+            if concurrent and self.hold is not None:
+                v[sl] += self.hold(task, concurrent, xi[sl])
         return v
 
     def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
@@ -131,5 +138,7 @@ class DiffusionMotion:
             duration = (float(self.completion_time(task, traj[None])[0])
                         if self._duration is None else float(self._duration(task, traj)))
             spatial = float(self.spatial_cost(concurrent, traj[None])[0]) if concurrent else 0.0
-            plans.append(MotionPlan(task, concurrent, duration, spatial, traj))
+            hold = (float(self.hold(task, concurrent, traj[None])[0])
+                    if concurrent and self.hold is not None else 0.0)
+            plans.append(MotionPlan(task, concurrent, duration, spatial, traj, hold))
         return plans

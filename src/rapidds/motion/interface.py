@@ -24,7 +24,10 @@ class MotionPlan:
     """A robot motion chosen for task ``task`` while human tasks ``concurrent`` run.
 
     ``duration`` is d_j^r in seconds; ``spatial_cost`` is max_{i in C_j} S_i(xi) (0 when C_j is
-    empty); ``trajectory`` is the (H, d) path, or None for motion models without geometry.
+    empty); ``trajectory`` is the (H, d) path, or None for motion models without geometry;
+    ``hold``: seconds the safety monitor is predicted to slow or hold it beside C_j (0 unless
+    the run plans for the monitor: :mod:`rapidds.execution.slowdowns`), which the schedule's
+    timeline adds to ``duration``.
     """
 
     task: str
@@ -32,6 +35,7 @@ class MotionPlan:
     duration: float
     spatial_cost: float = 0.0
     trajectory: np.ndarray | None = None
+    hold: float = 0.0
 
 
 @runtime_checkable

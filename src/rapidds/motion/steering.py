@@ -327,13 +327,16 @@ def proximity_cost(points: np.ndarray, beta: float) -> TensorValue:
 
 
 def value_function(spatial_costs: Sequence[ValueFn | TensorValue], gamma: float, *, tol: float,
-                   dt: float = 1.0) -> ValueFn | TensorValue:
+                   dt: float = 1.0, hold: ValueFn | TensorValue | None = None
+                   ) -> ValueFn | TensorValue:
     """The paper's V(xi) = d(xi) + gamma * max_i S_i(xi), batched (N, H, d) -> (N,).
 
     d(xi) = completion_index * dt (seconds when dt is the time per trajectory point);
-    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only). When
-    every S_i is a :class:`TensorValue` (as :func:`proximity_cost`'s are), so is V: it takes
-    numpy arrays and tensors, and :func:`steer` keeps it on the policy's device.
+    spatial_costs: S_i of the concurrent human tasks C_j (empty: completion time only);
+    hold: the seconds a safety monitor would add to each motion (None: the paper's V), so
+    that V is the time the motion takes under the monitor (:mod:`rapidds.execution.slowdowns`).
+    When every term is a :class:`TensorValue` (as :func:`proximity_cost`'s are), so is V: it
+    takes numpy arrays and tensors, and :func:`steer` keeps it on the policy's device.
     """
     costs = list(spatial_costs)
     if not (math.isfinite(gamma) and gamma >= 0):
@@ -345,11 +348,16 @@ def value_function(spatial_costs: Sequence[ValueFn | TensorValue], gamma: float,
             if costs and gamma > 0:
                 st = torch.stack([c(trajectories).to(torch.float64) for c in costs])
                 vt = vt + gamma * st.amax(dim=0)
+            if hold is not None:
+                vt = vt + hold(trajectories).to(torch.float64)
             return vt
         v = completion_index(trajectories, tol).astype(np.float64) * dt
         if costs and gamma > 0:
             s = np.stack([np.asarray(c(trajectories), dtype=np.float64) for c in costs])
             v = v + gamma * s.max(axis=0)
+        if hold is not None:
+            v = v + np.asarray(hold(trajectories), dtype=np.float64)
         return v
 
-    return TensorValue(value) if all(isinstance(c, TensorValue) for c in costs) else value
+    terms = [*costs, *([] if hold is None else [hold])]
+    return TensorValue(value) if all(isinstance(c, TensorValue) for c in terms) else value

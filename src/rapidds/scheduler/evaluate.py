@@ -313,7 +313,7 @@ def _overlap_round(
         m = len(c.robot_tasks)
         own = plans[offset : offset + m]
         offset += m
-        rdur = np.array([p.duration for p in own], dtype=float)
+        rdur = np.array([p.duration + p.hold for p in own], dtype=float)  # hold: 0 open loop
         owns.append(own)
         durations.append(rdur)
         if not np.array_equal(rdur, c.state_durations):
