@@ -236,7 +236,7 @@ def test_a_ros4hri_skeleton_on_tf_is_composed_and_observed(
                                  "--mapping", str(tmp_path / "map.yaml"), "--config",
                                  str(tmp_path / "run.yaml"), "--json")
     assert code == 0, err
-    assert "bodies b1x7, zz9 tracked; the first, 'b1x7', is learned" in err
+    assert "bodies b1x7, zz9 tracked; the first, 'b1x7', is learned, the others dropped" in err
     assert "not in the mapping" not in err  # the skeleton's other frames are not noise
     rec = json.loads(stdout)
     order = list(_TASKS) if storage == "mcap" else task_items(rec["human"])

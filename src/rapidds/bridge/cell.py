@@ -80,6 +80,7 @@ from rapidds.worlds.base import body_point_names
 from rapidds.worlds.bounds import Plausibility, world_task_bound
 
 if TYPE_CHECKING:
+    from rapidds.execution.executor import Replanning
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
     from rapidds.motion.timing import TimedTrajectory
 
@@ -342,12 +343,16 @@ class LiveCell:
         """Run one cycle on the link and return what was observed; CellFault on a fault.
         ``monitor``: reactive execution's, ticked while the cycle runs; ``replans``: where
         the re-plans of the rest go when the person deviates (None: the plan is followed)."""
+        rp = None if replans is None else self._replanning(plan)  # before t0 is set: it takes
+        self.timed(plan)  # so are the trajectories to send (a refused path: no plan goes out)
         live = self._publish_plan(plan)
         obs = CycleObservation(live, self.points, gate=self._gate,
                                window=self.options.cycle_timeout, task_bound=self.task_bound,
                                plausible=self._plausible, faults=self.link.faults)
         sent: set[str] = set()
-        replanner = None if replans is None else self._replanner(plan, live)
+        replanner = None if rp is None else LiveReplanner(
+            self.run.problem, {a: list(o) for a, o in live.order.items()},
+            {t: list(v) for t, v in live.after.items()}, rp)
         self._robot_seen = time.monotonic()
         tick = 0.0
         while not obs.done:
@@ -380,17 +385,15 @@ class LiveCell:
             self._take(live, obs)
         return obs
 
-    def _replanner(self, plan: CyclePlan, live: LivePlan) -> LiveReplanner:
-        """The cycle's re-planner, with the learned models as they stand (as a simulated
+    def _replanning(self, plan: CyclePlan) -> Replanning:
+        """What the cycle's re-plans use: the learned models as they stand (as a simulated
         reactive cycle's re-plans have them)."""
         from rapidds.loop.execute import cycle_replanning
 
         run = self.run
-        rp = cycle_replanning(run.world, run.problem, plan.best.motions,
-                              (run.model.temporal.mean(), run.model.temporal.std()),
-                              run.model.spatial)
-        return LiveReplanner(run.problem, {a: list(o) for a, o in live.order.items()},
-                             {t: list(v) for t, v in live.after.items()}, rp)
+        return cycle_replanning(run.world, run.problem, plan.best.motions,
+                                (run.model.temporal.mean(), run.model.temporal.std()),
+                                run.model.spatial)
 
     def _deviations(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                     replanner: LiveReplanner) -> None:

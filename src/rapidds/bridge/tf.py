@@ -174,14 +174,14 @@ def _resolve(buffer: TfBuffer, keys: Iterable[str],
         if not ids:
             return ({k.lstrip("/"): k for k in keys if BODY not in k}, set(),
                     ["no ROS4HRI body on /tf (no body_<id> frame) for the mapping's "
-                     f"{BODY} sources"])
+                     f"{BODY} sources; they are not learned"])
         body_id = ids[0]
         if len(ids) > 1:
             lines.append(f"ROS4HRI bodies {', '.join(ids)} tracked; the first, {body_id!r}, is "
-                         "learned (set the mapping's body_id to choose)")
+                         "learned, the others dropped (the mapping's body_id chooses)")
     elif ids and body_id not in ids:
         lines.append(f"ROS4HRI body {body_id!r} (the mapping's body_id) is not on /tf (bodies "
-                     f"tracked: {', '.join(ids)})")
+                     f"tracked: {', '.join(ids)}); not learned")
     return {k.replace(BODY, body_id).lstrip("/"): k for k in keys}, {*ids, body_id}, lines
 
 
@@ -223,7 +223,7 @@ def tracked_frames(buffer: TfBuffer, samples: Iterable[tuple[int, str, int]],
     for frame in rows:
         if frame not in sources and frame not in needed \
                 and not any(frame.endswith(f"_{b}") for b in bodies):
-            lines.append(f"{frame!r} is not in the mapping")
+            lines.append(f"{frame!r} is not in the mapping; dropped")
     out: dict[str, list[tuple[int, str, int, np.ndarray]]] = {}
     for frame, moving in driver.items():
         got = rows.get(moving, [])
@@ -232,7 +232,7 @@ def tracked_frames(buffer: TfBuffer, samples: Iterable[tuple[int, str, int]],
         pos, ok = buffer.positions(frame, root, np.array([s for _, s in got], np.int64))
         if not ok.all():
             lines.append(f"TF frame {frame!r}: {int((~ok).sum())} of {len(ok)} samples stamped "
-                         "outside the transforms of its chain (tf2 does not extrapolate)")
+                         "outside the transforms of its chain dropped (tf2 does not extrapolate)")
         out[frame] = [(r, sources[frame], s, p) for (r, s), p, good in zip(got, pos, ok,
                                                                              strict=True)
                       if good]
