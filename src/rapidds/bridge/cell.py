@@ -344,7 +344,7 @@ class LiveCell:
         ``monitor``: reactive execution's, ticked while the cycle runs; ``replans``: where
         the re-plans of the rest go when the person deviates (None: the plan is followed)."""
         rp = None if replans is None else self._replanning(plan)  # before t0 is set: it takes
-        self.timed(plan)  # so are the trajectories to send (a refused path: no plan goes out)
+        self.timed(plan)  # the trajectories to send, before t0 too (a refused path: no plan)
         live = self._publish_plan(plan)
         obs = CycleObservation(live, self.points, gate=self._gate,
                                window=self.options.cycle_timeout, task_bound=self.task_bound,
