@@ -13,7 +13,9 @@ loop scores and stores those).
 Reactive execution (``execution="reactive"``): while the cycle runs, a
 :class:`~rapidds.bridge.reactive.SpeedMonitor` ticks at ``scaling_rate`` Hz of the cell clock and
 publishes the robot's speed scaling on ``/rapidds/robot/speed_scaling``; the robot driver obeys
-it. Its pauses and protective check go into the cycle's record, as a simulated reactive cycle's.
+it. The robot's expected speeds come from the very trajectories dispatched
+(:meth:`LiveCell.timed`, once per plan). Its pauses and protective check go into the cycle's
+record, as a simulated reactive cycle's.
 
 Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds), a node
 leaves the link (its liveliness token goes: its process ended, its connection dropped) or the
@@ -80,6 +82,7 @@ from rapidds.worlds.bounds import Plausibility, world_task_bound
 if TYPE_CHECKING:
     from rapidds.execution.executor import Replanning
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
+    from rapidds.motion.timing import TimedTrajectory
 
 __all__ = ["CellFault", "CellOptions", "LinkTeammate", "LiveCell"]
 
@@ -161,6 +164,8 @@ class LiveCell:
     _robot_seen: float = 0.0
     _gate: StampGate = field(default_factory=StampGate)  # tracking stamps across cycles
     _guard: MonitorGuard = field(init=False)  # the reactive cycle's (bridge.failsafe)
+    # the plan whose robot trajectories were last parameterized, and those (``timed``)
+    _timings: tuple[CyclePlan, dict[str, TimedTrajectory]] | None = None
 
     def __post_init__(self) -> None:
         self.joints = self.profile.joint_names(self.run.world)  # the driver's names
@@ -247,16 +252,26 @@ class LiveCell:
         for task in order["robot"]:
             if task in sent or not all(x in obs.end for x in after[task]):
                 continue
-            # cut to the task, parameterized within the robot's limits, the driver's names
-            try:
-                timed = self.profile.timed(self.run.world, task,
-                                           plan.best.motions[task].trajectory)
-            except RapiddsError as exc:  # a path the arm would refuse: stop, record nothing
-                raise self._stop(plan.cycle, str(exc)) from None
+            timed = self.timed(plan)[task]
             self.link.publish(TRAJECTORY_TOPIC, self.profile.trajectory(
                 self.run.world, timed, stamp_ns=time.time_ns(), frame_id=task))
             sent.add(task)
             log.info("cycle %d: dispatched %s (%.2f s)", plan.cycle, task, timed.duration)
+
+    def timed(self, plan: CyclePlan) -> dict[str, TimedTrajectory]:
+        """Each robot task's trajectory as the hub sends it: cut to the task, parameterized
+        within the robot profile's limits (world convention). Computed once per plan: the
+        dispatch sends these and the reactive monitor and its guard take the robot's expected
+        speeds from these, so what is watched is what runs. A path the arm would refuse
+        stops the cycle, nothing recorded."""
+        if self._timings is None or self._timings[0] is not plan:
+            try:
+                timed = {t: self.profile.timed(self.run.world, t, m.trajectory)
+                         for t, m in plan.best.motions.items() if m.trajectory is not None}
+            except RapiddsError as exc:
+                raise self._stop(plan.cycle, str(exc)) from None
+            self._timings = (plan, timed)
+        return self._timings[1]
 
     def _take(self, live: LivePlan, obs: CycleObservation, wait: float = 0.02,
               monitor: SpeedMonitor | None = None) -> None:
@@ -301,12 +316,10 @@ class LiveCell:
     def _monitor(self, plan: CyclePlan) -> SpeedMonitor | None:
         if self.options.execution != "reactive":
             return None
-        trajectories = {t: m.trajectory for t, m in plan.best.motions.items()
-                        if m.trajectory is not None}
-        monitor = SpeedMonitor(self.run.world, planned_speeds(self.run.world, trajectories),
+        timed = self.timed(plan)
+        monitor = SpeedMonitor(self.run.world, planned_speeds(self.run.world, timed),
                                period=1.0 / self.options.scaling_rate)
-        self._guard = MonitorGuard(planned_joint_speeds(trajectories, self.run.world.dt),
-                                   monitor.limits.stopping_time)
+        self._guard = MonitorGuard(planned_joint_speeds(timed), monitor.limits.stopping_time)
         return monitor
 
     def _scale(self, live: LivePlan, obs: CycleObservation, sent: set[str],
@@ -331,6 +344,7 @@ class LiveCell:
         ``monitor``: reactive execution's, ticked while the cycle runs; ``replans``: where
         the re-plans of the rest go when the person deviates (None: the plan is followed)."""
         rp = None if replans is None else self._replanning(plan)  # before t0 is set: it takes
+        self.timed(plan)  # the trajectories to send, before t0 too (a refused path: no plan)
         live = self._publish_plan(plan)
         obs = CycleObservation(live, self.points, gate=self._gate,
                                window=self.options.cycle_timeout, task_bound=self.task_bound,

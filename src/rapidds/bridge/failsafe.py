@@ -36,6 +36,7 @@ from rapidds.bridge.ros2 import JOINT_STATE_TOPIC
 
 if TYPE_CHECKING:
     from rapidds.bridge.reactive import SpeedMonitor
+    from rapidds.motion.timing import TimedTrajectory
 
 __all__ = [
     "BLIND_LIMIT",
@@ -145,14 +146,17 @@ class ReadyCheck:
         return None
 
 
-def planned_joint_speeds(trajectories: Mapping[str, np.ndarray], dt: float,
-                         ) -> dict[str, np.ndarray]:
-    """Each robot task's fastest speed per joint along its planned trajectory (rows dt apart)."""
+def planned_joint_speeds(timed: Mapping[str, TimedTrajectory]) -> dict[str, np.ndarray]:
+    """Each robot task's fastest speed per joint along the trajectory the hub sends it: the
+    larger of its samples' velocities and the chords between them (ruckig's timing; a path's
+    rows at dt overstate a step the arm's limits slow down and understate a rest-to-rest one)."""
     out = {}
-    for task, traj in trajectories.items():
-        q = np.asarray(traj, float)
-        out[task] = (np.abs(np.diff(q, axis=0)).max(axis=0) / dt if len(q) > 1
-                     else np.zeros(q.shape[-1]))
+    for task, traj in timed.items():
+        speed = np.abs(np.asarray(traj.velocities, float)).max(axis=0)
+        if len(traj.times) > 1:
+            chord = np.abs(np.diff(traj.positions, axis=0)) / np.diff(traj.times)[:, None]
+            speed = np.maximum(speed, chord.max(axis=0))
+        out[task] = speed
     return out
 
 

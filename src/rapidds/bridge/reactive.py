@@ -8,8 +8,9 @@ math is the executor's: the same policy and :func:`~rapidds.execution.protective
 the person's speed the fastest body point's (here between its last two tracked samples, by
 their stamps); what a live robot changes is the robot's side: its points are measured, not
 replayed (its speed measured over ``WINDOW`` cell s of joint states), and its speed
-at full rate is the planned one of the running task at its fastest (the layer does not know
-how far along its path a held robot is, so it takes the bound, never the lower value).
+at full rate is that of the running task's trajectory as the hub sent it (ruckig's timing,
+:func:`planned_speeds`) at its fastest (the layer does not know how far along its path a
+held robot is, so it takes the bound, never the lower value).
 Its T_r is the whole reaction time of this safety function (ISO/TS 15066): the world's plus
 the live latencies, the person's sample age, a tick period and the scaling's ``DELIVERY``.
 
@@ -40,6 +41,7 @@ from rapidds.execution.policies import (
     directed_speeds,
     protective_check,
 )
+from rapidds.motion.timing import TimedTrajectory
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import SafetyLimits, cell_reactions
 
@@ -56,21 +58,33 @@ link between 50 ms passes of its physics (a real driver's own figure belongs her
 MOVING = 0.01
 """Workspace units per second below which the measured robot counts as still (a held arm's
 servo jitter, sensor noise)."""
+_LEAD = 1e-4
+"""Seconds of a sample's joint velocity whose forward kinematics give its points' speed."""
 
 
-def planned_speeds(world: World, trajectories: Mapping[str, np.ndarray]) -> dict[str, float]:
-    """Each robot task's fastest body-point speed along its planned trajectory (units/s)."""
+def planned_speeds(world: World, timed: Mapping[str, TimedTrajectory]) -> dict[str, float]:
+    """Each robot task's fastest body-point speed along the trajectory the hub sends it
+    (units/s): ruckig's timing, not the path's rows at dt (a row step the arm's limits slow
+    down, a rest-to-rest step whose peak is above its mean). At every sample the points'
+    speed along the joint velocity (J(q) q' by a forward difference), and the chords between
+    samples: the larger."""
     out = {}
-    for task, traj in trajectories.items():
-        pts = world.robot_points(np.asarray(traj, float))
-        step = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max() if len(pts) > 1 else 0.0
-        out[task] = float(step / world.dt)
+    for task, traj in timed.items():
+        q, v = np.asarray(traj.positions, float), np.asarray(traj.velocities, float)
+        pts = world.robot_points(q)
+        ahead = world.robot_points(q + v * _LEAD)
+        speed = float(np.linalg.norm(ahead - pts, axis=-1).max() / _LEAD)
+        if len(q) > 1:
+            chord = np.linalg.norm(np.diff(pts, axis=0), axis=-1).max(axis=-1)
+            speed = max(speed, float((chord / np.diff(traj.times)).max()))
+        out[task] = speed
     return out
 
 
 @dataclass
 class SpeedMonitor:
-    """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks;
+    """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks
+    (their trajectories as the hub sends them);
     ``period``: cell seconds between its ticks."""
 
     world: World
