@@ -167,3 +167,12 @@ def test_a_person_walking_away_no_longer_holds_the_robot():
     assert 0.0 < undirected < ssm.rate(away) < 1.0
     # the robot backing off (a yield) goes away from the person: allowed at full rate
     assert ssm.rate(towards.backwards()) == 1.0
+
+
+def test_planned_execution_records_no_yields(fetch_policy):
+    """People who react under the paper's open-loop robot: an in-cycle record, but no policy
+    holds the robot, so no yield can happen and the record has no ``yields`` (unchanged)."""
+    cfg = RunConfig(human="slow-middle", cycles=1, seed=7, reacts=True, **SMALL)
+    (res,) = list(AdaptiveRun(cfg, fetch_policy).run())
+    ic = res.execution.in_cycle
+    assert ic is not None and ic.yields is None and "yields" not in res.to_json()
