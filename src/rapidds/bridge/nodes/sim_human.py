@@ -127,6 +127,12 @@ class SimHuman:
             t = min(job.sent * dt, job.duration)
             self._publish(job.path[job.sent], job.start_ns + round(t / self.scale * 1e9))
             job.sent += 1
+        period = round(self.idle_period / self.scale * 1e9)
+        if job.sent >= len(job.path) and now - self._last_idle >= period:
+            # standing at the path's end for the rest of a longer task: a tracker still sees
+            # the person (a silent one would rightly blind the hub's monitor)
+            self._publish(self.pose, now)
+            self._last_idle = now
         if elapsed >= job.duration:
             end = job.start_ns + round(job.duration / self.scale * 1e9)  # the drawn duration
             self.link.publish(EVENTS_TOPIC, event_message(Event(job.task, "human", "end", end)))
@@ -135,7 +141,8 @@ class SimHuman:
             self._doing = None
             self._last_idle = now
             return 0.0
-        due = min(job.sent * dt, job.duration) - elapsed
+        due = (min(job.sent * dt, job.duration) if job.sent < len(job.path)
+               else job.duration) - elapsed
         return max(0.0, min(due / self.scale, 0.01))
 
     def spin(self, until: float | None = None) -> None:
