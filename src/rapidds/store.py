@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 from urllib.parse import urlencode
 
-from rapidds.errors import StateError
+from rapidds.errors import RapiddsError, StateError
 from rapidds.fileio import ensure_folder, locked_folder, new_file_mode
 
 if TYPE_CHECKING:  # numpy is imported where arrays are (de)serialised: light commands skip it
@@ -425,6 +425,20 @@ class RunStore:
 
     def run_ids(self) -> list[str]:
         return [r[0] for r in self._rows("SELECT run_id FROM runs ORDER BY run_id")]
+
+    def pick_run(self, run_id: str | None) -> str:
+        """The run a command means: ``run_id`` (checked), or the store's only run; a
+        RapiddsError naming the runs (and ``--run``) otherwise."""
+        ids = self.run_ids()
+        if run_id is not None:
+            if run_id not in ids:
+                raise RapiddsError(f"{self.path} has no run '{run_id}' (runs: "
+                                   f"{', '.join(ids) or 'none'})")
+            return run_id
+        if len(ids) != 1:
+            raise RapiddsError(f"{self.path} holds {len(ids)} runs ({', '.join(ids) or 'none'}); "
+                               "name one with --run")
+        return str(ids[0])
 
     # cycles ---------------------------------------------------------------------------------
     def record_cycle(

@@ -59,13 +59,7 @@ def _next_run(run_dir: Path, config: Any, run_id: str | None, policy: Path | Non
     stored, state, last = None, None, None
     if path.exists():
         with RunStore.open_readonly(path) as store:
-            ids = store.run_ids()
-            if run_id is None and len(ids) > 1:
-                raise RapiddsError(f"{path} holds {len(ids)} runs ({', '.join(ids)}); name one "
-                                   "with --run")
-            rid = run_id or (ids[0] if ids else None)
-            if rid is not None and rid not in ids:
-                raise RapiddsError(f"{path} has no run '{rid}' (runs: {', '.join(ids)})")
+            rid = store.pick_run(run_id) if store.run_ids() or run_id else None
             if rid is not None:
                 stored = store.run_config(rid)
                 last = store.last_cycle(rid)

@@ -24,20 +24,6 @@ if TYPE_CHECKING:
 STORE = "run.sqlite"
 
 
-def _run_id(store: Any, run_id: str | None) -> str:
-    """The run to use: ``run_id``, or the store's only run."""
-    ids = store.run_ids()
-    if run_id is not None:
-        if run_id not in ids:
-            raise RapiddsError(f"{store.path} has no run '{run_id}' (runs: "
-                               f"{', '.join(ids) or 'none'})")
-        return run_id
-    if len(ids) != 1:
-        raise RapiddsError(f"{store.path} holds {len(ids)} runs ({', '.join(ids) or 'none'}); "
-                           "name one with --run")
-    return str(ids[0])
-
-
 def log_to_stderr() -> None:
     """The bridge's one-line warnings (dropped messages) on stderr, as ``rapidds: warning``."""
     logger = logging.getLogger("rapidds.bridge")
@@ -77,7 +63,7 @@ def export_cmd(
         profile = robot_profile(robot)
         epoch_ns = None if epoch is None else parse_epoch(epoch)
         with RunStore.open_readonly(run_dir / STORE) as store:
-            rid = _run_id(store, run)
+            rid = store.pick_run(run)
             cfg = store.run_config(rid) or {}
             world = make_world(cfg["world"], cfg.get("variant"))
             cycles = None if cycle is None else [cycle]
@@ -125,7 +111,7 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     if path.exists():
         with RunStore.open_readonly(path) as store:
             ids = store.run_ids()
-            stored = store.run_config(_run_id(store, run_id)) if ids else None
+            stored = store.run_config(store.pick_run(run_id)) if ids else None
     if not ids and config is None:
         raise RapiddsError(f"{run_dir} holds no run; start one with --config RUN.yaml "
                            "(run settings: world, cycles, seed, ...)")
