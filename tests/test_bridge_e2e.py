@@ -13,8 +13,11 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
@@ -76,6 +79,51 @@ def _stop(*procs: subprocess.Popen[bytes]) -> None:
             p.wait(10)
         except subprocess.TimeoutExpired:
             p.kill()
+
+
+class LiveCycle(NamedTuple):
+    code: int  # the hub's exit code
+    err: str  # its stderr
+    records: list[dict[str, Any]]  # its --json records
+    seen: list[Any]  # what a listener to the watched topics heard
+
+
+def reactive_painting_cycle(tmp_path: Path, person: Callable[[Any], Any],
+                            watch: dict[str, str]) -> LiveCycle:
+    """One reactive painting cycle on three processes: the hub (``deploy``), ``sim-robot``,
+    and ``person(link)`` (a SimHuman on this process's link) spun on a thread."""
+    from rapidds.bridge.link import Link
+    from rapidds.bridge.nodes.sim_human import SimHuman
+
+    ep, out = _endpoint(), tmp_path / "run"
+    robot = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot.log")
+    stop = threading.Event()
+    hub_out, hub_err = tmp_path / "hub.out", tmp_path / "hub.err"
+    with open(hub_out, "wb") as o, open(hub_err, "wb") as e:  # a node connects to a hub
+        hub = subprocess.Popen(
+            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
+             "--json", "--time-scale", "4", "--execution", "reactive",
+             "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
+            env={**os.environ, "RAPIDDS_LOG": "info"})
+    try:
+        with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:
+            node = person(plink)
+
+            def act() -> None:
+                while not stop.is_set():
+                    node.spin(until=time.monotonic() + 0.2)
+
+            t = threading.Thread(target=act, daemon=True)
+            t.start()
+            code = hub.wait(240)
+            stop.set()
+            t.join(5)
+            seen = wlink.drain()
+    finally:
+        stop.set()
+        _stop(robot, hub)
+    return LiveCycle(code, hub_err.read_text(),
+                     [json.loads(x) for x in hub_out.read_text().splitlines()], seen)
 
 
 @pytest.mark.slow

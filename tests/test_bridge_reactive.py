@@ -9,19 +9,13 @@ Simulated time runs 4x faster than the wall clock (``--time-scale 4``)."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 from cli_helpers import run_main
-from test_bridge_e2e import CLI, SEARCH, _endpoint, _start, _stop
+from test_bridge_e2e import reactive_painting_cycle
 
 from rapidds.bridge import ros2
-from rapidds.bridge.link import Link
 from rapidds.bridge.live import SPEED_SCALING_TOPIC, LivePlan
 from rapidds.bridge.nodes.sim_human import SimHuman
 from rapidds.worlds.reactions import cell_reactions
@@ -58,36 +52,12 @@ def test_the_robot_holds_while_the_person_stands_in_its_path(tmp_path: Path) -> 
     # the first draw of a path sets up the teammate's model (a stall of the tracker in a
     # test process that is busy reading the link); done here, before the cycle
     teammate.at(0).perform(world.problem().ids[0], np.random.default_rng(0))
-    ep, out = _endpoint(), tmp_path / "run"
-    robot = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot.log")
     watch = {SPEED_SCALING_TOPIC: "std_msgs/msg/Float64", ros2.PLAN_TOPIC: "std_msgs/msg/String",
              ros2.JOINT_STATE_TOPIC: "sensor_msgs/msg/JointState"}
-    stop = threading.Event()
-    hub_out, hub_err = tmp_path / "hub.out", tmp_path / "hub.err"
-    with open(hub_out, "wb") as o, open(hub_err, "wb") as e:  # a node connects to a hub
-        hub = subprocess.Popen(
-            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
-             "--json", "--time-scale", "4", "--execution", "reactive",
-             "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
-            env={**os.environ, "RAPIDDS_LOG": "info"})
-    try:
-        with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:
-            person = _Intruder(world, teammate, plink, seed=1)
-            def act() -> None:
-                while not stop.is_set():
-                    person.spin(until=time.monotonic() + 0.2)
-
-            t = threading.Thread(target=act, daemon=True)
-            t.start()
-            code = hub.wait(240)
-            stop.set()
-            t.join(5)
-            seen = wlink.drain()
-    finally:
-        stop.set()
-        _stop(robot, hub)
-    assert code == 0, hub_err.read_text()[-3000:]
-    (rec,) = [json.loads(x) for x in hub_out.read_text().splitlines()]
+    cell = reactive_painting_cycle(
+        tmp_path, lambda link: _Intruder(world, teammate, link, seed=1), watch)
+    assert cell.code == 0, cell.err[-3000:]
+    (rec,), seen = cell.records, cell.seen
     plan = LivePlan.parse(next(r for r in seen if r.topic == ros2.PLAN_TOPIC).msg.data)
     first = plan.order["robot"][0]
     # the scaling dropped to 0 once the person stood there, stayed below full speed while they

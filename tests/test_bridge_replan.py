@@ -7,18 +7,12 @@ Simulated time runs 4x faster than the wall clock (``--time-scale 4``)."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
-from test_bridge_e2e import CLI, SEARCH, _endpoint, _start, _stop
+from test_bridge_e2e import reactive_painting_cycle
 
 from rapidds.bridge import ros2
-from rapidds.bridge.link import Link
 from rapidds.bridge.live import LivePlan
 from rapidds.bridge.nodes.sim_human import SimHuman
 from rapidds.bridge.replan import LiveReplanner
@@ -90,36 +84,11 @@ def test_the_live_cell_replans_when_the_person_overruns(tmp_path: Path) -> None:
     world = make_world("painting")
     teammate = world.teammate("left-slow")
     teammate.at(0).perform(world.problem().ids[0], np.random.default_rng(0))
-    ep, out = _endpoint(), tmp_path / "run"
-    robot = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot.log")
     watch = {ros2.PLAN_TOPIC: "std_msgs/msg/String", ros2.EVENTS_TOPIC: "std_msgs/msg/String"}
-    stop = threading.Event()
-    hub_out, hub_err = tmp_path / "hub.out", tmp_path / "hub.err"
-    with open(hub_out, "wb") as o, open(hub_err, "wb") as e:
-        hub = subprocess.Popen(
-            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
-             "--json", "--time-scale", "4", "--execution", "reactive",
-             "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
-            env={**os.environ, "RAPIDDS_LOG": "info"})
-    try:
-        with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:
-            person = _Slow(world, teammate, plink, seed=1)
-
-            def act() -> None:
-                while not stop.is_set():
-                    person.spin(until=time.monotonic() + 0.2)
-
-            t = threading.Thread(target=act, daemon=True)
-            t.start()
-            code = hub.wait(240)
-            stop.set()
-            t.join(5)
-            seen = wlink.drain()
-    finally:
-        stop.set()
-        _stop(robot, hub)
-    assert code == 0, hub_err.read_text()[-3000:]
-    (rec,) = [json.loads(x) for x in hub_out.read_text().splitlines()]
+    cell = reactive_painting_cycle(
+        tmp_path, lambda link: _Slow(world, teammate, link, seed=1), watch)
+    assert cell.code == 0, cell.err[-3000:]
+    (rec,), seen = cell.records, cell.seen
     plan = LivePlan.parse(next(r for r in seen if r.topic == ros2.PLAN_TOPIC).msg.data)
     first = plan.order["human"][0]
     overran = [r for r in rec["replans"] if r["reason"] == "overran" and r["task"] == first]
@@ -133,4 +102,4 @@ def test_the_live_cell_replans_when_the_person_overruns(tmp_path: Path) -> None:
     last = rec["replans"][-1]
     assert ran[len(ran) - len(last["after"]["robot"]):] == last["after"]["robot"]
     assert rec["executed"]["robot"] == ran  # the cycle is realised in the order it ran
-    assert "re-planned at" in hub_err.read_text()
+    assert "re-planned at" in cell.err
