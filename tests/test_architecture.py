@@ -223,12 +223,11 @@ def test_every_size_exception_is_still_needed() -> None:
 NAMES_A_WORLD: dict[str, str] = {
     "loop/config.py": "RunConfig's default world, fetch",
     "cli/run.py": "`rapidds run` and `demo` default to fetch (and its default teammate)",
-    "cli/play.py": "the browser game is the fetch game",
+    "cli/play.py": "`rapidds play` defaults to fetch (it plays any world with browser_play)",
     "cli/case_study.py": "the paper's painting case study",
     "cli/study.py": "`rapidds study` defaults to the painting world",
     "experiments/ablation.py": "the paper's fetch ablation",
     "experiments/painting.py": "the paper's painting case study",
-    "web/": "the browser game and the study's game rounds play fetch",
 }
 _WORLDS = ("fetch", "painting")
 
@@ -261,3 +260,72 @@ def test_the_world_name_check_sees_each_way_of_naming_one() -> None:
                  "import rapidds.worlds.fetch.map", "isinstance(w, FetchWorld)"):
         assert _names_a_world(ast.parse(code)), code
     assert not _names_a_world(ast.parse('"""Runs in the fetch world."""\nmake_world(name)'))
+
+
+# -- what a world can do is asked by name, never probed ----------------------------------------
+def _world_packages() -> dict[str, set[str]]:
+    """World package (``worlds/fetch/``) -> the classes it defines."""
+    out: dict[str, set[str]] = {}
+    for rel, path in _sources().items():
+        parts = rel.split("/")
+        if parts[0] == "worlds" and len(parts) > 2:
+            out.setdefault(f"worlds/{parts[1]}/", set()).update(
+                n.name for n in ast.walk(ast.parse(path.read_text()))
+                if isinstance(n, ast.ClassDef))
+    return out
+
+
+def _optional_members() -> set[str]:
+    """Names a world may or may not have: every capability's members, and the spec's fields
+    that are not the contract's (joint and body point names, once optional members)."""
+    import dataclasses
+
+    from rapidds.worlds.base import World, WorldSpec
+    from rapidds.worlds.capabilities import CAPABILITIES
+
+    members = {m for proto, _ in CAPABILITIES.values() for m in vars(proto)}
+    members |= {f.name for f in dataclasses.fields(WorldSpec)}
+    return {m for m in members if not m.startswith("_") and m not in dir(World)}
+
+
+def _probes(tree: ast.AST, concrete: set[str], optional: set[str]) -> list[str]:
+    """``isinstance(x, C)`` of a concrete world class C, and ``getattr``/``hasattr`` of an
+    optional world member by its name."""
+    found = []
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and len(node.args) >= 2):
+            continue
+        what = node.args[1]
+        names = {n.id for n in ast.walk(what) if isinstance(n, ast.Name)}
+        if node.func.id == "isinstance" and names & concrete:
+            found.append(ast.unparse(node))
+        if node.func.id in ("getattr", "hasattr") and isinstance(what, ast.Constant) \
+                and what.value in optional:
+            found.append(ast.unparse(node))
+    return found
+
+
+def test_no_world_is_probed_outside_its_package_and_the_capability_helper() -> None:
+    packages = _world_packages()
+    optional = _optional_members()
+    found = {}
+    for rel, path in _sources().items():
+        if rel == "worlds/capabilities.py":
+            continue  # the one helper that asks
+        concrete = set().union(*(c for pkg, c in packages.items() if not rel.startswith(pkg)))
+        if hits := _probes(ast.parse(path.read_text()), concrete, optional):
+            found[rel] = hits
+    assert not found, f"ask rapidds.worlds.capabilities.capability(world, NAME) instead: {found}"
+
+
+def test_the_probe_check_sees_each_way_of_probing() -> None:
+    concrete, optional = {"FetchWorld", "PaintingWorld"}, _optional_members()
+    assert {"physics_model", "robot_duration", "joint_names", "tracking_mapping",
+            "priming_factors", "home"} <= optional
+    for code in ("isinstance(w, FetchWorld)", "isinstance(w, (int, PaintingWorld))",
+                 'getattr(world, "robot_duration", None)', 'hasattr(self.world, "physics_model")',
+                 'getattr(w, "joint_names")'):
+        assert _probes(ast.parse(code), concrete, optional), code
+    for code in ("isinstance(w, World)", 'getattr(module, "main")', "getattr(w, name)"):
+        assert not _probes(ast.parse(code), concrete, optional), code

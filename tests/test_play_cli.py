@@ -28,7 +28,7 @@ def test_play_help_imports_no_heavy_library() -> None:
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["play", "painting"], "plays the fetch world"),
+    (["play", "painting"], "does not declare the browser_play capability"),
     (["play", "--adapt", "oracle"], "a person has none"),
     (["play", "--adapt", "sometimes"], "--adapt"),
     (["play", "--player", "../etc"], "--player"),

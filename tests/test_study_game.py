@@ -59,20 +59,21 @@ def _rounds(folder: Path) -> int:
         return len(s.records())
 
 
-def test_the_game_source_is_refused_for_a_study_not_on_fetch(tmp_path: Path) -> None:
+def test_the_game_source_is_refused_for_a_world_that_cannot_be_played(tmp_path: Path) -> None:
     world = make_world("painting")
+    refused = "world painting does not declare the browser_play capability"
     folder = make_study(tmp_path, world)
     with _serve(folder, world, load_policy(world)) as (client, pid):
         assert "/play" not in client.get(f"/p/{pid}").text  # not offered
         page = client.get(f"/p/{pid}/play")
         assert page.status_code == 404
-        assert "fetch studies only" in page.text and "painting" in page.text
+        assert refused in page.text
         r = client.post(f"/api/p/{pid}/round", json={"step": _step(client, pid),
                                                      "fields": {"source": "game"}})
-        assert r.status_code == 400 and "fetch studies only" in r.json()["error"]
+        assert r.status_code == 400 and refused in r.json()["error"]
         with client.websocket_connect(f"{WS}/p/{pid}/ws?step={_step(client, pid)}") as ws:
             msg = json.loads(ws.receive_text())
-            assert msg["type"] == "refused" and "fetch studies only" in msg["reason"]
+            assert msg["type"] == "refused" and refused in msg["reason"]
     assert _rounds(folder) == 0
 
 

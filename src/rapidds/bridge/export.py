@@ -45,6 +45,7 @@ from rapidds.bridge.bag import BagMessage
 from rapidds.bridge.profiles import DEFAULT_PROFILE, RobotProfile, robot_profile, task_rows
 from rapidds.store import cycle_paths
 from rapidds.worlds.base import World, body_point_names, body_points
+from rapidds.worlds.capabilities import capability
 
 if TYPE_CHECKING:
     from rapidds.motion.timing import TimedTrajectory
@@ -165,7 +166,7 @@ def _states(world: World, task: str, path: np.ndarray, timed: TimedTrajectory,
     held after (a slower realised task waited under the monitor's scaling); a world that keeps
     its own row timing (fetch) is at row k at k * dt."""
     dt = world.dt
-    if getattr(world, "robot_duration", None) is None:
+    if capability(world, "robot_timing") is None:
         rows = task_rows(world, task, path)
         for s in np.arange(0.0, length - 1e-9, dt):
             yield float(s), rows[min(round(s / dt), len(rows) - 1)], None

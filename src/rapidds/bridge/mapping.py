@@ -15,6 +15,7 @@ from rapidds.bridge.boundaries import BoundaryRules
 from rapidds.errors import ConfigError
 from rapidds.settings import Settings, read_yaml
 from rapidds.worlds.base import World, body_point_names
+from rapidds.worlds.capabilities import capability
 
 __all__ = ["RigidTransform", "TrackingMapping", "default_mapping", "load_mapping"]
 
@@ -91,9 +92,9 @@ def load_mapping(path: str | Path) -> TrackingMapping:
 
 
 def default_mapping(world: World) -> TrackingMapping:
-    """The mapping the world ships (its ``tracking_mapping`` file), else each body point
+    """The mapping the world ships (its ``tracking_mapping`` capability), else each body point
     tracked as the TF frame of its own name in the world frame."""
-    path = getattr(world, "tracking_mapping", None)
-    if path is not None and Path(path).is_file():
-        return load_mapping(path).check(world)
+    ships = capability(world, "tracking_mapping")
+    if ships is not None and ships.tracking_mapping.is_file():
+        return load_mapping(ships.tracking_mapping).check(world)
     return TrackingMapping(points={n: n for n in body_point_names(world)}).check(world)

@@ -27,6 +27,7 @@ import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.worlds.base import World
+from rapidds.worlds.capabilities import capability
 
 __all__ = ["POSE_COLUMNS", "pose_demonstrations"]
 
@@ -106,8 +107,8 @@ def pose_demonstrations(path: str | Path, world: World) -> Any:
     from rapidds.motion.demos import Demonstrations
 
     path = Path(path)
-    ik = getattr(world, "end_effector_ik", None)
-    if ik is None:
+    arm = capability(world, "end_effector_ik")
+    if arm is None:
         raise RapiddsError(f"world {world.name} has no inverse kinematics for end-effector "
                            "demonstrations")
     tasks = tuple(t.id for t in world.problem().tasks if "robot" in t.allowed)
@@ -122,7 +123,7 @@ def pose_demonstrations(path: str | Path, world: World) -> Any:
         at = np.minimum(np.arange(steps) * dt, t[-1])
         target = np.stack([np.interp(at, t, pos[:, i]) for i in range(3)], axis=1)
         try:
-            joints = np.asarray(ik(target), float)
+            joints = np.asarray(arm.end_effector_ik(target), float)
         except ValueError as exc:
             raise RapiddsError(f"{path}: demonstration {n + 1} ({task}): {exc}") from None
         hold = np.repeat(joints[-1:], horizon - steps, axis=0)

@@ -40,6 +40,7 @@ from pydantic import Field
 from rapidds.errors import RapiddsError
 from rapidds.motion.timing import JointLimits, TimedTrajectory, parameterize
 from rapidds.settings import Settings
+from rapidds.worlds.capabilities import capability
 
 __all__ = ["DEFAULT_PROFILE", "PROFILES", "SPEED_SCALING_TYPE", "ProfileError", "RobotProfile",
            "profile_names", "robot_limits", "robot_profile", "task_rows"]
@@ -181,14 +182,15 @@ def task_rows(world: Any, task: str, path: np.ndarray) -> np.ndarray:
     it complete (its ``completion_time``), at least two; all of them when it never is."""
     q = np.asarray(path, dtype=float)
     done = float(world.completion_time(task, q[None])[0])
-    if done >= getattr(world, "penalty", np.inf):
+    if done >= world.penalty:
         return q
     return q[:max(round(done / world.dt) + 1, 2)]
 
 
 def robot_limits(world: Any) -> JointLimits | None:
-    """The world's own robot limits (its optional ``robot_limits``), or None."""
-    return getattr(world, "robot_limits", None)
+    """The world's own robot limits (its ``robot_limits`` capability), or None."""
+    own = capability(world, "robot_limits")
+    return None if own is None else own.robot_limits
 
 
 _FRANKA_OFFSETS: Floats = (0.0, 0.0, 0.0, 0.0, 0.0, math.pi / 2, 0.0)

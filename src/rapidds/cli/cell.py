@@ -197,11 +197,12 @@ def sim_robot_cmd(
     from rapidds.bridge.profiles import robot_profile
     from rapidds.errors import RapiddsError
     from rapidds.worlds.base import body_point_names
+    from rapidds.worlds.capabilities import capability
     from rapidds.worlds.registry import make_world
 
     _logging(quiet)
     w = make_world(world)
-    if getattr(w, "physics_model", None) is None:  # before waiting for the hub
+    if capability(w, "physics") is None:  # before waiting for the hub
         fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
              "(painting)")
     try:

@@ -28,7 +28,8 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,39}")
 
 @app.command("play")
 def play_cmd(
-    world: str = typer.Argument("fetch", help="World to play (the browser game is fetch)."),
+    world: str = typer.Argument("fetch", help="World to play: one that declares browser_play "
+                                "(see 'rapidds worlds')."),
     adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: "
                               f"{', '.join(a for a in ADAPT_LEVELS if a != 'oracle')}."),
     cycles: int = typer.Option(10, help="Cycles to play."),
@@ -120,9 +121,16 @@ def _say_stopped(session: PlaySession, store: Path) -> None:
 
 
 def _check_args(world: str, adapt: str, player: str) -> None:
-    """What a browser game refuses before loading anything: one line and exit 2."""
-    if world != "fetch":
-        fail(f"the browser game plays the fetch world, not {world!r}")
+    """What a browser game refuses before loading a policy: one line and exit 2."""
+    from rapidds.worlds.capabilities import capability, lacks
+    from rapidds.worlds.registry import UnknownWorldError, make_world
+
+    try:
+        made = make_world(world)
+    except UnknownWorldError as exc:
+        fail(str(exc))
+    if capability(made, "browser_play") is None:
+        fail(lacks(made, "browser_play"))
     if adapt == "oracle":
         fail("--adapt oracle plans with a simulated teammate's true model; a person has none")
     if not _NAME.fullmatch(player):
@@ -131,19 +139,19 @@ def _check_args(world: str, adapt: str, player: str) -> None:
 
 def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: int, speed: float,
              resume: bool, threads: int, ask: bool) -> PlaySession:
-    """The person's run: the fetch world, the policy, the player (asked about their comfort
+    """The person's run: the world, the policy, the player (asked about their comfort
     after every cycle with ``ask``); Gantt charts and the run's
     pictures drawn when the game stops, as ``rapidds run`` draws them."""
     from rapidds.cli.run import set_threads, write_pictures
     from rapidds.loop.run import load_policy
     from rapidds.web.player import BrowserPlayer
     from rapidds.web.session import PlaySession
-    from rapidds.worlds.fetch.world import FetchWorld
+    from rapidds.worlds.capabilities import capability
     from rapidds.worlds.registry import make_world
 
     set_threads(threads)
-    world = make_world("fetch")
-    assert isinstance(world, FetchWorld)
+    world = capability(make_world(cfg.world), "browser_play")
+    assert world is not None  # _check_args refused the others
     played: list[CycleResult] = []
 
     def on_cycle(run: AdaptiveRun, res: CycleResult) -> None:

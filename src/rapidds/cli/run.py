@@ -281,7 +281,8 @@ def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
 def worlds_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
-    """List the registered worlds with their variants, teammates and tasks."""
+    """List the registered worlds with their variants, teammates, tasks and capabilities."""
+    from rapidds.worlds.capabilities import capabilities
     from rapidds.worlds.registry import make_world, world_names
 
     info = {}
@@ -289,7 +290,8 @@ def worlds_cmd(
         w = make_world(name)
         info[name] = {"variants": list(w.variants), "teammates": list(w.teammate_names),
                       "tasks": list(w.task_ids), "workspace_dim": w.workspace_dim,
-                      "robot_dim": w.state_dim, "views": list(w.views)}
+                      "robot_dim": w.state_dim, "views": list(w.views),
+                      "capabilities": list(capabilities(w))}
     if as_json:
         typer.echo(json.dumps(info))
         return
@@ -298,6 +300,7 @@ def worlds_cmd(
         typer.echo(f"  variants:  {', '.join(d['variants'])}")
         typer.echo(f"  teammates: {', '.join(d['teammates'])}")
         typer.echo(f"  tasks:     {', '.join(d['tasks'])}")
+        typer.echo(f"  can:       {', '.join(d['capabilities']) or '(the contract only)'}")
 
 
 @app.command("demo")

@@ -33,6 +33,7 @@ from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.capabilities import robot_duration
 from rapidds.worlds.reactions import (
     Deviation,
     Reaction,
@@ -75,7 +76,7 @@ def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
-                           duration=getattr(world, "robot_duration", None))
+                           duration=robot_duration(world))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,

@@ -72,6 +72,7 @@ from rapidds.scheduler import (
 from rapidds.settings import require_memory
 from rapidds.store import RunStore, path_arrays
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.capabilities import robot_duration
 from rapidds.worlds.reactions import Deviation
 from rapidds.worlds.registry import make_world
 
@@ -371,7 +372,7 @@ class AdaptiveRun:
             workspace_cost(self.world, spatial), gamma,
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
-            duration=getattr(self.world, "robot_duration", None),
+            duration=robot_duration(self.world),
             hold=None if holds is None else holds.hold)
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))

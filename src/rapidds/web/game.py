@@ -45,8 +45,7 @@ from rapidds.motion.interface import MotionPlan
 from rapidds.problem import AGENTS, Agent, Problem
 from rapidds.schedule import Schedule, Wait, compile_schedule, item_json
 from rapidds.worlds.base import HumanExecution
-from rapidds.worlds.fetch.map import DESCRIPTIONS
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay
 from rapidds.worlds.geometry import segments_hit_rects
 
 __all__ = ["AVATAR_RADIUS", "HUMAN_SPEED", "MAX_SIGNALS", "FetchGame", "TaskStatus", "along"]
@@ -94,7 +93,7 @@ class FetchGame:
     :meth:`observations` holds what they did) and :attr:`over` when every task is done.
     """
 
-    def __init__(self, world: FetchWorld, problem: Problem, schedule: Schedule,
+    def __init__(self, world: BrowserPlay, problem: Problem, schedule: Schedule,
                  motions: Mapping[str, MotionPlan], *, cycle: int = 0, hz: int = 60,
                  speed: float = HUMAN_SPEED):
         if compile_schedule(problem, schedule) is None:
@@ -297,7 +296,7 @@ class FetchGame:
                                 np.asarray(self.motions[j].trajectory)[:, :2]]
                             for j in self.schedule.tasks("robot")},
             "routes": dict(routes),
-            "descriptions": {t: DESCRIPTIONS.get(t, t) for t in self.problem.ids},
+            "descriptions": {t: self.problem.task(t).description or t for t in self.problem.ids},
         }
 
     # -- internals ----------------------------------------------------------------------------

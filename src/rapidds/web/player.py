@@ -43,7 +43,7 @@ from rapidds.errors import RapiddsError
 from rapidds.web.game import HUMAN_SPEED, FetchGame
 from rapidds.web.reactive import ReactiveFetchGame
 from rapidds.worlds.base import HumanExecution
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay
 
 if TYPE_CHECKING:
     from rapidds.execution import CycleExecutor, Deployment, HumanSource
@@ -86,7 +86,7 @@ class BrowserPlayer:
     question after every cycle (else :meth:`comfort_report` says the person was not asked).
     """
 
-    def __init__(self, world: FetchWorld, name: str = "player", *, hz: int = 60,
+    def __init__(self, world: BrowserPlay, name: str = "player", *, hz: int = 60,
                  speed: float = HUMAN_SPEED, ask_comfort: bool = False):
         self.world = world
         self.problem = world.problem()

@@ -36,7 +36,7 @@ from rapidds.problem import Agent, Problem
 from rapidds.schedule import Schedule, Timeline, Wait
 from rapidds.web.game import HUMAN_SPEED, FetchGame, TaskStatus, along
 from rapidds.worlds.base import HumanExecution, body_points
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay
 
 __all__ = ["AvatarHuman", "ReactiveFetchGame"]
 
@@ -49,7 +49,7 @@ class AvatarHuman:
     tick (:meth:`moved`), which object it picked up (:meth:`pick`) and when it was back home
     with it (:meth:`deliver`); the executor reads them at its own instants."""
 
-    def __init__(self, world: FetchWorld):
+    def __init__(self, world: BrowserPlay):
         home = world.home("human").astype(float)
         self._was: tuple[float, np.ndarray] = (0.0, home)
         self._is: tuple[float, np.ndarray] = (0.0, home)
@@ -111,7 +111,7 @@ class ReactiveFetchGame(FetchGame):
     ``build`` makes around the avatar (see the module docstring). ``motions``: the plan's
     robot motions (drawn as the plan); the executor's robot has the spare ones too."""
 
-    def __init__(self, world: FetchWorld, problem: Problem, schedule: Schedule,
+    def __init__(self, world: BrowserPlay, problem: Problem, schedule: Schedule,
                  motions: Mapping[str, MotionPlan],
                  build: Callable[[HumanSource], CycleExecutor], *, cycle: int = 0,
                  hz: int = 60, speed: float = HUMAN_SPEED):

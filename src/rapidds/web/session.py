@@ -30,7 +30,7 @@ from rapidds.loop.config import RunConfig
 from rapidds.record import CycleRecord
 from rapidds.store import RunStore
 from rapidds.web.player import BrowserPlayer, PlayerGone
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay
 
 if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CycleResult
@@ -46,7 +46,7 @@ def _r(x: float) -> float:
     return round(float(x), 3)
 
 
-def scene(world: FetchWorld) -> dict[str, Any]:
+def scene(world: BrowserPlay) -> dict[str, Any]:
     """The static scene the page draws: map size, walls, homes, objects, reach radius."""
     lo, hi = world.bounds
     return {
@@ -68,7 +68,7 @@ class PlaySession:
     thread after each recorded cycle and when the worker ends (the CLI draws its pictures there).
     """
 
-    def __init__(self, config: RunConfig, out: Path, *, world: FetchWorld,
+    def __init__(self, config: RunConfig, out: Path, *, world: BrowserPlay,
                  policy: DiffusionPolicy, player: BrowserPlayer, resume: bool = False,
                  on_cycle: Callable[[AdaptiveRun, CycleResult], None] | None = None,
                  on_stop: Callable[[AdaptiveRun], None] | None = None):

@@ -23,7 +23,13 @@ import numpy as np
 from pydantic import Field
 
 from rapidds.settings import Int, Positive, Real, settings_dataclass
-from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
+from rapidds.worlds.base import (
+    HumanExecution,
+    SimulatedTeammate,
+    World,
+    body_points,
+    perform_all,
+)
 
 __all__ = ["ChangingTeammate", "Paced", "changing_teammate", "parse_changes"]
 
@@ -62,7 +68,7 @@ class Paced:
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
-        return _execute(self, tasks, rng)
+        return perform_all(self, tasks, rng)
 
     def perform(self, task: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
         d, path = self.base.perform(task, rng)
@@ -81,15 +87,6 @@ class Paced:
 
     def true_std_durations(self) -> dict[str, float]:
         return {t: v * self.factor for t, v in self.base.true_std_durations().items()}
-
-
-def _execute(person: SimulatedTeammate, tasks: Sequence[str],
-             rng: np.random.Generator) -> dict[str, HumanExecution]:
-    out = {}
-    for task in tasks:
-        d, path = person.perform(task, rng)
-        out[task] = HumanExecution(task, float(d), np.asarray(path, dtype=float))
-    return out
 
 
 @settings_dataclass("ChangingTeammate")
@@ -122,7 +119,7 @@ class ChangingTeammate:
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
-        return _execute(self.at(cycle), tasks, rng)
+        return perform_all(self.at(cycle), tasks, rng)
 
     def perform(self, task: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
         """As the person is at the start (the protocol's single-person view)."""

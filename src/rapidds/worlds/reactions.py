@@ -2,7 +2,7 @@
 
 The logic is world-independent: distances are in workspace units, times in seconds. What differs
 between cells (a 10 m fetch room against a 1 m painting table) is the population's parameters,
-which a world states as ``reaction_population`` and ``safety_limits`` (see
+which a world states by its ``reactions`` capability (see
 :func:`cell_reactions`); docs/design-notes.md "Reacting inside the cycle" gives the values.
 
 Reaction model: while a MOVING robot body point is within the person's comfort distance of any
@@ -25,20 +25,20 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Literal
 
 import numpy as np
 
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
 from rapidds.scheduler.operators import closure
+from rapidds.worlds.capabilities import capability
 
 __all__ = [
     "DEVIATIONS",
     "Deviation",
     "Reaction",
     "ReactionPopulation",
-    "ReactiveCell",
     "SafetyLimits",
     "cell_reactions",
     "deviation_kinds",
@@ -157,23 +157,13 @@ def draw_deviation(p: float, rng: np.random.Generator, population: ReactionPopul
                      lo + (hi - lo) * float(pause), None if chosen == drawn else drawn)
 
 
-@runtime_checkable
-class ReactiveCell(Protocol):
-    """A world that states how its people react and how its robot stops."""
-
-    @property
-    def reaction_population(self) -> ReactionPopulation: ...
-
-    @property
-    def safety_limits(self) -> SafetyLimits: ...
-
-
 def cell_reactions(world: Any) -> tuple[ReactionPopulation, SafetyLimits]:
     """The world's reaction population and safety limits; a world that states none gets both
     scaled from its workspace's size (a tenth and a twentieth of its diagonal for comfort and
     stop, a hundredth for the margins)."""
-    if isinstance(world, ReactiveCell):
-        return world.reaction_population, world.safety_limits
+    own = capability(world, "reactions")
+    if own is not None:
+        return own.reaction_population, own.safety_limits
     lo, hi = world.workspace_bounds
     size = float(np.linalg.norm(np.asarray(hi, float) - np.asarray(lo, float)))
     if not math.isfinite(size) or size <= 0:

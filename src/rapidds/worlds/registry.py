@@ -2,7 +2,8 @@
 
 Entries are ``"module:attribute"`` strings, imported only when a world is asked for, so
 listing the worlds (``rapidds --help``) never imports a physics engine. The attribute is called
-as ``factory(variant=...)`` and must return a :class:`~rapidds.worlds.base.World`.
+as ``factory(variant=...)`` and must return a :class:`~rapidds.worlds.base.World` (most simply
+a :class:`~rapidds.worlds.base.WorldBase` with a spec), whose declared capabilities are checked.
 
 Worlds from other packages join through the ``rapidds.worlds`` entry-point group
 (``[project.entry-points."rapidds.worlds"] myworld = "mypkg.world:MyWorld"``), or, for a quick
@@ -19,6 +20,7 @@ from importlib.metadata import entry_points
 
 from rapidds.errors import RapiddsError
 from rapidds.worlds.base import World
+from rapidds.worlds.capabilities import check_capabilities
 
 __all__ = ["BUILTIN", "UnknownWorldError", "make_world", "register", "world_names"]
 
@@ -82,6 +84,10 @@ def make_world(name: str, variant: str | None = None) -> World:
     world = factory()
     if not isinstance(world, World):
         raise UnknownWorldError(f"world '{name}' does not implement rapidds.worlds.base.World")
+    try:
+        check_capabilities(world)
+    except ValueError as exc:
+        raise UnknownWorldError(str(exc)) from None
     if variant is None or variant == world.variant:
         return world
     if variant not in world.variants:

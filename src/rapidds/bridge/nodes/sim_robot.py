@@ -52,6 +52,7 @@ from rapidds.bridge.ros2 import (
 )
 from rapidds.errors import RapiddsError
 from rapidds.worlds.base import World, body_point_names, joint_names
+from rapidds.worlds.capabilities import capability
 
 __all__ = ["SimRobot"]
 
@@ -84,7 +85,7 @@ class SimRobot:
     _scaled_at: float | None = None  # monotonic s of this cycle's last speed scaling
 
     def __post_init__(self) -> None:
-        physics = getattr(self.world, "physics_model", None)
+        physics = capability(self.world, "physics")
         if physics is None:
             raise RapiddsError(f"world {self.world.name} has no physics model; sim-robot runs "
                                "a world that offers one (painting)")
@@ -92,7 +93,7 @@ class SimRobot:
         self.driver = self.profile.joint_names(self.world)
         self.offset = self.profile.offset(self.world)
         self.points = body_point_names(self.world)
-        self.arm = PhysicsArm(physics(), self.joints)
+        self.arm = PhysicsArm(physics.physics_model(), self.joints)
         self.arm.reset(np.asarray(self.world.robot_rest(), dtype=float))
         self._place(np.asarray(self.world.human_rest(), dtype=float))
 
@@ -109,9 +110,9 @@ class SimRobot:
         return self.plan.time_scale if self.plan is not None else 1.0
 
     def _place(self, points: np.ndarray) -> None:
-        place = getattr(self.world, "place_person", None)
-        if place is not None:
-            place(self.arm.model, self.arm.data, points)
+        physics = capability(self.world, "physics")
+        if physics is not None:
+            physics.place_person(self.arm.model, self.arm.data, points)
 
     def handle(self, rec: Received) -> None:
         if rec.topic == PLAN_TOPIC:

@@ -42,6 +42,7 @@ from rapidds.experiments.study.systems import SYSTEMS
 from rapidds.fileio import atomic_write_text
 from rapidds.settings import error_line
 from rapidds.worlds.bounds import world_task_bound
+from rapidds.worlds.capabilities import capability
 
 if TYPE_CHECKING:
     from rapidds.worlds.base import World
@@ -58,12 +59,12 @@ and still a small path (24 000 rows at painting's dt)."""
 
 
 def priming_factors(world: World) -> dict[str, tuple[str, ...]]:
-    """The priming factors of a study on ``world``: the world's ``priming_factors`` (factors
+    """The priming factors of a study on ``world``: its ``priming`` capability's (factors
     whose factorial names its simulated teammates, painting ``left-fast`` ..., fetch
     ``fast-middle`` ..., so a group's simulated cell and typed-in rounds have a person to act),
     else one factor ``teammate`` whose levels are the world's simulated teammates."""
-    own = getattr(world, "priming_factors", None)
-    return dict(own if own else {"teammate": tuple(world.teammate_names)})
+    own = capability(world, "priming")
+    return dict(own.priming_factors if own else {"teammate": tuple(world.teammate_names)})
 
 
 def williams_square(n: int) -> list[tuple[int, ...]]:

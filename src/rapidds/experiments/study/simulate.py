@@ -1,7 +1,7 @@
 """The user study with simulated participants, on Dask: objective measures only.
 
 Every participant of the stored design is one simulated person, drawn around their priming group
-by the world (``world.participant(name, levels, rng)``: the painting world's
+by the world (its ``participants`` capability: the painting world's
 :func:`~rapidds.worlds.painting.teammates.individual`, with their own durations and hand paths)
 from ``(study seed, position)``, so the same person uses every system. Each participant x system
 is one Dask task: an :class:`~rapidds.loop.run.AdaptiveRun` of the study's rounds with the
@@ -20,7 +20,7 @@ import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,26 +35,18 @@ from rapidds.experiments.ablation import (
 )
 from rapidds.experiments.study.store import StudyStore
 from rapidds.loop.config import RunConfig
+from rapidds.worlds.capabilities import capability
 
 if TYPE_CHECKING:
     from distributed import Client
 
     from rapidds.worlds.base import SimulatedTeammate, World
 
-__all__ = ["PERSON_STREAM", "DrawsParticipants", "Trial", "person_rng", "run_trial",
+__all__ = ["PERSON_STREAM", "Trial", "person_rng", "run_trial",
            "simulate_study", "simulated_participant", "trials_to_run"]
 
 PERSON_STREAM = 7_331
 """Random stream a simulated participant is drawn from: (study seed, position, PERSON_STREAM)."""
-
-
-@runtime_checkable
-class DrawsParticipants(Protocol):
-    """A world that can simulate study participants: one person primed as ``levels`` (factor ->
-    level of the design's priming factors), otherwise drawn from ``rng``."""
-
-    def participant(self, name: str, levels: Mapping[str, str],
-                    rng: np.random.Generator) -> SimulatedTeammate: ...
 
 
 def person_rng(study_seed: int, position: int) -> np.random.Generator:
@@ -64,11 +56,12 @@ def person_rng(study_seed: int, position: int) -> np.random.Generator:
 def simulated_participant(world: World, name: str, levels: Mapping[str, str], study_seed: int,
                           position: int) -> SimulatedTeammate:
     """The simulated person of a participant: the same for every system."""
-    if not isinstance(world, DrawsParticipants):
-        raise RapiddsError(f"world '{world.name}' cannot simulate study participants (it has no "
-                           "participant(name, levels, rng) method)")
+    drawn = capability(world, "participants")
+    if drawn is None:
+        raise RapiddsError(f"world '{world.name}' cannot simulate study participants (it does "
+                           "not declare the participants capability)")
     try:
-        return world.participant(name, dict(levels), person_rng(study_seed, position))
+        return drawn.participant(name, dict(levels), person_rng(study_seed, position))
     except ValueError as exc:
         raise RapiddsError(f"world '{world.name}': {exc}") from None
 

@@ -54,7 +54,7 @@ from rapidds.web.study import pages
 from rapidds.web.study.play import GameRound, open_round
 from rapidds.web.study.runner import InputError, OutOfTurn, StudySession, step_token
 from rapidds.web.study.tracker import MAX_TRACKER_BYTES
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay, capability, lacks
 
 __all__ = ["MAX_BODY", "StudyWorker", "create_study_app"]
 
@@ -145,7 +145,7 @@ class _Games:
         self.rounds: dict[str, GameRound] = {}
         self.opening = asyncio.Lock()
 
-    async def open(self, world: FetchWorld, pid: str, token: str) -> GameRound:
+    async def open(self, world: BrowserPlay, pid: str, token: str) -> GameRound:
         """The game of ``pid``'s current round ``token``: the open one, or a new one (the first
         page, a failed one, or a server restarted meanwhile). OutOfTurn when the study has
         moved on."""
@@ -252,11 +252,11 @@ def _game_routes(app: FastAPI, worker: StudyWorker, games: _Games) -> None:
 
     @app.get("/p/{pid}/play", response_class=HTMLResponse)
     async def play(pid: str) -> Response:
-        world = worker.session.world
-        if not isinstance(world, FetchWorld):
+        world = capability(worker.session.world, "browser_play")
+        if world is None:
             return _html(pages.message_page(
-                "No game in this study", f"the game source is offered for fetch studies only; "
-                f"this study runs on {world.name}: record the round on /p/{pid}"), 404)
+                "No game in this study", f"{lacks(worker.session.world, 'browser_play')}: "
+                f"record the round on /p/{pid}"), 404)
         try:
             _check_pid(pid)
             step = await worker.call(lambda s: s.next_step(pid))
@@ -280,9 +280,9 @@ def _game_routes(app: FastAPI, worker: StudyWorker, games: _Games) -> None:
         if not same_origin(ws.headers):
             await ws.close(code=1008)  # another site's page: nothing said, nothing opened
             return
-        world = worker.session.world
-        if not isinstance(world, FetchWorld):
-            await refuse_socket(ws, "the game source is offered for fetch studies only")
+        world = capability(worker.session.world, "browser_play")
+        if world is None:
+            await refuse_socket(ws, lacks(worker.session.world, "browser_play"))
             return
         try:
             _check_pid(pid)

@@ -40,7 +40,7 @@ from rapidds.web.player import BrowserPlayer
 from rapidds.web.server import Hub, refuse_socket
 from rapidds.web.session import scene
 from rapidds.web.study.runner import OutOfTurn, StudySession, step_token
-from rapidds.worlds.fetch.world import FetchWorld
+from rapidds.worlds.capabilities import BrowserPlay
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -64,7 +64,7 @@ class GameRound:
     summary: dict[str, Any] | None = None  # the study shows no between-cycle summary
     summary_version = 0
 
-    def __init__(self, worker: StudyWorker, world: FetchWorld, pid: str, token: str,
+    def __init__(self, worker: StudyWorker, world: BrowserPlay, pid: str, token: str,
                  plan: CyclePlan, view: View, ask_comfort: bool = False,
                  live: Callable[[HumanSource], CycleExecutor] | None = None):
         self.worker, self.world, self.pid, self.token = worker, world, pid, token
@@ -183,7 +183,7 @@ class GameRound:
         return {"comfort": str(answer), "too_close": ",".join(f"{t:.6f}" for t in signals)}
 
 
-async def open_round(worker: StudyWorker, world: FetchWorld, pid: str,
+async def open_round(worker: StudyWorker, world: BrowserPlay, pid: str,
                      token: str) -> GameRound:
     """A started :class:`GameRound` of ``pid``'s current round ``token``, made in the study
     worker from the plan the round page shows (:meth:`StudySession.plan`)."""

@@ -45,6 +45,7 @@ from rapidds.web.study.tracker import (
     typed_execution,
 )
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
+from rapidds.worlds.capabilities import capability, lacks
 from rapidds.worlds.registry import make_world
 
 if TYPE_CHECKING:
@@ -459,18 +460,16 @@ class StudySession:
 
     @property
     def has_game(self) -> bool:
-        """Whether the round can be played in the browser game (the fetch world's)."""
-        from rapidds.worlds.fetch.world import FetchWorld
-
-        return isinstance(self.world, FetchWorld)
+        """Whether the round can be played in the browser game (the world declares it)."""
+        return capability(self.world, "browser_play") is not None
 
     def _played(self, pid: str, tasks: Sequence[str],
                 played: Mapping[str, HumanExecution] | None,
                 live: Deployment | None) -> dict[str, HumanExecution] | None:
         """What the game observed of the person (None: a live round, ``live`` holds it all)."""
         if not self.has_game:
-            raise InputError(f"the game source is offered for fetch studies only; this study "
-                             f"runs on {self.world.name}: choose {', '.join(SOURCES[:-1])}")
+            raise InputError(f"no game source: {lacks(self.world, 'browser_play')}; choose "
+                             f"{', '.join(SOURCES[:-1])}")
         if live is not None:
             if set(live.human) != set(tasks):
                 raise InputError(f"the game played {sorted(live.human)}, the plan gave the "

@@ -27,13 +27,13 @@ do what depends on the person.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rapidds.worlds.base import HumanExecution
+from rapidds.worlds.base import SteadyPerson
 from rapidds.worlds.fetch.map import MODES, TASK_IDS, Route
 from rapidds.worlds.geometry import segments_hit_rects
 
@@ -60,7 +60,7 @@ _HABIT_CLEARANCE = 0.15  # metres a habitual route keeps from walls, room for pe
 
 
 @dataclass(frozen=True, eq=False)
-class FetchTeammate:
+class FetchTeammate(SteadyPerson):
     """One simulated person.
 
     name: label. speed: walking speed, m/s. handling: seconds spent at the object in a cycle of
@@ -104,21 +104,6 @@ class FetchTeammate:
             for i, t in enumerate(TASK_IDS)
         }
         object.__setattr__(self, "_habits", habits)
-
-    def at(self, cycle: int) -> FetchTeammate:
-        """The same person in every cycle."""
-        return self
-
-    def execute(
-        self, cycle: int, tasks: Sequence[str], rng: np.random.Generator
-    ) -> dict[str, HumanExecution]:
-        """The person as they are in ``cycle`` performs ``tasks`` in order."""
-        person = self.at(cycle)
-        out = {}
-        for task in tasks:
-            d, path = person.perform(task, rng)
-            out[task] = HumanExecution(task, float(d), np.asarray(path, dtype=float))
-        return out
 
     def route(self, task: str) -> Route:
         """The person's habitual round trip for ``task`` (their mode, their deviation)."""

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 from dataclasses import field
 from functools import cache, cached_property
-from importlib.resources import files
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
@@ -25,7 +23,7 @@ from pydantic import Field
 
 from rapidds.problem import AGENTS, Agent, Objective, Problem, Task
 from rapidds.settings import Int, NonNegative, Positive, settings_dataclass
-from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos
+from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos, WorldBase, WorldSpec
 from rapidds.worlds.fetch.map import (
     DESCRIPTIONS,
     HOMES,
@@ -57,7 +55,7 @@ PRIOR_SEED = 20_240_917  # the population of "other people" is the same for ever
 
 
 @settings_dataclass("FetchWorld", eq=False)
-class FetchWorld:
+class FetchWorld(WorldBase):
     """The fetch game (see the module docstring for the map and the conventions).
 
     robot_speed: m/s along a route. dt: seconds per step. horizon: H, a multiple of 8, long
@@ -78,7 +76,7 @@ class FetchWorld:
     prior_people: Annotated[Int, Field(ge=2)] = 24
     prior_samples: Annotated[Int, Field(ge=1)] = 2
     prior_seed: Int = PRIOR_SEED
-    # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
+    # how its people react and how its robot stops (its ``reactions`` capability)
     reaction_population: ClassVar[ReactionPopulation] = REACTIONS
     safety_limits: ClassVar[SafetyLimits] = SAFETY
     _routes: dict[tuple[str, str, str], Route] = field(init=False, repr=False)
@@ -100,58 +98,27 @@ class FetchWorld:
             )
 
     # -- the World protocol -----------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return "fetch"
-
-    @property
-    def task_ids(self) -> tuple[str, ...]:
-        return TASK_IDS
-
-    @property
-    def state_dim(self) -> int:
-        return 2
+    @cached_property
+    def spec(self) -> WorldSpec:
+        """The robot's planar coordinates (m) named as a mobile base's driver names its axes;
+        the person one point, their body (ROS4HRI's ``body`` frame, on the floor)."""
+        return WorldSpec(
+            name="fetch", task_ids=TASK_IDS, state_dim=2, workspace_dim=2,
+            workspace_bounds=((0.0, 0.0), (SIZE, SIZE)), spatial_beta=1.0, spatial_grid=32,
+            teammate_names=tuple(ARCHETYPES), views={"top": (0, 1)},
+            policy_defaults=dict(POLICY_DEFAULTS), joint_names=("x", "y"),
+            body_point_names=("body",), resources="rapidds.worlds.fetch",
+            capabilities=("browser_play", "priming", "reactions", "robot_limits",
+                          "tracking_mapping"))
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.zeros(2), np.full(2, SIZE)
-
-    @property
-    def variants(self) -> tuple[str, ...]:
-        return ("default",)
-
-    @property
-    def workspace_dim(self) -> int:
-        return 2
-
-    @property
-    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.bounds
-
-    @property
-    def spatial_beta(self) -> float:
-        return 1.0
-
-    @property
-    def spatial_grid(self) -> int:
-        return 32
-
-    @property
-    def teammate_names(self) -> tuple[str, ...]:
-        return tuple(ARCHETYPES)
+        return self.workspace_bounds
 
     @property
     def priming_factors(self) -> dict[str, tuple[str, ...]]:
         """A user study's priming factors: their factorial names :attr:`teammate_names`."""
         return {"speed": ("fast", "slow"), "route": ("middle", "outside")}
-
-    @property
-    def policy_defaults(self) -> dict[str, object]:
-        return dict(POLICY_DEFAULTS)
-
-    @property
-    def views(self) -> dict[str, tuple[int, int]]:
-        return {"top": (0, 1)}
 
     def prior(self) -> PopulationPrior:
         return self._prior
@@ -184,11 +151,6 @@ class FetchWorld:
         return self.home("human")[None, :]
 
     @property
-    def joint_names(self) -> tuple[str, ...]:
-        """The robot's planar coordinates (m), as a mobile base's driver would name its axes."""
-        return ("x", "y")
-
-    @property
     def robot_limits(self) -> JointLimits:
         """The point robot's limits per axis (m, m/s, m/s^2, m/s^3): the map's bounds, 1.2 times
         its route speed (demonstrations reach 1.09 times it), and acceleration and jerk that
@@ -202,20 +164,6 @@ class FetchWorld:
         return JointLimits(lo, hi, np.full(2, 1.2 * self.robot_speed), np.full(2, accel),
                            np.full(2, 5.0 * accel / self.dt))
 
-    @property
-    def body_point_names(self) -> tuple[str, ...]:
-        """The person is one point: their body (ROS4HRI's ``body`` frame, on the floor)."""
-        return ("body",)
-
-    @property
-    def tracking_mapping(self) -> Path:
-        """The default YAML mapping of tracked frames to :attr:`body_point_names`."""
-        return Path(str(files("rapidds.worlds.fetch") / "tracking.yaml"))
-
-    def bundled_policy(self) -> Path | None:
-        path = Path(str(files("rapidds.worlds.fetch") / "policy"))
-        return path if path.is_dir() else None
-
     def motion_label(self, task: str, traj: np.ndarray) -> str:
         return self.route_mode(task, traj)
 
@@ -224,11 +172,6 @@ class FetchWorld:
 
         plot_obstacles(ax, self.obstacles())
         plot_points(ax, self.points_of_interest())
-
-    @property
-    def penalty(self) -> float:
-        """Completion time given to a trajectory that never completes its task: 2 * H * dt."""
-        return 2.0 * self.horizon * self.dt
 
     def problem(self) -> Problem:
         return self._problem

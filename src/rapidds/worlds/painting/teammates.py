@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rapidds.worlds.base import HumanExecution
+from rapidds.worlds.base import SteadyPerson
 from rapidds.worlds.painting.scene import LAYOUT, CellLayout
 
 __all__ = [
@@ -160,7 +160,7 @@ def _smooth(u: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class PaintingTeammate:
+class PaintingTeammate(SteadyPerson):
     """One simulated person at the painting cell (see the module docstring).
 
     name: label. hand: "left" or "right", used for Secure Piece and Brush. means: task ->
@@ -212,21 +212,7 @@ class PaintingTeammate:
             habits[task] = (phase, left + dev[0], right + dev[1])
         object.__setattr__(self, "_habits", habits)
 
-    # -- the SimulatedTeammate protocol -------------------------------------------------------
-    def at(self, cycle: int) -> PaintingTeammate:
-        """The same person in every cycle."""
-        return self
-
-    def execute(self, cycle: int, tasks: Sequence[str], rng: np.random.Generator,
-                ) -> dict[str, HumanExecution]:
-        """The person as they are in ``cycle`` performs ``tasks`` in order."""
-        person = self.at(cycle)
-        out = {}
-        for task in tasks:
-            d, path = person.perform(task, rng)
-            out[task] = HumanExecution(task, float(d), np.asarray(path, dtype=float))
-        return out
-
+    # -- the SimulatedTeammate protocol (at and execute: SteadyPerson) -------------------------
     def true_mean_durations(self) -> dict[str, float]:
         """task -> true mean duration (s)."""
         return dict(self.means)

@@ -29,8 +29,6 @@ import math
 from collections.abc import Mapping
 from dataclasses import field
 from functools import cached_property
-from importlib.resources import files
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, ClassVar, Literal, get_args
 
 import numpy as np
@@ -38,7 +36,7 @@ from pydantic import Field
 
 from rapidds.problem import Objective, Problem, Task
 from rapidds.settings import Int, NonNegative, Positive, settings_dataclass
-from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos
+from rapidds.worlds.base import Horizon, PopulationPrior, RobotDemos, WorldBase, WorldSpec
 from rapidds.worlds.painting.reactions import REACTIONS, SAFETY
 from rapidds.worlds.painting.scene import ARM_JOINTS, LAYOUT, Box, CellLayout
 from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
@@ -96,7 +94,7 @@ POLICY_DEFAULTS: dict[str, object] = {
 
 
 @settings_dataclass("PaintingWorld", eq=False)
-class PaintingWorld:
+class PaintingWorld(WorldBase):
     """The painting cell (module docstring).
 
     variant: "unconstrained" (mix order free) or "constrained" (Mix R before Mix L).
@@ -108,7 +106,7 @@ class PaintingWorld:
     prior_samples, prior_seed: the population the priors come from. layout: the cell.
     """
 
-    # how its people react and how its robot stops (rapidds.worlds.reactions.ReactiveCell)
+    # how its people react and how its robot stops (its ``reactions`` capability)
     reaction_population: ClassVar[ReactionPopulation] = REACTIONS
     safety_limits: ClassVar[SafetyLimits] = SAFETY
 
@@ -126,63 +124,30 @@ class PaintingWorld:
     layout: CellLayout = field(default=LAYOUT, repr=False)
 
     # -- the World protocol ---------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return "painting"
-
-    @property
-    def variants(self) -> tuple[str, ...]:
-        return VARIANTS
-
-    @property
-    def task_ids(self) -> tuple[str, ...]:
-        return TASK_IDS
-
-    @property
-    def state_dim(self) -> int:
-        return 7
-
-    @property
-    def workspace_dim(self) -> int:
-        return 3
-
-    @property
-    def workspace_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The table's working volume: where arm and hands can come close. Higher arm points
-        are clamped onto the top face by the spatial model, where people are > 0.4 m away."""
-        return np.array([-0.7, -0.65, -0.05]), np.array([0.7, 0.7, 0.65])
-
-    @property
-    def spatial_beta(self) -> float:
-        return self.beta
-
-    @property
-    def spatial_grid(self) -> int:
-        return self.grid
-
-    @property
-    def teammate_names(self) -> tuple[str, ...]:
+    @cached_property
+    def spec(self) -> WorldSpec:
+        """Workspace: the table's working volume, where arm and hands can come close (higher
+        arm points are clamped onto its top face by the spatial model, where people are > 0.4 m
+        away). Joints: the Panda's seven as the shipped MJCF names them
+        (``robot:panda0_joint1..7``; franka_ros2 calls the same joints ``fr3_joint1..7``, in
+        this order: README, "In a real cell"). Body points: left hand, right hand, left elbow,
+        right elbow as ROS4HRI-like frames, a hand tracked at its wrist as ROS4HRI has it."""
         from rapidds.worlds.painting.teammates import ARCHETYPES
 
-        return tuple(ARCHETYPES)
+        return WorldSpec(
+            name="painting", task_ids=TASK_IDS, variants=VARIANTS, state_dim=7,
+            workspace_dim=3, workspace_bounds=((-0.7, -0.65, -0.05), (0.7, 0.7, 0.65)),
+            spatial_beta=self.beta, spatial_grid=self.grid, teammate_names=tuple(ARCHETYPES),
+            views={"top": (0, 1), "side": (1, 2)}, policy_defaults=dict(POLICY_DEFAULTS),
+            joint_names=ARM_JOINTS, body_point_names=("l_wrist", "r_wrist", "l_elbow", "r_elbow"),
+            resources="rapidds.worlds.painting",
+            capabilities=("physics", "participants", "priming", "reactions", "robot_limits",
+                          "robot_timing", "end_effector_ik", "tracking_mapping"))
 
     @property
     def priming_factors(self) -> dict[str, tuple[str, ...]]:
         """A user study's priming factors: their factorial names :attr:`teammate_names`."""
         return {"hand": ("left", "right"), "speed": ("fast", "slow")}
-
-    @property
-    def policy_defaults(self) -> dict[str, object]:
-        return dict(POLICY_DEFAULTS)
-
-    @property
-    def views(self) -> dict[str, tuple[int, int]]:
-        return {"top": (0, 1), "side": (1, 2)}
-
-    @property
-    def penalty(self) -> float:
-        """Completion time of a trajectory that never completes its task: 2 * H * dt."""
-        return 2.0 * self.horizon * self.dt
 
     def problem(self) -> Problem:
         return self._problem
@@ -241,13 +206,6 @@ class PaintingWorld:
         """(..., H, 7) joint trajectories -> (..., H, 12, 3) points along the arm."""
         return self.kinematics.points(traj)
 
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        """The Panda's seven arm joints as the shipped MJCF names them
-        (``robot:panda0_joint1..7``); franka_ros2 calls the same joints ``fr3_joint1..7``, in
-        this order (README, "In a real cell")."""
-        return ARM_JOINTS
-
     def end_effector_ik(self, positions: np.ndarray) -> np.ndarray:
         """Joint path (T, 7) putting the tool tip at ``positions`` (T, 3), given in the arm's
         base frame (link0, Franka's ``O`` frame, as ``O_T_EE`` is recorded), tool pointing
@@ -266,17 +224,6 @@ class PaintingWorld:
 
         kin = self.kinematics
         return JointLimits(kin.lower, kin.upper, kin.velocity, FRANKA_ACCELERATION, FRANKA_JERK)
-
-    @property
-    def body_point_names(self) -> tuple[str, ...]:
-        """The person's four body points (left hand, right hand, left elbow, right elbow) as
-        ROS4HRI-like frame names; a hand is tracked at its wrist, as ROS4HRI's skeleton has it."""
-        return ("l_wrist", "r_wrist", "l_elbow", "r_elbow")
-
-    @property
-    def tracking_mapping(self) -> Path:
-        """The default YAML mapping of tracked frames to :attr:`body_point_names`."""
-        return Path(str(files("rapidds.worlds.painting") / "tracking.yaml"))
 
     def robot_rest(self) -> np.ndarray:
         from rapidds.worlds.painting.motions import rest_pose
@@ -354,10 +301,6 @@ class PaintingWorld:
                     modes.append(mode)
         return RobotDemos(np.stack(trajs), np.array(index, dtype=np.int64), _ROBOT_TASKS,
                           np.array(modes))
-
-    def bundled_policy(self) -> Path | None:
-        path = Path(__file__).resolve().parent / "policy"
-        return path if (path / "config.json").is_file() else None
 
     def motion_label(self, task: str, traj: np.ndarray) -> str:
         """"direct" or "avoidant": the mode whose nominal tool path lies closer to this
