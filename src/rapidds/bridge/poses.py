@@ -27,7 +27,7 @@ import numpy as np
 
 from rapidds.errors import RapiddsError
 from rapidds.worlds.base import World
-from rapidds.worlds.capabilities import capability
+from rapidds.worlds.capabilities import capability, lacks
 
 __all__ = ["POSE_COLUMNS", "pose_demonstrations"]
 
@@ -109,8 +109,7 @@ def pose_demonstrations(path: str | Path, world: World) -> Any:
     path = Path(path)
     arm = capability(world, "end_effector_ik")
     if arm is None:
-        raise RapiddsError(f"world {world.name} has no inverse kinematics for end-effector "
-                           "demonstrations")
+        raise RapiddsError(lacks(world, "end_effector_ik"))
     tasks = tuple(t.id for t in world.problem().tasks if "robot" in t.allowed)
     dt, horizon = world.dt, world.horizon
     rows, index = [], []

@@ -197,14 +197,13 @@ def sim_robot_cmd(
     from rapidds.bridge.profiles import robot_profile
     from rapidds.errors import RapiddsError
     from rapidds.worlds.base import body_point_names
-    from rapidds.worlds.capabilities import capability
+    from rapidds.worlds.capabilities import capability, lacks
     from rapidds.worlds.registry import make_world
 
     _logging(quiet)
     w = make_world(world)
     if capability(w, "physics") is None:  # before waiting for the hub
-        fail(f"world {w.name} has no physics model; sim-robot runs a world that offers one "
-             "(painting)")
+        fail(lacks(w, "physics"))
     try:
         profile = robot_profile(robot)
         profile.joint_names(w)

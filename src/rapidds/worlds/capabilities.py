@@ -111,7 +111,7 @@ class TrackingMapping(World, Protocol):
 
 CAPABILITIES: dict[Capability, tuple[type, str]] = {
     "browser_play": (BrowserPlay, "a person plays it in the browser game"),
-    "physics": (Physics, "a MuJoCo model for the reference robot (sim-robot)"),
+    "physics": (Physics, "a MuJoCo model for the reference robot, sim-robot"),
     "participants": (Participants, "draws simulated study participants by priming levels"),
     "priming": (Priming, "names a user study's priming factors"),
     "reactions": (Reactions, "states how its people react and how its robot stops"),

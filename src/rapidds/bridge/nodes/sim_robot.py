@@ -52,7 +52,7 @@ from rapidds.bridge.ros2 import (
 )
 from rapidds.errors import RapiddsError
 from rapidds.worlds.base import World, body_point_names, joint_names
-from rapidds.worlds.capabilities import capability
+from rapidds.worlds.capabilities import capability, lacks
 
 __all__ = ["SimRobot"]
 
@@ -87,8 +87,7 @@ class SimRobot:
     def __post_init__(self) -> None:
         physics = capability(self.world, "physics")
         if physics is None:
-            raise RapiddsError(f"world {self.world.name} has no physics model; sim-robot runs "
-                               "a world that offers one (painting)")
+            raise RapiddsError(lacks(self.world, "physics"))
         self.joints = joint_names(self.world)  # the MJCF's; the driver's on the wire:
         self.driver = self.profile.joint_names(self.world)
         self.offset = self.profile.offset(self.world)
