@@ -11,16 +11,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tinyworld import TinyWorld
+from tinyworld import GOALS, HOME, H, TinyWorld, _walk
 
 from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.motion.config import DiffusionConfig
 from rapidds.motion.demos import Demonstrations
+from rapidds.motion.interface import MotionPlan
 from rapidds.motion.train import train_policy
+from rapidds.schedule import Schedule
 from rapidds.settings import ConfigError
+from rapidds.web.game import FetchGame
 from rapidds.worlds import make_world, register
 from rapidds.worlds.base import WorldSpec, joint_names
 from rapidds.worlds.capabilities import CAPABILITIES, capabilities, capability, lacks
+from rapidds.worlds.geometry import Rect
 from rapidds.worlds.registry import UnknownWorldError
 
 HERE = Path(__file__).resolve().parent
@@ -94,3 +98,46 @@ def test_rapidds_worlds_lists_capabilities() -> None:
     assert "browser_play" in info["fetch"]["capabilities"]
     assert "physics" in info["painting"]["capabilities"]
     assert "browser_play" not in info["painting"]["capabilities"]
+
+
+class PlayableTiny(TinyWorld):
+    """The tiny room with a pillar, declared playable in the browser: its floor's members."""
+
+    spec = WorldSpec(**{**TinyWorld.spec.__dict__, "capabilities": ("browser_play",)})
+    reach_radius = 0.3
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.workspace_bounds
+
+    def home(self, agent: str) -> np.ndarray:
+        return HOME[agent].copy()
+
+    def object_position(self, task: str) -> np.ndarray:
+        return GOALS[task].copy()
+
+    def obstacles(self) -> tuple[Rect, ...]:
+        return (Rect(2.0, 1.7, 2.4, 2.3),)
+
+
+def test_the_browser_game_plays_any_world_that_declares_it_can() -> None:
+    register("tiny-play", PlayableTiny)
+    world = capability(make_world("tiny-play"), "browser_play")
+    assert world is not None
+    traj = _walk("robot", "b", 2.0, H)
+    motion = MotionPlan("b", frozenset(), float(world.completion_time("b", traj[None])[0]),
+                        0.0, traj)
+    game = FetchGame(world, world.problem(), Schedule(("c", "a"), ("b",)), {"b": motion})
+    game.start()
+    while not game.over and game.now < 60.0:
+        state = game.state()
+        task = state["cur"]
+        goal = world.home("human") if task is None or task in state["times"] else \
+            world.object_position(task)
+        game.steer(target=(float(goal[0]), float(goal[1])))
+        game.step()
+    assert game.over and game.order == ["c", "a"]  # a waited for the robot's b
+    seen = game.observations()
+    assert set(seen) == {"c", "a"} and all(ex.duration > 0 for ex in seen.values())
+    assert game.start_time["a"] >= game.finish_time["b"]
+    assert game.state()["tasks"] == {"a": "done", "b": "done", "c": "done"}
