@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from rapidds.schedule import Schedule
 from rapidds.settings import ConfigError
 from rapidds.web.game import FetchGame
 from rapidds.worlds import make_world, register
-from rapidds.worlds.base import WorldSpec, joint_names
+from rapidds.worlds.base import joint_names
 from rapidds.worlds.capabilities import CAPABILITIES, capabilities, capability, lacks
 from rapidds.worlds.geometry import Rect
 from rapidds.worlds.registry import UnknownWorldError
@@ -69,7 +70,7 @@ def test_capabilities_are_declared_listed_and_asked_by_name() -> None:
 
 def test_a_declared_capability_the_world_lacks_is_refused_when_made() -> None:
     class Boasting(TinyWorld):
-        spec = WorldSpec(**{**TinyWorld.spec.__dict__, "capabilities": ("physics",)})
+        spec = replace(TinyWorld.spec, capabilities=("physics",))
 
     register("boasting", Boasting)
     with pytest.raises(UnknownWorldError, match="declares physics but has no physics_model, "
@@ -86,7 +87,7 @@ def test_a_declared_capability_the_world_lacks_is_refused_when_made() -> None:
 ])
 def test_a_bad_spec_is_one_line(change: dict, message: str) -> None:
     with pytest.raises(ConfigError, match=message) as err:
-        WorldSpec(**{**TinyWorld.spec.__dict__, **change})
+        replace(TinyWorld.spec, **change)
     assert "\n" not in str(err.value)
 
 
@@ -103,7 +104,7 @@ def test_rapidds_worlds_lists_capabilities() -> None:
 class PlayableTiny(TinyWorld):
     """The tiny room with a pillar, declared playable in the browser: its floor's members."""
 
-    spec = WorldSpec(**{**TinyWorld.spec.__dict__, "capabilities": ("browser_play",)})
+    spec = replace(TinyWorld.spec, capabilities=("browser_play",))
     reach_radius = 0.3
 
     @property
