@@ -122,9 +122,9 @@ def round_page(pid: str, view: Mapping[str, Any], *, tracker_help: str,
                sources: Sequence[str] = ("tracker", "simulated", "typed"),
                comfort: bool = False) -> str:
     """The plan of the round and the form for what the person did; game: the address where
-    the round can be played in the browser game instead (fetch studies); sources: the form's
-    choices that can work for this participant (a tracker file always); comfort: ask the
-    design's comfort item (:func:`comfort_fieldset`)."""
+    the round can be played in the browser game instead (a world with browser_play); sources:
+    the form's choices that can work for this participant (a tracker file always); comfort: ask
+    the design's comfort item (:func:`comfort_fieldset`)."""
     human = task_items(view["human"])
     seq = lambda items, cls: " → ".join(  # noqa: E731
         f"<span class={cls}>{e(t)}</span>" if not isinstance(t, Wait)

@@ -1,6 +1,6 @@
-"""The "game" round source of a fetch study: the participant plays their round in the browser
-game (the page and :class:`~rapidds.web.server.Hub` of ``rapidds play``) and what they did is the
-round's data.
+"""The "game" round source of a study on a world with browser_play (fetch): the participant
+plays their round in the browser game (the page and :class:`~rapidds.web.server.Hub` of
+``rapidds play``) and what they did is the round's data.
 
 ``GET /p/{pid}/play`` opens a :class:`GameRound` for the participant's current round: a
 :class:`~rapidds.web.player.BrowserPlayer` showing the plan the round page shows (the study

@@ -59,7 +59,8 @@ __all__ = ["InputError", "OutOfTurn", "StudySession", "View", "parse_presses",
            "step_token"]
 
 SOURCES = ("tracker", "bag", "simulated", "typed", "game")
-"""Where a round's data come from; "game" (fetch only): played at ``/p/{pid}/play``."""
+"""Where a round's data come from; "game" (a world with browser_play): played at
+``/p/{pid}/play``."""
 
 
 class InputError(RapiddsError):
@@ -248,7 +249,7 @@ class StudySession:
     def sources(self, pid: str) -> tuple[str, ...]:
         """The sources ``pid``'s round page offers: a tracker file and a bag always; the simulated
         cell and typed-in durations when their priming group names a simulated teammate of the
-        world; the game on fetch."""
+        world; the game when the world declares browser_play."""
         group = self.store.participant(pid).group in self.world.teammate_names
         return tuple(s for s in SOURCES if s in ("tracker", "bag")
                      or (s == "game" and self.has_game)
