@@ -152,7 +152,7 @@ BAD = [
     ("run --gamma-prior 2", "needs --gamma learn"),
     ("run --gamma lots", "--gamma is a number >= 0 or 'learn'"),
     ("run --gamma learn --gamma-plan bold", "--gamma-plan: Input should be 'mean' or"),
-    ("run --comfort 0", "--comfort: Input should be greater than 0"),
+    ("run --teammate-gamma 0", "--teammate-gamma: Input should be greater than 0"),
     ("gamma --answer 9@0.5", "a comfort answer is an integer 1-7"),
     ("gamma --answer 5@2", "closeness PEAK is in [0, 1]"),
     ("gamma --answer five", "an answer is A@PEAK"),

@@ -24,16 +24,21 @@ from rapidds.settings import option_name
 
 __all__ = [
     "ADAPT_PANEL",
+    "AS_JSON",
+    "HOST_HELP",
     "JSON_HELP",
     "POLICY",
+    "PORT_HELP",
     "ROBOT",
     "RUN_ID",
+    "RUN_OUT_HELP",
     "SCHEDULER",
     "SEARCH",
     "THREADS",
     "THREADS_HELP",
     "WORKERS",
     "deprecated",
+    "describe",
     "gamma_settings",
     "run_settings",
 ]
@@ -44,6 +49,13 @@ SEARCH: tuple[str, ...] = ("population", "generations", "samples", "particles", 
 """The search options every command that plans shares."""
 THREADS_HELP = "Torch CPU threads (1 is fastest on small machines)."
 JSON_HELP = "Print one JSON object instead of text."
+HOST_HELP = ("Address to listen on. Anything but a loopback address lets other machines connect; "
+             "a wildcard (0.0.0.0, ::) listens on every interface and answers to this machine's "
+             "own names and addresses (bind one address to be reached by it).")
+RUN_OUT_HELP = "Folder for run.sqlite and the pictures."
+PORT_HELP = "Port (0: any free one)."
+AS_JSON: Any = typer.Option(False, "--json", help=JSON_HELP)
+"""``as_json: bool = AS_JSON``: one JSON object on stdout instead of the text."""
 ADAPT_PANEL = "Run settings"
 POLICY: Any = typer.Option(None, help="Policy checkpoint.", show_default="the world's bundled one")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
@@ -63,6 +75,12 @@ SCHEDULER: Any = typer.Option(None, help="Address of an existing Dask scheduler,
 _PANELS = {"objective": "Objective", "search": "Search", "spatial": "Spatial model",
            "teammate": "Simulated teammate", "changes": "Teammates who change",
            "learning": "Learning gamma"}
+
+
+def describe(name: str) -> str:
+    """The description of the run setting ``name``: the help of an option that takes it but
+    checks its own bounds (``rapidds plan``'s search, on a problem file)."""
+    return str(RunConfig.flat_fields()[name].description)
 
 
 def deprecated(old: str, new: str) -> None:

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from rich.console import Console
 
 _S = AblationConfig()
+_SUMMARY_JSON = typer.Option(False, "--json", help="Print the summary as JSON on stdout.")
 
 
 def _split(value: str) -> tuple[str, ...]:
@@ -73,7 +74,7 @@ def ablation_cmd(
     workers: int | None = WORKERS,
     scheduler: str | None = SCHEDULER,
     gamma: float = typer.Option(_S.gamma, help="Proximity weight of every trial."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+    as_json: bool = _SUMMARY_JSON,
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -120,7 +121,7 @@ def ablation_cmd(
 @app.command("report")
 def report_cmd(
     out: Path = typer.Argument(..., help="A folder written by 'rapidds ablation'."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+    as_json: bool = _SUMMARY_JSON,
 ) -> None:
     """Redraw a study's figure, table and claims check from its stored records."""
     from rich.console import Console

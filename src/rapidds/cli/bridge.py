@@ -16,13 +16,14 @@ import typer
 
 from rapidds.cli import app, fail
 from rapidds.cli._device import DeviceOption
-from rapidds.cli._options import POLICY, ROBOT, RUN_ID, THREADS
+from rapidds.cli._options import AS_JSON, POLICY, ROBOT, RUN_ID, THREADS
 from rapidds.errors import RapiddsError
 
 if TYPE_CHECKING:
     from rapidds.record import CycleRecord
 
 STORE = "run.sqlite"
+_EPOCH = "Unix seconds or ISO 8601 with a zone."
 
 
 def log_to_stderr() -> None:
@@ -44,9 +45,9 @@ def export_cmd(
     run: str | None = RUN_ID,
     robot: str = ROBOT,
     epoch: Annotated[str | None, typer.Option(
-        help="Bag time of the first exported cycle's start: Unix seconds or ISO 8601 with a "
-        "zone.", show_default="the run's recorded wall-clock start")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        help=f"Bag time of the first exported cycle's start: {_EPOCH}",
+        show_default="the run's recorded wall-clock start")] = None,
+    as_json: bool = AS_JSON,
 ) -> None:
     """Write a stored run's cycles as ROS 2 messages in an MCAP rosbag2 bag: each robot task's
     JointTrajectory (cut to its task, time-parameterized within the robot's limits), the
@@ -201,7 +202,7 @@ def plan_next_cmd(
     policy: Path | None = POLICY,
     robot: str = ROBOT,
     epoch: Annotated[str | None, typer.Option(
-        help="Bag time of the cycle's start: Unix seconds or ISO 8601 with a zone.",
+        help=f"Bag time of the cycle's start: {_EPOCH}",
         show_default="now")] = None,
     threads: int = THREADS,
     as_json: Annotated[bool, typer.Option("--json", help="Print the plan as JSON.")] = False,

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from rapidds.worlds.base import World
 
 _ENDPOINT = "tcp/127.0.0.1:7447"
+_CONNECT = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen).")
 
 
 def _logging(quiet: bool) -> None:
@@ -162,7 +163,7 @@ def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None
 @app.command("sim-robot")
 def sim_robot_cmd(
     world: str = typer.Argument(..., help="World whose robot to simulate (painting)."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
+    connect: str = _CONNECT,
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
     robot: str = typer.Option("reference", "--robot", help="Robot profile whose driver it "
                               "plays: joint names and offsets on the wire."),
@@ -200,7 +201,7 @@ def sim_robot_cmd(
 def sim_human_cmd(
     world: str = typer.Argument(..., help="World of the cell (see 'rapidds worlds')."),
     human: str = typer.Option(..., help="Simulated teammate, by the world's name for it."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
+    connect: str = _CONNECT,
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
     zenoh_config: Path | None = _zenoh_config_option(),

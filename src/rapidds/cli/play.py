@@ -15,7 +15,15 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._options import POLICY, SEARCH, THREADS, run_settings
+from rapidds.cli._options import (
+    HOST_HELP,
+    POLICY,
+    PORT_HELP,
+    RUN_OUT_HELP,
+    SEARCH,
+    THREADS,
+    run_settings,
+)
 from rapidds.loop.config import RunConfig
 
 if TYPE_CHECKING:
@@ -31,12 +39,9 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,39}")
               aliases={"--player": "human"})
 def play_cmd(
     settings: dict[str, Any],
-    port: int = typer.Option(8765, min=0, max=65535, help="Port (0: any free one)."),
-    host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
-                             "address lets other machines play; a wildcard (0.0.0.0, ::) listens "
-                             "on every interface and answers to this machine's own names and "
-                             "addresses (bind one address to be reached by it)."),
-    out: Path = typer.Option(Path("runs/play"), help="Folder for run.sqlite and the pictures."),
+    port: int = typer.Option(8765, min=0, max=65535, help=PORT_HELP),
+    host: str = typer.Option("127.0.0.1", help=HOST_HELP),
+    out: Path = typer.Option(Path("runs/play"), help=RUN_OUT_HELP),
     resume: bool = typer.Option(False, help="Continue the run stored in --out with its learned "
                                 "models."),
     ask_comfort: bool = typer.Option(False, help="Ask after every cycle how close the robot came "

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._options import POLICY, THREADS, run_settings
+from rapidds.cli._options import AS_JSON, POLICY, RUN_OUT_HELP, THREADS, run_settings
 from rapidds.loop.config import RunConfig
 
 if TYPE_CHECKING:
@@ -153,7 +153,7 @@ _RUN_SETTINGS = tuple(name for name, field in RunConfig.flat_fields().items()
 @run_settings(*_RUN_SETTINGS)
 def run_cmd(
     settings: dict[str, Any],
-    out: Path | None = typer.Option(None, help="Folder for run.sqlite and the pictures."),
+    out: Path | None = typer.Option(None, help=RUN_OUT_HELP),
     resume: bool = typer.Option(False, help="Continue the run stored in --out."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object per cycle on "
                                  "stdout."),
@@ -191,7 +191,7 @@ def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
 
 @app.command("worlds")
 def worlds_cmd(
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    as_json: bool = AS_JSON,
 ) -> None:
     """List the registered worlds with their variants, teammates and tasks."""
     from rapidds.worlds.registry import make_world, world_names

@@ -72,7 +72,7 @@ class SearchSettings(SettingsGroup):
     particles: Annotated[int, Field(ge=1, le=4096)] = cli_field(
         4, "Steered motion samples B per motion request.")
     candidates: Annotated[int, Field(ge=1, le=4096)] = cli_field(
-        8, "SVDD candidates M per diffusion step.")
+        8, "SVDD-PM candidates M per particle and diffusion step.")
     steps: Annotated[int, Field(ge=1, le=1000)] | None = cli_field(
         None, "Reverse diffusion steps per motion.", show="the policy's own")
     reuse_motions: bool = cli_field(
