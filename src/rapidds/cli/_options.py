@@ -23,7 +23,6 @@ from rapidds.loop.config import RunConfig
 from rapidds.settings import option_name
 
 __all__ = [
-    "ADAPT_PANEL",
     "AS_JSON",
     "HOST_HELP",
     "JSON_HELP",
@@ -32,6 +31,7 @@ __all__ = [
     "ROBOT",
     "RUN_ID",
     "RUN_OUT_HELP",
+    "RUN_PANEL",
     "SCHEDULER",
     "SEARCH",
     "THREADS",
@@ -56,7 +56,7 @@ RUN_OUT_HELP = "Folder for run.sqlite and the pictures."
 PORT_HELP = "Port (0: any free one)."
 AS_JSON: Any = typer.Option(False, "--json", help=JSON_HELP)
 """``as_json: bool = AS_JSON``: one JSON object on stdout instead of the text."""
-ADAPT_PANEL = "Run settings"
+RUN_PANEL = "Run settings"
 POLICY: Any = typer.Option(None, help="Policy checkpoint.", show_default="the world's bundled one")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
 THREADS: Any = typer.Option(1, min=1, max=256, help=THREADS_HELP)
@@ -132,7 +132,7 @@ def _parameter(name: str, default: Any, panel: str | None) -> inspect.Parameter:
     extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
     show = extra.get("show", True)
     kind = _option_type(field.annotation, bool(extra.get("text")))
-    panel = panel or _PANELS.get(_group_of(name) or "", ADAPT_PANEL)
+    panel = panel or _PANELS.get(_group_of(name) or "", RUN_PANEL)
     if extra.get("argument"):
         info: Any = typer.Argument(help=field.description, show_default=show)
     else:

@@ -270,9 +270,9 @@ class RunConfig(Settings):
 
     if not TYPE_CHECKING:  # a grouped setting read by its flat name: cfg.population
         def __getattr__(self, name: str) -> Any:
-            group = _GROUP_OF.get(name)
-            if group is not None:
-                return getattr(self.__dict__[group], name)
+            values = self.__dict__.get(_GROUP_OF.get(name, ""))
+            if values is not None:
+                return getattr(values, name)
             return super().__getattr__(name)
 
     @classmethod
