@@ -130,7 +130,7 @@ def _parameter(name: str, default: Any, panel: str | None) -> inspect.Parameter:
     """The typer parameter of the setting ``name``, its default ``default``."""
     field = RunConfig.flat_fields()[name]
     extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
-    show = extra.get("show", True)
+    show = extra.get("show", True) if default == field.default else True  # a command's own
     kind = _option_type(field.annotation, bool(extra.get("text")))
     panel = panel or _PANELS.get(_group_of(name) or "", RUN_PANEL)
     if extra.get("argument"):
