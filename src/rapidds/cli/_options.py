@@ -149,9 +149,9 @@ def _parameter(name: str, default: Any, panel: str | None) -> inspect.Parameter:
 
 
 def _alias(key: str, old: str, kind: Any) -> inspect.Parameter:
-    optional = kind if kind is bool else kind | None
+    """A hidden option ``old`` for an old spelling; None (not given) unless typed."""
     return inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=None,
-                             annotation=Annotated[optional, typer.Option(old, hidden=True)])
+                             annotation=Annotated[kind | None, typer.Option(old, hidden=True)])
 
 
 def run_settings(*names: str, defaults: Mapping[str, Any] | None = None,
