@@ -70,7 +70,7 @@ def study_server() -> None:
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "study"
-        subprocess.run([*CLI, "study", "design", "--participants", "16", "--world", "painting",
+        subprocess.run([*CLI, "study", "design", "painting", "--participants", "16",
                         "--rounds", "2", "--out", str(folder)], check=True, env=env,
                        capture_output=True)
         proc = subprocess.Popen([*CLI, "study", "serve", str(folder), "--port", "0", "--json"],

@@ -35,7 +35,7 @@ def main() -> None:
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "study"
-        subprocess.run([*CLI, "study", "design", "--participants", "16", "--world", "painting",
+        subprocess.run([*CLI, "study", "design", "painting", "--participants", "16",
                         "--rounds", str(args.rounds), "--out", str(folder)], check=True,
                        env=env, capture_output=True)
         t0 = time.perf_counter()

@@ -102,7 +102,7 @@ CASES: list[tuple[str, str]] = [
     ("study serve {tmp}", "holds no study"),
     # the others
     ("demo --cycles 0", "--cycles: Input should be greater than or equal to 1"),
-    ("demo --world moon", "unknown world 'moon'"),
+    ("demo moon", "unknown world 'moon'"),
     ("worlds --bogus", "No such option: --bogus"),
     ("nonsense", "No such command 'nonsense'"),
 ]

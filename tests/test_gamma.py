@@ -126,8 +126,8 @@ def test_simulated_person_learns_and_answers_by_their_own_gamma(policy):
 @pytest.mark.slow
 def test_resumed_learning_run_matches_uninterrupted_run(tmp_path):
     args = ["run", "--human", "fast-outside", "--cycles", "5", "--seed", "4", "--gamma", "learn",
-            "--comfort", "0.4", "--population", "12", "--generations", "10", "--samples", "16",
-            "--particles", "2", "--candidates", "4", "--json"]
+            "--teammate-gamma", "0.4", "--population", "12", "--generations", "10", "--samples",
+            "16", "--particles", "2", "--candidates", "4", "--json"]
     rid = "fetch-fast-outside-comfort0.4-full-glearn-s4"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     full = subprocess.run(cli_cmd(*args, "--out", str(tmp_path / "a")), capture_output=True,
@@ -152,7 +152,7 @@ BAD = [
     ("run --gamma-prior 2", "needs --gamma learn"),
     ("run --gamma lots", "--gamma is a number >= 0 or 'learn'"),
     ("run --gamma learn --gamma-plan bold", "--gamma-plan: Input should be 'mean' or"),
-    ("run --comfort 0", "--comfort: Input should be greater than 0"),
+    ("run --teammate-gamma 0", "--teammate-gamma: Input should be greater than 0"),
     ("gamma --answer 9@0.5", "a comfort answer is an integer 1-7"),
     ("gamma --answer 5@2", "closeness PEAK is in [0, 1]"),
     ("gamma --answer five", "an answer is A@PEAK"),

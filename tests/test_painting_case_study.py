@@ -230,7 +230,7 @@ def test_case_study_reactive_column_comes_from_stored_reactive_runs(tmp_path, mo
                                                                      capsys) -> None:
     out = tmp_path / "cs"
     argv = ["case-study", "painting", "--out", str(out), "--cycles", "1", "--settings",
-            "unconstrained-g85", "--json", "--no-gif", "--reactive"]
+            "unconstrained-g85", "--json", "--no-gif", "--execution", "planned,reactive"]
     rc, stdout, err = _cli(argv, monkeypatch, capsys)
     assert rc == 0, err
     data = json.loads(stdout)

@@ -31,7 +31,7 @@ def test_play_help_imports_no_heavy_library() -> None:
     (["play", "painting"], "does not declare the browser_play capability"),
     (["play", "--adapt", "oracle"], "a person has none"),
     (["play", "--adapt", "sometimes"], "--adapt"),
-    (["play", "--player", "../etc"], "--player"),
+    (["play", "--human", "../etc"], "--human"),
     (["play", "--cycles", "0"], "--cycles"),
     (["play", "--gamma", "lots"], "--gamma"),
     (["play", "--gamma", "learn", "--gamma-prior", "0:4"], "gamma"),

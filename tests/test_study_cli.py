@@ -59,7 +59,7 @@ def test_design_writes_csv_and_store_and_never_mixes_designs(tmp_path, capsys):
     (["--participants", "15"], "multiple of 16"),
     (["--systems", "full,magic"], "unknown"),
     (["--systems", "full,full"], "named twice"),
-    (["--world", "nowhere"], "unknown world 'nowhere'"),
+    (["nowhere"], "unknown world 'nowhere'"),
     (["--variant", "sideways"], "no variant 'sideways'"),
     (["--rounds", "0"], "rounds"),
     (["--items", "missing.yaml"], "missing.yaml: no such file"),
@@ -77,7 +77,7 @@ def test_design_bad_input_is_one_line(tmp_path, capsys, args, needle):
 
 def test_a_fetch_design_primes_fetchs_groups_and_keeps_its_own_task_bound(tmp_path, capsys):
     out = tmp_path / "f"
-    code, _, err = _main(capsys, "study", "design", "--world", "fetch", "--participants", "16",
+    code, _, err = _main(capsys, "study", "design", "fetch", "--participants", "16",
                          "--max-task-seconds", "45", "--out", str(out), "--json")
     assert code == 0, err
     with StudyStore.open_readonly(study_path(out)) as st:
@@ -85,7 +85,7 @@ def test_a_fetch_design_primes_fetchs_groups_and_keeps_its_own_task_bound(tmp_pa
         assert groups == set(make_world("fetch").teammate_names)  # fast-middle ..., no left-fast
         assert st.design.factors == {"speed": ("fast", "slow"), "route": ("middle", "outside")}
         assert st.design.max_task_s == 45.0
-    code, _, err = _main(capsys, "study", "design", "--world", "fetch", "--participants", "16",
+    code, _, err = _main(capsys, "study", "design", "fetch", "--participants", "16",
                          "--out", str(out))
     _one_line(code, err, "already holds a different study design")  # another bound
 

@@ -26,8 +26,9 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from rapidds.errors import ConfigError, RapiddsError
 
-__all__ = ["Flag", "Int", "NonNegative", "Positive", "Real", "Settings", "error_line",
-           "memory_bytes", "parse_yaml", "read_yaml", "require_memory", "settings_dataclass"]
+__all__ = ["Flag", "Int", "NonNegative", "Positive", "Real", "Settings", "SettingsGroup",
+           "cli_field", "error_line", "memory_bytes", "option_name", "parse_yaml", "read_yaml",
+           "require_memory", "settings_dataclass"]
 
 C = TypeVar("C", bound=type)
 
@@ -112,6 +113,34 @@ def error_line(exc: ValidationError, *, prefix: str = "", option: bool = False,
     return f"{where}: {msg}{got}" if where else f"{msg}{got}"
 
 
+def cli_field(default: Any, description: str, *, show: str | None = None,
+              option: str | None = None, aliases: tuple[str, ...] = (), argument: bool = False,
+              cli: bool = True, text: bool = False) -> Any:
+    """A setting's field with its one description, the help its CLI option shows.
+
+    show: what ``--help`` says the default is, where the value itself (None) says nothing;
+    option: the option's name where it is not the field's (``--teammate-gamma``); aliases: old
+    spellings still accepted, hidden, with a deprecation line; argument: the command's
+    positional argument; cli: False for a setting no option sets directly; text: the option
+    takes text that the command parses (``--gamma 2`` or ``--gamma learn``).
+    """
+    default_extra: dict[str, Any] = {"show": None, "option": None, "aliases": (),
+                                     "argument": False, "cli": True, "text": False}
+    extra: dict[str, Any] = {"show": show, "option": option, "aliases": aliases,
+                             "argument": argument, "cli": cli, "text": text}
+    return Field(default, description=description,
+                 json_schema_extra={k: v for k, v in extra.items() if v != default_extra[k]})
+
+
+def option_name(name: str, field: Any = None) -> str:
+    """The CLI option of the setting ``name`` (its :func:`cli_field` ``option``, or the name
+    with dashes)."""
+    extra = getattr(field, "json_schema_extra", None)
+    if isinstance(extra, dict) and extra.get("option"):
+        return str(extra["option"])
+    return "--" + name.replace("_", "-")
+
+
 class Settings(BaseModel):
     """Frozen, no unknown fields, NaN and infinity refused; errors as one ConfigError line.
 
@@ -141,6 +170,15 @@ class Settings(BaseModel):
         """A validated copy with ``changes`` applied (fields excluded from dumps kept too)."""
         kept = {k: getattr(self, k) for k, f in type(self).model_fields.items() if f.exclude}
         return type(self)(**{**self.model_dump(), **kept, **changes})
+
+
+class SettingsGroup(BaseModel):
+    """A group of settings inside a :class:`Settings` (a run's search, its teammate, ...):
+    checked like its owner, whose one error line names the group's field. No ``__init__`` of
+    its own, so that pydantic validates it as a part of its owner (a custom ``__init__`` would
+    turn a field's error into one about the whole group)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 def settings_dataclass(label: str, *, eq: bool = True, frozen: bool = True) -> Callable[[C], C]:

@@ -37,14 +37,45 @@ def fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+PANELS: dict[str, tuple[str, ...]] = {
+    "Run the loop": ("run", "demo", "play", "worlds"),
+    "Plan and move": ("plan", "sample", "train-policy"),
+    "A real cell": ("deploy", "sim-robot", "sim-human", "export", "plan-next", "observe"),
+    "Experiments": ("ablation", "report", "case-study", "study"),
+    "People": ("gamma",),
+}
+"""How ``rapidds --help`` groups the commands, in this order."""
+
+
+def one_paragraph_lines(text: str | None) -> str | None:
+    """A docstring as help: the lines of each paragraph joined, so that the help wraps whole
+    sentences to the terminal instead of breaking where the source broke its lines."""
+    if text is None:
+        return None
+    import inspect
+
+    return "\n\n".join(" ".join(p.split()) for p in inspect.cleandoc(text).split("\n\n"))
+
+
 def _register() -> None:
-    # Imported for their side effect of adding commands to ``app``.
+    """Import the command modules (each adds its commands to ``app``), then group the commands
+    in ``rapidds --help`` (:data:`PANELS`) with their help as whole sentences."""
     import importlib
     import pkgutil
 
     for mod in pkgutil.iter_modules(__path__):
         if not mod.name.startswith("_"):
             importlib.import_module(f"{__name__}.{mod.name}")
+    order = [name for names in PANELS.values() for name in names]
+    panel = {name: title for title, names in PANELS.items() for name in names}
+    commands = list(app.registered_commands)
+    for info in [*app.registered_commands, *app.registered_groups]:
+        info.rich_help_panel = panel.get(str(info.name), "Other")
+        commands += getattr(getattr(info, "typer_instance", None), "registered_commands", [])
+    for command in commands:
+        if command.help is None and command.callback is not None:
+            command.help = one_paragraph_lines(command.callback.__doc__)
+    app.registered_commands.sort(key=lambda c: order.index(c.name) if c.name in order else 99)
 
 
 def _typer_errors(name: str) -> tuple[type[BaseException], ...]:

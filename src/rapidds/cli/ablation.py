@@ -6,12 +6,12 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app
-from rapidds.cli._device import DeviceOption
+from rapidds.cli._options import SCHEDULER, SEARCH, WORKERS, run_settings
 from rapidds.cli._progress import TrialProgress
 from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, AblationConfig
 from rapidds.loop.config import ADAPT_LEVELS
@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from rich.console import Console
 
 _S = AblationConfig()
+_SUMMARY_JSON = typer.Option(False, "--json", help="Print the summary as JSON on stdout.")
 
 
 def _split(value: str) -> tuple[str, ...]:
@@ -51,8 +52,13 @@ def _print_report(out: Path, as_json: bool, console: Console) -> None:
     console.print("wrote " + ", ".join(str(p) for p in paths.values()), highlight=False)
 
 
+_SHARED = ("lam", *SEARCH, "patience", "execution", "reacts", "deviate", "slowdowns")
+
+
 @app.command("ablation")
+@run_settings(*_SHARED, "device", defaults={n: getattr(_S, n) for n in _SHARED})
 def ablation_cmd(
+    settings: dict[str, Any],
     out: Path = typer.Option(..., help="Folder for study.sqlite, figures and tables; rerunning "
                              "with the same folder skips finished trials."),
     trials: int = typer.Option(_S.trials, help="Trials per archetype and level."),
@@ -65,30 +71,10 @@ def ablation_cmd(
                                    f"{', '.join(BASELINES)})."),
     seed: int = typer.Option(_S.seed, help="Study seed; trial i runs with seed*10000+i at "
                              "every archetype and level."),
-    workers: int | None = typer.Option(None, help="Local Dask worker processes (default: one "
-                                       f"per CPU, {os.cpu_count()} here)."),
-    scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
-                                         "e.g. tcp://host:8786, instead of a local cluster."),
-    gamma: float = typer.Option(_S.gamma, help="Proximity weight."),
-    lam: float = typer.Option(_S.lam, help="Diversity weight for the first half of the cycles."),
-    population: int = typer.Option(_S.population, help="GA population C."),
-    generations: int = typer.Option(_S.generations, help="GA generations G."),
-    samples: int = typer.Option(_S.samples, help="Monte-Carlo duration samples K."),
-    patience: int = typer.Option(_S.patience, help="GA early stop after this many "
-                                 "generations without improvement."),
-    particles: int = typer.Option(_S.particles, help="Steered samples per motion request B."),
-    candidates: int = typer.Option(_S.candidates, help="SVDD candidates M per step."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
-    execution: str = typer.Option(_S.execution, help="Inside the cycle: planned (the paper) "
-                                  "or reactive (speed and separation monitoring, re-planning)."),
-    reacts: bool = typer.Option(False, help="Simulated people slow down or pause near the "
-                                "moving robot."),
-    deviate: float = typer.Option(0.0, help="Probability per cycle that a simulated person "
-                                  "deviates from the plan."),
-    device: DeviceOption = "auto",
-    slowdowns: str | None = typer.Option(None, help="With --execution reactive: plan for the "
-                                         "safety monitor's slowdowns (learned, predicted) or "
-                                         "not (off).", show_default="learned when reactive"),
+    workers: int | None = WORKERS,
+    scheduler: str | None = SCHEDULER,
+    gamma: float = typer.Option(_S.gamma, help="Proximity weight of every trial."),
+    as_json: bool = _SUMMARY_JSON,
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -101,11 +87,9 @@ def ablation_cmd(
     )
     from rapidds.experiments.sessions import log_session
 
+    device = settings.pop("device")
     study = AblationConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
-                        cycles=cycles, seed=seed, gamma=gamma, lam=lam, population=population,
-                        generations=generations, samples=samples, patience=patience,
-                        particles=particles, candidates=candidates, execution=execution,
-                        reacts=reacts, deviate=deviate, slowdowns=slowdowns)
+                           cycles=cycles, seed=seed, gamma=gamma, **settings)
     from rich.console import Console
 
     console = Console(soft_wrap=True)
@@ -137,7 +121,7 @@ def ablation_cmd(
 @app.command("report")
 def report_cmd(
     out: Path = typer.Argument(..., help="A folder written by 'rapidds ablation'."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+    as_json: bool = _SUMMARY_JSON,
 ) -> None:
     """Redraw a study's figure, table and claims check from its stored records."""
     from rich.console import Console

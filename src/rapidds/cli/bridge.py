@@ -16,12 +16,14 @@ import typer
 
 from rapidds.cli import app, fail
 from rapidds.cli._device import DeviceOption
+from rapidds.cli._options import AS_JSON, POLICY, ROBOT, RUN_ID, THREADS
 from rapidds.errors import RapiddsError
 
 if TYPE_CHECKING:
     from rapidds.record import CycleRecord
 
 STORE = "run.sqlite"
+_EPOCH = "Unix seconds or ISO 8601 with a zone."
 
 
 def log_to_stderr() -> None:
@@ -40,16 +42,12 @@ def export_cmd(
     out: Annotated[Path, typer.Option("--out", help="MCAP file to write (not overwritten).")],
     cycle: Annotated[int | None, typer.Option(help="Export this cycle only.",
                                               show_default="every stored cycle")] = None,
-    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
-                                            "several.")] = None,
-    robot: Annotated[str, typer.Option("--robot", help="Robot profile: the driver's joint "
-                                       "names, offsets, limits and controller topic "
-                                       "(reference, franka-panda, franka-fr3).")
-                     ] = "reference",
+    run: str | None = RUN_ID,
+    robot: str = ROBOT,
     epoch: Annotated[str | None, typer.Option(
-        help="Bag time of the first exported cycle's start: Unix seconds or ISO 8601 with a "
-        "zone.", show_default="the run's recorded wall-clock start")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        help=f"Bag time of the first exported cycle's start: {_EPOCH}",
+        show_default="the run's recorded wall-clock start")] = None,
+    as_json: bool = AS_JSON,
 ) -> None:
     """Write a stored run's cycles as ROS 2 messages in an MCAP rosbag2 bag: each robot task's
     JointTrajectory (cut to its task, time-parameterized within the robot's limits), the
@@ -160,15 +158,13 @@ def observe_cmd(
     config: Annotated[Path | None, typer.Option(
         help="YAML of run settings (world, cycles, seed, ...) to start a new run in RUN_DIR.")
     ] = None,
-    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
-                                            "several.")] = None,
-    policy: Annotated[Path | None, typer.Option(help="Policy checkpoint.",
-                                                show_default="the world's bundled one")] = None,
+    run: str | None = RUN_ID,
+    policy: Path | None = POLICY,
     comfort: Annotated[int | None, typer.Option(
         min=1, max=7, help="The person's agreement with 'the robot came too close to me' "
         "after the cycle (1-7); their 'too close' signals come from the bag "
         "(/rapidds/human/too_close).")] = None,
-    threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
+    threads: int = THREADS,
     device: DeviceOption = "auto",
     as_json: Annotated[bool, typer.Option("--json", help="Print the cycle's record as JSON.")
                        ] = False,
@@ -202,18 +198,13 @@ def plan_next_cmd(
                                       "overwritten).")],
     config: Annotated[Path | None, typer.Option(
         help="YAML of run settings, to plan the first cycle of a new run in RUN_DIR.")] = None,
-    run: Annotated[str | None, typer.Option("--run", help="Run id, when the store holds "
-                                            "several.")] = None,
-    policy: Annotated[Path | None, typer.Option(help="Policy checkpoint.",
-                                                show_default="the world's bundled one")] = None,
-    robot: Annotated[str, typer.Option("--robot", help="Robot profile: the driver's joint "
-                                       "names, offsets, limits and controller topic "
-                                       "(reference, franka-panda, franka-fr3).")
-                     ] = "reference",
+    run: str | None = RUN_ID,
+    policy: Path | None = POLICY,
+    robot: str = ROBOT,
     epoch: Annotated[str | None, typer.Option(
-        help="Bag time of the cycle's start: Unix seconds or ISO 8601 with a zone.",
+        help=f"Bag time of the cycle's start: {_EPOCH}",
         show_default="now")] = None,
-    threads: Annotated[int, typer.Option(min=1, max=256, help="Torch CPU threads.")] = 1,
+    threads: int = THREADS,
     as_json: Annotated[bool, typer.Option("--json", help="Print the plan as JSON.")] = False,
 ) -> None:
     """Plan a run's next cycle before it runs, for a cell without the live link: write the

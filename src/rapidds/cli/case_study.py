@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._device import DeviceOption
+from rapidds.cli._options import THREADS, deprecated, run_settings
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -25,27 +25,36 @@ _SETTINGS = "unconstrained-g12,constrained-g12,unconstrained-g25,unconstrained-g
 
 
 @app.command("case-study")
+@run_settings("world", "human", "seed", "device", defaults={"world": ..., "human": "left-slow"})
 def case_study_cmd(
-    world: str = typer.Argument(..., help=f"Case study to run: {', '.join(_STUDIES)}."),
+    settings: dict[str, Any],
     out: Path = typer.Option(..., help="Folder: one sub-folder per setting (run.sqlite, Gantt "
                              "charts, maps, frames, GIF), table.md and table.csv; rerunning "
                              "with the same folder resumes unfinished runs."),
-    human: str = typer.Option("left-slow", help="Simulated teammate (see 'rapidds worlds')."),
-    seed: int = typer.Option(0, min=0, help="Seed of every setting's run."),
     cycles: int = typer.Option(7, min=1, max=1000, help="Cycles per setting (the paper's 7)."),
-    settings: str = typer.Option(_SETTINGS, help="Settings, comma-separated."),
+    cases: str = typer.Option(_SETTINGS, "--settings", help="The paper's settings to run, "
+                              "comma-separated."),
     gif: bool = typer.Option(True, help="Animate the last cycle of each setting (GIF)."),
-    reactive: bool = typer.Option(False, help="Also run every setting with --execution "
-                                  "reactive (folder <setting>-reactive) and report its cycles "
-                                  "in the table's reactive columns beside the paper's."),
+    executions: str = typer.Option("planned", "--execution", help="Executions each setting "
+                                   "runs under, comma-separated: planned (the paper's), or "
+                                   "planned,reactive to add a reactive run of each (folder "
+                                   "<setting>-reactive) to the table's reactive columns."),
+    reactive: bool | None = typer.Option(None, "--reactive", hidden=True),
     as_json: bool = typer.Option(False, "--json", help="One JSON object on stdout (table rows "
                                  "and behaviours); cycle rows go to stderr."),
-    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
-    device: DeviceOption = "auto",
+    threads: int = THREADS,
 ) -> None:
     """Run the paper's painting settings (unconstrained gamma 12, constrained gamma 12,
     unconstrained gamma 25 and 85) with full adaptation and write the per-cycle table and the
     pictures of each."""
+    world, human, seed = (settings[k] for k in ("world", "human", "seed"))
+    device = settings["device"]
+    if reactive is not None:
+        deprecated("--reactive", "--execution planned,reactive")
+        executions = "planned,reactive" if reactive else "planned"
+    if executions.replace(" ", "") not in ("planned", "planned,reactive"):
+        fail(f"--execution is planned or planned,reactive, got {executions!r}")
+    reactive = "reactive" in executions
     if world not in _STUDIES:
         fail(f"no case study for world {world!r}; case studies: {', '.join(_STUDIES)}")
     from rich.console import Console
@@ -60,7 +69,7 @@ def case_study_cmd(
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 
-    chosen = check_setting_names([s.strip() for s in settings.split(",") if s.strip()])
+    chosen = check_setting_names([s.strip() for s in cases.split(",") if s.strip()])
     if not chosen:
         fail("--settings names no setting")
     w = make_world(world)

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._device import DeviceOption
-from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+from rapidds.cli._options import POLICY, ROBOT, SEARCH, THREADS, run_settings
+from rapidds.loop.config import RunConfig
 
 if TYPE_CHECKING:
     from rapidds.bridge.cell import CellOptions
@@ -27,8 +27,8 @@ if TYPE_CHECKING:
     from rapidds.bridge.zenoh_config import LinkConfig
     from rapidds.worlds.base import World
 
-_D = RunConfig.model_fields
 _ENDPOINT = "tcp/127.0.0.1:7447"
+_CONNECT = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen).")
 
 
 def _logging(quiet: bool) -> None:
@@ -63,39 +63,26 @@ def _link_config(path: Path | None, role: str, endpoint: str) -> LinkConfig | No
 
 
 @app.command("deploy")
+@run_settings("world", "variant", "adapt", "cycles", "seed", *SEARCH, "execution", "device",
+              defaults={"world": ...})
 def deploy_cmd(
-    world: str = typer.Argument(..., help="World of the cell (see 'rapidds worlds')."),
+    settings: dict[str, Any],
     bridge: str = typer.Option("zenoh", help="The link to the cell: zenoh."),
     listen: str = typer.Option(_ENDPOINT, help="Endpoint the hub listens on, PROTO/HOST:PORT "
                                "(the nodes' --connect)."),
-    cycles: int = typer.Option(_D["cycles"].default, min=1, help="Cycles I."),
     out: Path = typer.Option(..., help="Folder for run.sqlite."),
     resume: bool = typer.Option(False, help="Continue the run stored in --out (after a stop)."),
     as_json: bool = typer.Option(False, "--json", help="Print each cycle's record as one JSON "
                                  "line, as 'rapidds run --json' does, with its 'live' object."),
-    variant: str | None = typer.Option(None, help="Variant of the world's job."),
-    adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: {', '.join(ADAPT_LEVELS)}."),
-    seed: int = typer.Option(_D["seed"].default, help="Seed; the same seed plans the same."),
-    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: bundled)."),
-    population: int = typer.Option(_D["population"].default, help="GA population C."),
-    generations: int = typer.Option(_D["generations"].default, help="GA generations G."),
-    samples: int = typer.Option(_D["samples"].default, help="Monte-Carlo duration samples K."),
-    particles: int = typer.Option(_D["particles"].default, help="Steered samples per request."),
-    candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
-    execution: str = typer.Option("planned", help="planned: the robot follows its plan; "
-                                  "reactive: the hub monitors speed and separation and sends "
-                                  "the robot a speed scaling on /rapidds/robot/speed_scaling."),
+    policy: Path | None = POLICY,
     time_scale: float = typer.Option(1.0, help="Cell seconds per wall second, sent to the "
                                      "nodes (> 1 runs simulated nodes faster; a real cell: 1)."),
     robot_timeout: float = typer.Option(2.0, help="Wall seconds without joint states before "
                                         "the robot counts as silent."),
     startup_timeout: float = typer.Option(60.0, help="Wall seconds to wait for the nodes."),
     cycle_timeout: float = typer.Option(120.0, help="Cell seconds a cycle may take."),
-    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
-    robot: str = typer.Option("reference", "--robot", help="Robot profile: the driver's "
-                              "joint names, offsets and limits (reference, franka-panda, "
-                              "franka-fr3)."),
-    device: DeviceOption = "auto",
+    threads: int = THREADS,
+    robot: str = ROBOT,
     quiet: bool = typer.Option(False, help="Log faults only, not dropped messages."),
     zenoh_config: Path | None = _zenoh_config_option(),
     wire: str = _wire_option(),
@@ -108,8 +95,6 @@ def deploy_cmd(
     not recorded and the hub exits with code 3; --resume continues the run."""
     if bridge != "zenoh":
         fail(f"unknown --bridge {bridge!r}; the live link is zenoh")
-    if execution not in ("planned", "reactive"):
-        fail(f"unknown --execution {execution!r}; one of planned, reactive")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
         fail("--time-scale and the timeouts must be > 0")
     from rapidds.bridge.cell import CellOptions, hub_topics
@@ -125,10 +110,7 @@ def deploy_cmd(
     hub_wire = _wire(wire, "rapidds_hub")
     _logging(quiet)
     set_threads(threads)
-    cfg = RunConfig(world=world, variant=variant, human="live", adapt=adapt, cycles=cycles,
-                    seed=seed, population=population, generations=generations,
-                    samples=samples, particles=particles, candidates=candidates,
-                    execution=execution, device=device)
+    cfg = RunConfig(**settings, human="live")
     w = make_world(cfg.world, cfg.variant)
     try:
         profile = robot_profile(robot)
@@ -140,7 +122,7 @@ def deploy_cmd(
               config=config, wire=hub_wire) as link:
         _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
             time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
-            cycle_timeout=cycle_timeout, execution=execution), profile)
+            cycle_timeout=cycle_timeout, execution=cfg.execution), profile)
 
 
 def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None, resume: bool,
@@ -181,7 +163,7 @@ def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None
 @app.command("sim-robot")
 def sim_robot_cmd(
     world: str = typer.Argument(..., help="World whose robot to simulate (painting)."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
+    connect: str = _CONNECT,
     rate: float = typer.Option(100.0, min=1.0, help="Joint states per simulated second."),
     robot: str = typer.Option("reference", "--robot", help="Robot profile whose driver it "
                               "plays: joint names and offsets on the wire."),
@@ -219,7 +201,7 @@ def sim_robot_cmd(
 def sim_human_cmd(
     world: str = typer.Argument(..., help="World of the cell (see 'rapidds worlds')."),
     human: str = typer.Option(..., help="Simulated teammate, by the world's name for it."),
-    connect: str = typer.Option(_ENDPOINT, help="The hub's endpoint (rapidds deploy --listen)."),
+    connect: str = _CONNECT,
     seed: int = typer.Option(0, help="Seed of the person's draws (with the cycle)."),
     quiet: bool = typer.Option(False, help="Log faults only."),
     zenoh_config: Path | None = _zenoh_config_option(),

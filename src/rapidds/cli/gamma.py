@@ -11,11 +11,12 @@ of "too close" signals with its exposure. Prints the posterior after each piece 
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.loop.config import RunConfig
+from rapidds.cli._options import run_settings
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -30,13 +31,13 @@ def _pair(text: str, what: str) -> tuple[float, float]:
 
 
 @app.command("gamma")
+@run_settings("world", aliases={"--world": "world"})
 def gamma_cmd(
+    settings: dict[str, Any],
     answer: list[str] = typer.Option([], help="A cycle's comfort answer 1-7 with its peak "
                                       "closeness in [0, 1]: A@PEAK (repeat per cycle)."),
     signals: list[str] = typer.Option([], help="A cycle's 'too close' signals with its "
                                        "exposure (s at closeness 1): N@EXPOSURE."),
-    world: str = typer.Option(RunConfig.model_fields["world"].default,
-                              help="World whose default gamma anchors the answers."),
     prior: str | None = typer.Option(None, help="Prior G or G:SPREAD.",
                                      show_default="the world's gamma, spread 4"),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per step."),
@@ -45,7 +46,7 @@ def gamma_cmd(
     from rapidds.human.gamma import DEFAULT_SPREAD, GammaBelief, GammaEvidence, parse_gamma_prior
     from rapidds.worlds.registry import make_world
 
-    g_ref = make_world(world).problem().objective.gamma
+    g_ref = make_world(settings["world"]).problem().objective.gamma
     try:
         g0, spread = parse_gamma_prior(prior) if prior is not None else (g_ref, DEFAULT_SPREAD)
     except ValueError as exc:

@@ -15,8 +15,10 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._options import AS_JSON, describe
 from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
+from rapidds.loop.config import DEVICE_HELP
 
 if TYPE_CHECKING:  # imported where used: `rapidds --help` does not pay for numpy
     import numpy as np
@@ -108,7 +110,8 @@ def train_policy_cmd(
     seed: Annotated[int | None, typer.Option(
         help="Seed for init, batches and noise.", show_default="the config's")] = None,
     device: Annotated[str | None, typer.Option(
-        help="auto, cpu or cuda.", show_default="auto")] = None,
+        help="Where the network trains: auto (a CUDA GPU when one is available, else the CPU), "
+        "cpu or cuda.", show_default="auto")] = None,
     horizon: Annotated[int | None, typer.Option(
         help="Resample demonstrations to H points (a multiple of 8) first.")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Trajectories per step.")] = None,
@@ -322,7 +325,7 @@ def sample_cmd(
     beta: Annotated[float, typer.Option(
         help="Distance decay of the spatial cost exp(-beta * distance).")] = 1.0,
     candidates: Annotated[int, typer.Option(min=1, max=4096,
-        help="SVDD-PM candidates M per particle and step.")] = 8,
+        help=describe("candidates"))] = 8,
     alpha: Annotated[float, typer.Option(
         help="SVDD-PM temperature; 0 keeps the best candidate.")] = 0.0,
     tol: Annotated[float | None, typer.Option(
@@ -330,9 +333,8 @@ def sample_cmd(
         show_default="10% of the workspace extent")] = None,
     dt: Annotated[float, typer.Option(
         help="Seconds per trajectory point (completion time).")] = 1.0,
-    device: Annotated[str | None, typer.Option(
-        help="auto, cpu or cuda.", show_default="auto")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default="auto")] = None,
+    as_json: bool = AS_JSON,
     out: Annotated[Path | None, typer.Option(
         "--out", help="Write a picture (PNG) of the samples.")] = None,
 ) -> None:

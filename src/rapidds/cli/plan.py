@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, cast
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._options import AS_JSON, describe
 from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
 from rapidds.scheduler.config import GAConfig
@@ -169,11 +170,10 @@ def plan(
         show_default="random, reported",
     ),
     population: int = typer.Option(_GA.population, min=2, max=100_000,
-                                   help="GA population size C."),
+                                   help=describe("population")),
     generations: int = typer.Option(_GA.generations, min=1, max=1_000_000,
-                                    help="Maximum GA generations G."),
-    samples: int = typer.Option(_GA.samples, min=1, max=100_000,
-                                help="Monte-Carlo samples K of human durations."),
+                                    help=describe("generations")),
+    samples: int = typer.Option(_GA.samples, min=1, max=100_000, help=describe("samples")),
     gamma: float | None = typer.Option(
         None, help="Proximity weight.", show_default="the problem file's"
     ),
@@ -187,7 +187,7 @@ def plan(
         False, "--exact", help="Solve with OR-Tools CP-SAT on mean durations instead of the GA."
     ),
     time_limit: float = typer.Option(10.0, help="CP-SAT time limit in seconds (with --exact)."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of text."),
+    as_json: bool = AS_JSON,
 ) -> None:
     """Plan one cycle for a new teammate: who does what, in which order, where to wait."""
     _check_options(population, generations, samples, seed, gamma, lam, sampling, time_limit)

@@ -10,79 +10,54 @@ import logging
 import re
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._device import DeviceOption
-from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+from rapidds.cli._options import (
+    HOST_HELP,
+    POLICY,
+    PORT_HELP,
+    RUN_OUT_HELP,
+    SEARCH,
+    THREADS,
+    run_settings,
+)
+from rapidds.loop.config import RunConfig
 
 if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CycleResult
     from rapidds.web.session import PlaySession
 
-_D = RunConfig.model_fields
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,39}")
 
 
 @app.command("play")
+@run_settings("world", "human", "adapt", "cycles", "seed", "gamma", "gamma_prior", "gamma_plan",
+              "execution", "lam", *SEARCH, "device", defaults={"cycles": 10, "human": "player"},
+              aliases={"--player": "human"})
 def play_cmd(
-    world: str = typer.Argument("fetch", help="World to play: one that declares browser_play "
-                                "(see 'rapidds worlds')."),
-    adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: "
-                              f"{', '.join(a for a in ADAPT_LEVELS if a != 'oracle')}."),
-    cycles: int = typer.Option(10, help="Cycles to play."),
-    port: int = typer.Option(8765, min=0, max=65535, help="Port (0: any free one)."),
-    host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
-                             "address lets other machines play; a wildcard (0.0.0.0, ::) listens "
-                             "on every interface and answers to this machine's own names and "
-                             "addresses (bind one address to be reached by it)."),
-    out: Path = typer.Option(Path("runs/play"), help="Folder for run.sqlite and the pictures."),
+    settings: dict[str, Any],
+    port: int = typer.Option(8765, min=0, max=65535, help=PORT_HELP),
+    host: str = typer.Option("127.0.0.1", help=HOST_HELP),
+    out: Path = typer.Option(Path("runs/play"), help=RUN_OUT_HELP),
     resume: bool = typer.Option(False, help="Continue the run stored in --out with its learned "
                                 "models."),
-    player: str = typer.Option("player", help="Name of the person playing (the run's human; "
-                               "the run id is fetch-NAME-ADAPT-sSEED)."),
-    seed: int = typer.Option(_D["seed"].default, help="Seed."),
-    gamma: str | None = typer.Option(None, help="Proximity weight, or 'learn': learn yours "
-                                     "from your comfort answers and 'too close' signals.",
-                                     show_default="the world's"),
-    gamma_prior: str | None = typer.Option(None, help="With --gamma learn: the prior G or "
-                                           "G:SPREAD (one log-sd is a factor SPREAD).",
-                                           show_default="the world's gamma, spread 4"),
-    gamma_plan: str = typer.Option(_D["gamma_plan"].default, help="With --gamma learn: plan "
-                                   "with the posterior's mean or its upper quantile (cautious)."),
-    execution: str = typer.Option(_D["execution"].default, help="The robot inside the cycle: "
-                                  "planned (the paper: it follows its plan) or reactive (it "
-                                  "slows and stops near you and re-plans when you deviate; you "
-                                  "may take its tasks)."),
     ask_comfort: bool = typer.Option(False, help="Ask after every cycle how close the robot came "
                                      "(1-7); always with --gamma learn."),
-    lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
-                                     "cycles.", show_default="the world's"),
-    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
-                                       "bundled one)."),
-    population: int = typer.Option(_D["population"].default, help="GA population C."),
-    generations: int = typer.Option(_D["generations"].default, help="GA generations G."),
-    samples: int = typer.Option(_D["samples"].default, help="Monte-Carlo duration samples K."),
-    particles: int = typer.Option(_D["particles"].default, help="Steered samples per motion "
-                                  "request."),
-    candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
+    policy: Path | None = POLICY,
     speed: float = typer.Option(4.5, min=0.5, max=10.0, help="The avatar's speed, m/s."),
     hz: int = typer.Option(60, min=10, max=240, help="Game ticks (state updates) per second."),
-    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
-    device: DeviceOption = "auto",
+    threads: int = THREADS,
     verbose: bool = typer.Option(False, help="Log every connection and refused message."),
 ) -> None:
     """Play the fetch game in a browser: rapidds plans the robot, learns your timing and your
     routes, and re-plans every cycle. Prints the address to open."""
-    _check_args(world, adapt, player)
-    from rapidds.cli.run import gamma_settings
-    cfg = RunConfig(world=world, human=player, adapt=adapt, cycles=cycles,
-                    **gamma_settings(gamma), gamma_prior=gamma_prior, gamma_plan=gamma_plan,
-                    lam=lam, seed=seed, population=population, generations=generations,
-                    samples=samples, particles=particles, candidates=candidates,
-                    execution=execution, device=device)
+    player = str(settings["human"])
+    _check_args(settings["world"], settings["adapt"], player)
+    cfg = RunConfig(**settings)
+    cycles = cfg.cycles
 
     from rapidds.web.server import allowed_hosts, listen, reach_line, serve, served_url
     from rapidds.web.session import STORE_NAME
@@ -134,7 +109,7 @@ def _check_args(world: str, adapt: str, player: str) -> None:
     if adapt == "oracle":
         fail("--adapt oracle plans with a simulated teammate's true model; a person has none")
     if not _NAME.fullmatch(player):
-        fail(f"--player {player!r}: use 1-40 letters, digits, '.', '_' or '-'")
+        fail(f"--human {player!r}: use 1-40 letters, digits, '.', '_' or '-'")
 
 
 def _session(cfg: RunConfig, out: Path, policy: Path | None, player: str, hz: int, speed: float,

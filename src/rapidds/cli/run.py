@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._device import DeviceOption
-from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+from rapidds.cli._options import AS_JSON, POLICY, RUN_OUT_HELP, THREADS, run_settings
+from rapidds.loop.config import RunConfig
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -23,9 +23,6 @@ if TYPE_CHECKING:
     from rapidds.loop.run import AdaptiveRun, CycleResult
     from rapidds.motion.policy import DiffusionPolicy
     from rapidds.record import CycleRecord
-
-_D = RunConfig.model_fields
-
 
 def console() -> Console:
     """stdout console; piped output gets a width that fits the tables instead of 80 columns."""
@@ -147,111 +144,26 @@ def execute(
     return run
 
 
-def parse_gamma(text: str | None) -> float | None:
-    """``--gamma``'s number (range checks are RunConfig's); one line and exit 2 otherwise."""
-    if text is None:
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        fail(f"--gamma is a number >= 0 or 'learn', got {text!r}")
-        raise AssertionError from None  # fail() exits
-
-
-def gamma_settings(text: str | None) -> dict[str, Any]:
-    """``--gamma``'s RunConfig fields: 'learn' learns it, a number fixes it."""
-    learn = text is not None and text.strip().lower() == "learn"
-    return {"gamma": None if learn else parse_gamma(text), "gamma_learn": learn}
+_RUN_SETTINGS = tuple(name for name, field in RunConfig.flat_fields().items()
+                      if not (isinstance(field.json_schema_extra, dict)
+                              and field.json_schema_extra.get("cli") is False))
 
 
 @app.command("run")
+@run_settings(*_RUN_SETTINGS)
 def run_cmd(
-    world: str = typer.Argument(_D["world"].default, help="World to run in (see "
-                                "'rapidds worlds')."),
-    human: str | None = typer.Option(None, help="Simulated teammate, by the world's name for "
-                                     "it (see 'rapidds worlds').", show_default="the world's "
-                                     "first"),
-    variant: str | None = typer.Option(None, help="Variant of the world's job.",
-                                       show_default="the world's first"),
-    cycles: int = typer.Option(_D["cycles"].default, help="Cycles I."),
-    adapt: str = typer.Option(_D["adapt"].default, help=f"Adaptation: {', '.join(ADAPT_LEVELS)}."),
-    seed: int = typer.Option(_D["seed"].default, help="Seed; the same seed gives the same run."),
-    gamma: str | None = typer.Option(None, help="Proximity weight, or 'learn': learn this "
-                                     "person's from their comfort answers and 'too close' "
-                                     "signals.", show_default="the world's"),
-    gamma_prior: str | None = typer.Option(None, help="With --gamma learn: the prior G or "
-                                           "G:SPREAD (one log-sd is a factor SPREAD).",
-                                           show_default="the world's gamma, spread 4"),
-    gamma_plan: str = typer.Option(_D["gamma_plan"].default, help="With --gamma learn: plan "
-                                   "with the posterior's mean or an upper quantile "
-                                   "(cautious)."),
-    comfort: float | None = typer.Option(None, help="The simulated teammate's own gamma "
-                                         "(they answer and signal by it).",
-                                         show_default="drawn from a population with "
-                                         "--gamma learn"),
-    lam: float | None = typer.Option(None, help="Diversity weight for the first half of the "
-                                     "cycles.", show_default="the world's"),
-    out: Path | None = typer.Option(None, help="Folder for run.sqlite and the pictures."),
+    settings: dict[str, Any],
+    out: Path | None = typer.Option(None, help=RUN_OUT_HELP),
     resume: bool = typer.Option(False, help="Continue the run stored in --out."),
-    as_json: bool = typer.Option(False, "--json", help="One JSON object per cycle on stdout."),
-    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
-                                       "bundled one)."),
-    population: int = typer.Option(_D["population"].default, help="GA population C."),
-    generations: int = typer.Option(_D["generations"].default, help="GA generations G."),
-    samples: int = typer.Option(_D["samples"].default, help="Monte-Carlo duration samples K."),
-    particles: int = typer.Option(_D["particles"].default, help="Steered samples per motion "
-                                  "request."),
-    candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
-    surrogate: bool = typer.Option(False, help="Evaluate spatial costs with the MLP surrogate."),
-    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads (1 is fastest on "
-                                "small machines)."),
-    device: DeviceOption = "auto",
-    change: str | None = typer.Option(None, help="The teammate becomes another one at a cycle: "
-                                      "NAME@CYCLE[,NAME@CYCLE...], e.g. slow-outside@12."),
-    drift: float = typer.Option(0.0, help="The teammate's durations grow by this fraction per "
-                                "cycle (negative: practice)."),
-    drift_from: int = typer.Option(0, help="Cycle the drift starts at."),
-    forgetting: float = typer.Option(_D["forgetting"].default, help="Forgetting factor of the "
-                                     "models in (0, 1]; 1 is the paper's."),
-    detect: bool = typer.Option(False, help="Detect changes of the teammate and restart the "
-                                "beliefs of the tasks that changed."),
-    hazard: float = typer.Option(_D["hazard"].default, help="Prior probability of a change at "
-                                 "one observation (with --detect)."),
-    ask: bool = typer.Option(False, help="On a detected change, ask the teammate (a simulated "
-                             "one answers truthfully); a denial keeps the belief."),
-    whole_person: bool = typer.Option(False, help="With --detect: a change seen on some tasks "
-                                      "moves the beliefs of the others by the same ratio "
-                                      "(fatigue, practice); with --ask, if the teammate agrees."),
-    reexplore: int = typer.Option(0, help="Cycles planned with lambda again after a detected "
-                                  "change."),
-    execution: str = typer.Option(_D["execution"].default, help="Inside the cycle: planned (the "
-                                  "paper: the robot follows its plan) or reactive (speed and "
-                                  "separation monitoring, re-planning on deviations)."),
-    reacts: bool = typer.Option(False, help="The simulated person slows down or pauses when "
-                                "the moving robot comes close (with --comfort or --gamma learn: "
-                                "at distances set by their own gamma)."),
-    gamma_reactions: bool = typer.Option(_D["gamma_reactions"].default, help="With --reacts: "
-                                         "the person's reactions are evidence about their "
-                                         "gamma too (else only what they say)."),
-    deviate: float = typer.Option(0.0, help="Probability per cycle that the simulated person "
-                                  "deviates from the plan (another order, a pause, a robot "
-                                  "task taken)."),
-    slowdowns: str | None = typer.Option(None, help="With --execution reactive: plan for the "
-                                         "safety monitor's slowdowns, learned (the prediction "
-                                         "corrected by what it really cost), predicted, or off "
-                                         "(the paper's open-loop plan).",
-                                         show_default="learned under reactive execution"),
-    slowdown_mean: float = typer.Option(_D["slowdown_mean"].default, help="Prior mean of the "
-                                        "learned correction of predicted slowdowns (a factor)."),
-    slowdown_sd: float = typer.Option(_D["slowdown_sd"].default, help="Prior spread of that "
-                                      "correction."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object per cycle on "
+                                 "stdout."),
+    policy: Path | None = POLICY,
+    threads: int = THREADS,
 ) -> None:
     """Run the adaptive loop with a simulated teammate: plan, deploy, learn, every cycle."""
     if resume and out is None:
         fail("--resume needs --out (the folder of the run to continue)")
-    # every option named after a RunConfig field is that setting (one name, one meaning)
-    settings = {k: v for k, v in locals().items() if k in RunConfig.model_fields}
-    cfg = RunConfig(**{**settings, **gamma_settings(gamma)})
+    cfg = RunConfig(**settings)
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 
@@ -279,7 +191,7 @@ def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
 
 @app.command("worlds")
 def worlds_cmd(
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    as_json: bool = AS_JSON,
 ) -> None:
     """List the registered worlds with their variants, teammates, tasks and capabilities."""
     from rapidds.worlds.capabilities import capabilities
@@ -304,18 +216,14 @@ def worlds_cmd(
 
 
 @app.command("demo")
+@run_settings("world", "human", "cycles", "seed", aliases={"--world": "world"})
 def demo_cmd(
+    settings: dict[str, Any],
     out: Path = typer.Option(Path("rapidds-demo"), help="Folder for the results."),
-    world: str = typer.Option("fetch", help="World to run in."),
-    human: str | None = typer.Option(None, help="Teammate (see 'rapidds worlds').",
-                                     show_default="fast-middle in fetch, else the world's first"),
-    cycles: int = typer.Option(16, help="Cycles per run."),
-    seed: int = typer.Option(0, help="Seed."),
-    threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads (1 is fastest on "
-                                "small machines)."),
+    threads: int = THREADS,
 ) -> None:
-    """Show adaptation in a few minutes on a laptop CPU: one teammate, full adaptation against
-    none, what was learned, what it cost, and the pictures."""
+    """Show adaptation in a few minutes on a laptop CPU: one teammate (fast-middle in fetch),
+    full adaptation against none, what was learned, what it cost, and the pictures."""
     import numpy as np
     from rich.table import Table
 
@@ -324,6 +232,7 @@ def demo_cmd(
     from rapidds.store import RunStore
     from rapidds.worlds.registry import make_world
 
+    world, human, cycles, seed = (settings[k] for k in ("world", "human", "cycles", "seed"))
     con = console()
     set_threads(threads)
     w = make_world(world)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app
-from rapidds.cli._device import DeviceOption
+from rapidds.cli._options import SCHEDULER, SEARCH, WORKERS, run_settings
 from rapidds.errors import StudyDesignError
 from rapidds.experiments.ablation import AblationConfig
 from rapidds.experiments.study.systems import SYSTEMS
@@ -40,8 +40,6 @@ _PARTICIPANTS = typer.Option(32, help="Participants (a multiple of order rows x 
                              "16 for four systems).")
 _SYSTEMS = typer.Option(SYSTEMS_DEFAULT, help="Systems, comma-separated, from "
                         f"{SYSTEMS_DEFAULT.replace(',', ', ')}.")
-_WORLD = typer.Option("painting", help="Registered world the study runs on.")
-_VARIANT = typer.Option(None, help="World variant (default: the world's first).")
 _ROUNDS = typer.Option(7, help="Rounds (task cycles) with each system.")
 _GAMMA = typer.Option(None, help="Proximity weight (default: the world's).")
 _SEED = typer.Option(0, help="Study seed: which participant gets which order and group, and "
@@ -50,12 +48,8 @@ _ITEMS = typer.Option(None, help="Survey items file (YAML: items: [{id, text}, .
                       "Hoffman's fluency items + 'The robot got in the way of me completing my "
                       "tasks'. Stored in the study.")
 _SEARCH = AblationConfig()  # the study searches as the ablation does; defaults live there
-_POP = typer.Option(_SEARCH.population, help="GA population C.")
-_GEN = typer.Option(_SEARCH.generations, help="GA generations G.")
-_SAMPLES = typer.Option(_SEARCH.samples, help="Monte-Carlo duration samples K.")
-_PARTICLES = typer.Option(_SEARCH.particles, help="Steered samples per motion request B (2 x 4 "
-                          "as in the ablation: 2.5x faster than the loop's 4 x 8 on painting).")
-_CANDIDATES = typer.Option(_SEARCH.candidates, help="SVDD candidates M per step.")
+_STUDY = ("world", "variant", *SEARCH, "execution", "reacts", "deviate")
+_DEFAULTS = {"world": "painting", **{n: getattr(_SEARCH, n) for n in SEARCH}}
 _JSON = typer.Option(False, "--json", help="Print a JSON summary on stdout.")
 _MAX_TASK = typer.Option(None, "--max-task-seconds", help="Longest a person's task may take; "
                          "a longer typed duration or tracked task is refused (default: the "
@@ -70,30 +64,23 @@ _COMFORT = typer.Option(False, "--comfort-item", help="Ask on every round page h
 _LEARN = typer.Option(False, "--learn-gamma", help="Runs plan with each person's learned gamma "
                       "(--gamma learn, prior about --gamma) from the comfort item's evidence; "
                       "needs --comfort-item.")
-_EXECUTION = typer.Option("planned", help="The robot inside each round: planned (the paper: "
-                          "it follows its plan) or reactive (speed and separation monitoring, "
-                          "re-planning when the person deviates); the browser game's rounds "
-                          "play it live. Stored with the design.")
-_REACTS = typer.Option(False, help="Simulated participants slow down or pause near the moving "
-                       "robot. Stored with the design.")
-_DEVIATE = typer.Option(0.0, help="Probability per round that a simulated participant "
-                        "deviates from the plan (another order, a pause, a robot task taken). "
-                        "Stored with the design.")
 
 
-def _build(participants: int, systems: str, world: str, variant: str | None, rounds: int,
-           gamma: float | None, seed: int, items: Path | None, search: dict[str, Any],
+def _build(participants: int, systems: str, rounds: int, gamma: float | None, seed: int,
+           items: Path | None, search: dict[str, Any],
            unbalanced: bool = False, max_task_s: float | None = None,
            comfort: bool = False, learn: bool = False
            ) -> tuple[StudyDesign, RunConfig, SurveyItems | None]:
     """Validate every option before anything is written: design, world, run settings (``search``:
-    the search sizes and the execution inside the cycle), items.
+    the world, the search sizes and the execution inside the cycle), items.
     The priming groups are the world's (painting hand x speed, fetch speed x route)."""
     from rapidds.experiments.study.design import StudyDesign, priming_factors
     from rapidds.experiments.study.store import SurveyItems
     from rapidds.loop.config import RunConfig
     from rapidds.worlds.registry import make_world
 
+    search = dict(search)
+    world, variant = search.pop("world"), search.pop("variant")
     w = make_world(world, variant)
     design = StudyDesign(participants=participants, systems=_split(systems), rounds=rounds,
                          seed=seed, require_balance=not unbalanced, max_task_s=max_task_s,
@@ -121,28 +108,22 @@ def _summary(store: StudyStore, out: Path) -> dict[str, Any]:
 
 
 @study_app.command("design")
+@run_settings(*_STUDY, defaults=_DEFAULTS, aliases={"--world": "world"})
 def design_cmd(
+    settings: dict[str, Any],
     out: Path = typer.Option(..., help="Folder for design.csv and study.sqlite."),
-    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, world: str = _WORLD,
-    variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
-    seed: int = _SEED, items: Path | None = _ITEMS, population: int = _POP,
-    generations: int = _GEN, samples: int = _SAMPLES, particles: int = _PARTICLES,
-    candidates: int = _CANDIDATES, allow_unbalanced: bool = _UNBALANCED,
-    max_task_seconds: float | None = _MAX_TASK, comfort_item: bool = _COMFORT,
-    learn_gamma: bool = _LEARN, execution: str = _EXECUTION, reacts: bool = _REACTS,
-    deviate: float = _DEVIATE, as_json: bool = _JSON,
+    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, rounds: int = _ROUNDS,
+    gamma: float | None = _GAMMA, seed: int = _SEED, items: Path | None = _ITEMS,
+    allow_unbalanced: bool = _UNBALANCED, max_task_seconds: float | None = _MAX_TASK,
+    comfort_item: bool = _COMFORT, learn_gamma: bool = _LEARN, as_json: bool = _JSON,
 ) -> None:
     """Counterbalanced design (Williams squares, priming groups balanced across orders) written
     to DIR/design.csv and DIR/study.sqlite. The same design again changes nothing; a different
     one in the same folder is refused."""
     from rapidds.experiments.study.store import create_study
 
-    design, run, survey = _build(participants, systems, world, variant, rounds, gamma, seed,
-                                 items, dict(population=population, generations=generations,
-                                             samples=samples, particles=particles,
-                                             candidates=candidates, execution=execution,
-                                             reacts=reacts, deviate=deviate), allow_unbalanced,
-                                 max_task_seconds, comfort_item, learn_gamma)
+    design, run, survey = _build(participants, systems, rounds, gamma, seed, items, settings,
+                                 allow_unbalanced, max_task_seconds, comfort_item, learn_gamma)
     with create_study(out, design, run, survey, lock_as="rapidds study design") as store:
         summary = _summary(store, out)
     if as_json:
@@ -157,21 +138,15 @@ def design_cmd(
 
 
 @study_app.command("simulate")
+@run_settings(*_STUDY, "device", defaults=_DEFAULTS, aliases={"--world": "world"})
 def simulate_cmd(
+    settings: dict[str, Any],
     out: Path = typer.Option(..., help="Study folder; created with this design if it has none; "
                              "rerunning skips finished participant x system runs."),
-    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, world: str = _WORLD,
-    variant: str | None = _VARIANT, rounds: int = _ROUNDS, gamma: float | None = _GAMMA,
-    seed: int = _SEED, population: int = _POP, generations: int = _GEN,
-    samples: int = _SAMPLES, particles: int = _PARTICLES, candidates: int = _CANDIDATES,
-    allow_unbalanced: bool = _UNBALANCED, max_task_seconds: float | None = _MAX_TASK,
-    workers: int | None = typer.Option(None, help="Local Dask worker processes (default: one "
-                                       f"per CPU, {os.cpu_count()} here)."),
-    scheduler: str | None = typer.Option(None, help="Address of an existing Dask scheduler, "
-                                         "e.g. tcp://host:8786, instead of a local cluster."),
-    as_json: bool = _JSON,
-    execution: str = _EXECUTION, reacts: bool = _REACTS, deviate: float = _DEVIATE,
-    device: DeviceOption = "auto",
+    participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, rounds: int = _ROUNDS,
+    gamma: float | None = _GAMMA, seed: int = _SEED, allow_unbalanced: bool = _UNBALANCED,
+    max_task_seconds: float | None = _MAX_TASK, workers: int | None = WORKERS,
+    scheduler: str | None = SCHEDULER, as_json: bool = _JSON,
 ) -> None:
     """The study's protocol with simulated participants drawn around their priming group, each
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
@@ -183,10 +158,8 @@ def simulate_cmd(
     from rapidds.experiments.study.simulate import simulate_study
     from rapidds.experiments.study.store import create_study
 
-    design, run, _ = _build(participants, systems, world, variant, rounds, gamma, seed, None,
-                            dict(population=population, generations=generations,
-                                 samples=samples, particles=particles, candidates=candidates,
-                                 execution=execution, reacts=reacts, deviate=deviate),
+    device = settings.pop("device")
+    design, run, _ = _build(participants, systems, rounds, gamma, seed, None, settings,
                             allow_unbalanced, max_task_seconds)
     if scheduler:
         check_scheduler_address(scheduler)

@@ -17,6 +17,7 @@ from pathlib import Path
 import typer
 
 from rapidds.cli import fail
+from rapidds.cli._options import HOST_HELP, PORT_HELP
 from rapidds.cli.study import study_app
 
 
@@ -47,12 +48,9 @@ def _announce(as_json: bool, url: str, overview: str, store: Path, participants:
 @study_app.command("serve")
 def serve_cmd(
     folder: Path = typer.Argument(..., help="The study's folder (from 'rapidds study design')."),
-    host: str = typer.Option("127.0.0.1", help="Address to listen on. Anything but a loopback "
-                             "address lets other machines open the study; a wildcard (0.0.0.0, "
-                             "::) listens on every interface and answers to this machine's own "
-                             "names and addresses (bind one address to be reached by it). The "
-                             "overview needs the experimenter's address printed at start."),
-    port: int = typer.Option(8000, min=0, max=65535, help="Port (0: any free one)."),
+    host: str = typer.Option("127.0.0.1", help=f"{HOST_HELP} The overview needs the "
+                             "experimenter's address printed at start."),
+    port: int = typer.Option(8000, min=0, max=65535, help=PORT_HELP),
     policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
                                        "bundled one)."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),

@@ -51,7 +51,7 @@ STORE_NAME = "study.sqlite"
 _PER_TRIAL = ("human", "adapt", "seed")  # what differs between the runs of one study
 
 
-_RUN = RunConfig.model_fields
+_RUN = RunConfig.flat_fields()
 
 
 def _levels_field(name: str, known: tuple[str, ...]) -> Callable[[Any], Any]:
@@ -135,7 +135,7 @@ class AblationConfig(Settings):
 def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
     """A stored run's config without what varies per trial, plus the study seed it came from;
     a setting added after the run was stored counts as its default (what the run ran with)."""
-    run_config = {**{k: f.default for k, f in RunConfig.model_fields.items()
+    run_config = {**{k: f.default for k, f in RunConfig.flat_fields().items()
                      if k not in run_config}, **run_config}
     out = {k: v for k, v in run_config.items() if k not in _PER_TRIAL}
     out["study_seed"] = int(run_config["seed"]) // TRIAL_STRIDE

@@ -261,7 +261,7 @@ class AdaptiveRun:
         # a setting added since the run was stored ran with its default (which is the old
         # behaviour: every new setting's default is)
         stored = None if raw is None else {
-            **{k: f.default for k, f in RunConfig.model_fields.items()
+            **{k: f.default for k, f in RunConfig.flat_fields().items()
                if k not in raw and not f.exclude}, **raw}
         if stored is not None and stored != self.config.model_dump():
             mine = self.config.model_dump()
