@@ -89,13 +89,13 @@ class LiveCycle(NamedTuple):
 
 
 def reactive_painting_cycle(tmp_path: Path, person: Callable[[Any], Any],
-                            watch: dict[str, str]) -> LiveCycle:
+                            watch: dict[str, str], extra: tuple[str, ...] = ()) -> LiveCycle:
     """One reactive painting cycle on three processes: the hub (``deploy``), ``sim-robot``,
     and ``person(link)`` (a SimHuman on this process's link) spun on a thread. Cell time runs
     at 2x, not 4x: the hub's blind-monitor limit is 1 cell s, which at 4x is 0.25 wall s of
     a stall of the in-process person or the hub: with one busy process beside it the hold test
     failed 1 run in 4 at 4x (the failures read: tracking 1.6 s old, the monitor blind), 0 in 5
-    at 2x."""
+    at 2x. ``extra``: more arguments of ``deploy`` (a seed whose plan a test needs)."""
     from rapidds.bridge.link import Link
     from rapidds.bridge.nodes.sim_human import SimHuman
 
@@ -107,7 +107,7 @@ def reactive_painting_cycle(tmp_path: Path, person: Callable[[Any], Any],
         hub = subprocess.Popen(
             [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
              "--json", "--time-scale", "2", "--execution", "reactive",
-             "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
+             "--startup-timeout", "90", *SEARCH, *extra], stdout=o, stderr=e,
             env={**os.environ, "RAPIDDS_LOG": "info"})
     try:
         with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:

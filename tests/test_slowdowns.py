@@ -12,8 +12,15 @@ from cli_helpers import run_main
 from conftest import SMALL_SEARCH as SMALL
 
 from rapidds.errors import ConfigError
-from rapidds.execution import SpeedSeparation
-from rapidds.execution.slowdowns import HoldModel, hold_rates, human_speeds, predicted_hold
+from rapidds.execution import Scene, SpeedSeparation
+from rapidds.execution.policies import directed_arrays, monitor_rates
+from rapidds.execution.slowdowns import (
+    HoldModel,
+    _towards_point,
+    approach_speeds,
+    directed_rates,
+    predicted_hold,
+)
 from rapidds.human.slowdowns import MIN_PREDICTED, SlowdownBelief
 from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.model import HumanModel, prior_model
@@ -34,11 +41,62 @@ def test_the_predicted_rate_is_the_monitors_rate():
     sep = rng.uniform(0, 4, 2000)
     vh = rng.uniform(0, 3, 2000)
     vr = np.where(rng.random(2000) < 0.1, 0.0, rng.uniform(0, 6, 2000))
-    got = hold_rates(LIMITS, sep, vh, vr)
+    got = monitor_rates(LIMITS, sep, vh, vr)
     monitor = SpeedSeparation(LIMITS)
     want = np.array([monitor.rate_at(s, h, r) for s, h, r in zip(sep, vh, vr, strict=True)])
     assert np.allclose(got, want, atol=1e-12)
     assert 0 < (got == 0).sum() < 2000 and 0 < (got == 1).sum() < 2000
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_vectorised_directed_rate_is_the_executors_per_tick_rate(dim):
+    """Random instants with velocities (3 person's points, 4 robot points): one batched call of
+    the planner's computation against the policy the executor asks at every tick."""
+    rng = np.random.default_rng(dim)
+    n = 1000
+    human = rng.uniform(-1.5, 1.5, (n, 3, dim))
+    robot = rng.uniform(-1.5, 1.5, (n, 4, dim))
+    h_vel = rng.normal(0, 1.5, (n, 3, dim))
+    r_vel = rng.normal(0, 2.0, (n, 4, dim))
+    got = monitor_rates(LIMITS, *directed_arrays(human, h_vel, robot, r_vel))
+    monitor = SpeedSeparation(LIMITS)
+    want = np.array([monitor.rate(Scene(human[k], h_vel[k], robot[k], r_vel[k]))
+                     for k in range(n)])
+    assert np.array_equal(got, want)
+    assert 0 < (got == 0).sum() < n and 0 < ((got > 0) & (got < 1)).sum() < n
+
+
+def test_the_directed_prediction_counts_only_what_closes_in():
+    """A robot point 0.6 m above a route (the x axis): moving along the route it is held less
+    than moving straight at it, and a person who passes (approach speed 0.2) holds it less than
+    one who walks straight at it (1.6); total speeds would have held it most."""
+    robot = np.array([[[0.0, 0.6]]])  # (1, P=1, 2)
+    dist, grad = np.array([[0.6]]), np.array([[0.0, 1.0]])
+
+    def rate(velocity: list[float], approach: float) -> float:
+        return float(directed_rates(LIMITS, robot, np.array([[velocity]]), dist, grad,
+                                    np.array([approach]))[0])
+
+    total = monitor_rates(LIMITS, np.array(0.6), np.array(1.6), np.array(2.0))
+    assert total == rate([0.0, -2.0], 1.6) < rate([0.0, -2.0], 0.2) < rate([2.0, 0.0], 0.2)
+    assert rate([0.0, 2.0], 1.6) == rate([2.0, 0.0], 1.6)  # moving away: v_r = 0
+
+
+def test_the_approach_speed_is_the_full_speed_head_on_and_little_in_passing(fetch_holds):
+    world, spatial, model = fetch_holds
+    fastest = {t: max(np.linalg.norm(np.diff(np.asarray(p, float).reshape(len(p), -1, 2),
+                                             axis=0), axis=-1).max() for p in paths) / world.dt
+               for t, paths in world.prior().paths.items()}
+    for t, v in model.speeds.items():
+        assert v.shape == (len(spatial.config.grid()),)
+        assert (v >= -1e-9).all() and (v <= fastest[t] + 1e-9).all()
+        assert v.max() > 0.5 * float(np.median(v)) and v.min() < v.max()
+    # the written-out computation is the monitor's directed speeds for one still point
+    rng = np.random.default_rng(1)
+    pts, vel, x = rng.normal(size=(6, 3, 2)), rng.normal(size=(6, 3, 2)), rng.normal(size=(5, 2))
+    sep, v_h = _towards_point(pts, vel, x)
+    want = directed_arrays(pts[None], vel[None], x[:, None, None, :], np.zeros((5, 1, 1, 2)))
+    assert np.allclose(sep, want[0]) and np.allclose(v_h, want[1])
 
 
 def test_the_predicted_hold_counts_the_slowed_steps_of_the_moving_motion():
@@ -105,8 +163,9 @@ def fetch_holds():
     world = make_world("fetch")
     cfg = RunConfig(human="slow-middle").resolved(world)
     spatial = prior_model(world, cfg).spatial
-    return world, spatial, HoldModel(world, spatial, cell_reactions(world)[1],
-                                     human_speeds(world))
+    limits = cell_reactions(world)[1]
+    return world, spatial, HoldModel(world, spatial, limits,
+                                     approach_speeds(world, spatial, limits))
 
 
 def test_a_motion_across_the_persons_route_is_predicted_to_be_held(fetch_holds):

@@ -128,6 +128,27 @@ def test_the_mutual_hold_of_issue_34_no_longer_stops_the_run(capsys, tmp_path):
                for r in recs)
 
 
+def test_an_unresolvable_mutual_hold_is_exit_3_from_the_cli(capsys, tmp_path, monkeypatch):
+    """The cell of the creeping-robot test above, from the command line: a robot that needs
+    10^6 s to stop crawls wherever the person is, a person who pauses for any moving robot in
+    the room. The robot yields until nothing can finish: a runtime fault, one line, exit 3 (not
+    2, the bad-input code)."""
+    from rapidds.worlds.fetch.world import FetchWorld
+    from rapidds.worlds.reactions import ReactionPopulation
+
+    monkeypatch.setattr(FetchWorld, "safety_limits", SafetyLimits(0.1, 1e6, 0.0, 0.0, 0.0))
+    monkeypatch.setattr(FetchWorld, "reaction_population",
+                        ReactionPopulation(comfort=(1e3, 0.0), stop=(1e3, 0.0)))
+    code, _, err = run_main(capsys, "run", "fetch", "--human", "slow-middle", "--execution",
+                            "reactive", "--reacts", "--slowdowns", "off", "--seed", "3",
+                            "--cycles", "1", "--population", "8", "--generations", "2",
+                            "--particles", "1", "--candidates", "2", "--out",
+                            str(tmp_path / "out"))
+    assert code == 3, err
+    assert err.count("\n") == 1 and err.startswith("rapidds: error:"), err
+    assert "cannot progress" in err
+
+
 # -- directed speeds (issue 34 item 3) -----------------------------------------------------------
 def _scene(human_v, robot_v):
     from rapidds.execution import Scene

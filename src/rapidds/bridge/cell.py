@@ -137,12 +137,18 @@ def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
 
 
 def _ran(plan: CyclePlan, obs: CycleObservation) -> Schedule | None:
-    """The schedule the cell ran where a re-plan changed the robot's order (the robot's tasks
-    in the order they started, no waits: a re-planned rest has none); None: the plan's."""
-    robot = sorted(plan.best.schedule.tasks("robot"), key=lambda t: obs.start.get(t, math.inf))
-    if robot == list(plan.best.schedule.tasks("robot")):
-        return None
-    return Schedule(plan.best.schedule.sequence("human"), tuple(robot))
+    """The schedule the cell ran where a re-plan changed the robot's order or the person took
+    a robot task (each agent's tasks in the order they started; the person's waits kept unless
+    they took one, a re-planned rest has none); None: the plan's."""
+    sched = plan.best.schedule
+    robot = sorted((t for t in sched.tasks("robot") if t not in obs.taken),
+                   key=lambda t: obs.start.get(t, math.inf))
+    if not obs.taken:
+        if robot == list(sched.tasks("robot")):
+            return None
+        return Schedule(sched.sequence("human"), tuple(robot))
+    human = sorted((*sched.tasks("human"), *obs.taken), key=lambda t: obs.start.get(t, math.inf))
+    return Schedule(tuple(human), tuple(robot))
 
 
 def hub_topics(points: tuple[str, ...]) -> dict[str, str]:
@@ -250,7 +256,7 @@ class LiveCell:
         order, after = ((live.order, live.after) if replanner is None
                         else (replanner.order, replanner.after))
         for task in order["robot"]:
-            if task in sent or not all(x in obs.end for x in after[task]):
+            if task in sent or task in obs.start or not all(x in obs.end for x in after[task]):
                 continue
             timed = self.timed(plan)[task]
             self.link.publish(TRAJECTORY_TOPIC, self.profile.trajectory(
@@ -346,10 +352,13 @@ class LiveCell:
         rp = None if replans is None else self._replanning(plan)  # before t0 is set: it takes
         self.timed(plan)  # the trajectories to send, before t0 too (a refused path: no plan)
         live = self._publish_plan(plan)
+        sent: set[str] = set()
+        problem = self.run.problem
         obs = CycleObservation(live, self.points, gate=self._gate,
                                window=self.options.cycle_timeout, task_bound=self.task_bound,
-                               plausible=self._plausible, faults=self.link.faults)
-        sent: set[str] = set()
+                               plausible=self._plausible, faults=self.link.faults,
+                               may_take=None if rp is None else (
+                                   lambda t: t not in sent and problem.task(t).can("human")))
         replanner = None if rp is None else LiveReplanner(
             self.run.problem, {a: list(o) for a, o in live.order.items()},
             {t: list(v) for t, v in live.after.items()}, rp)
@@ -376,7 +385,7 @@ class LiveCell:
         # Zenoh keeps the order of messages per key only: the person's last tracked rows may
         # come after their last end event. A tracker streams at rest too, so read on until
         # every body point is tracked past that end (robot_timeout wall s at most).
-        human = [obs.end[t] for t, a in live.agent.items() if a == "human"]
+        human = [obs.end[t] for t in live.agent if obs.doer(t) == "human"]
         deadline = time.monotonic() + self.options.robot_timeout
         while human and not obs.tracked_past(max(human)):
             if time.monotonic() > deadline:
@@ -399,7 +408,7 @@ class LiveCell:
                     replanner: LiveReplanner) -> None:
         """Re-plan the robot's rest on each deviation of the person seen so far."""
         now = live.cell_seconds(time.time_ns())
-        started = sorted((t for t in obs.start if live.agent.get(t) == "human"),
+        started = sorted((t for t in obs.start if obs.doer(t) == "human"),
                          key=lambda t: obs.start[t])
         for reason, task in replanner.deviations(now, obs.start, obs.end, started):
             entry = replanner.replan(now, reason, task, obs.start, obs.end, sorted(sent))

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -169,7 +169,9 @@ class CycleObservation:
     ``task_bound`` cell s; a tracking sample older than its source's last, stamped ahead of
     its arrival, or implausible (``plausible``: :mod:`rapidds.worlds.bounds`; one line per
     body point). ``gate``: the hub passes one for the whole run, so a sample from before the
-    last one accepted is dropped at a cycle's start too, not taken as its first."""
+    last one accepted is dropped at a cycle's start too, not taken as its first. ``may_take``:
+    which robot tasks the person may take (the hub's: ones it has not sent that the person may
+    do); a start of one by the person is theirs from then on (``taken``, :meth:`doer`)."""
 
     plan: LivePlan
     points: tuple[str, ...]
@@ -181,6 +183,8 @@ class CycleObservation:
     task_bound: float = math.inf
     plausible: Plausibility | None = None
     faults: FaultLog = field(default_factory=FaultLog)
+    may_take: Callable[[str], bool] | None = None
+    taken: set[str] = field(default_factory=set)  # robot tasks the person started instead
     _tracks: dict[str, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
     _implausible: dict[str, list[float]] = field(default_factory=dict)  # cell s of drops
 
@@ -197,9 +201,13 @@ class CycleObservation:
         except MessageError as exc:
             self._drop_event("malformed event", "an event: %s", str(exc)[:200])
             return
-        agent = self.plan.agent.get(ev.task)
+        agent = self.doer(ev.task)
         stamp = rec.received_ns if ev.stamp_ns is None else ev.stamp_ns
         t = self.plan.cell_seconds(stamp)
+        if (agent == "robot" and ev.agent == "human" and ev.event == "start"
+                and ev.task not in self.start and self.may_take is not None
+                and self.may_take(ev.task)):
+            agent = "human"  # the person takes a robot task the hub has not sent
         if agent is None or agent != ev.agent:
             self._drop_event("event not in the plan", "an event of %s task %r: not in cycle "
                              "%d's plan for that agent", ev.agent, ev.task[:80], self.plan.cycle)
@@ -218,6 +226,8 @@ class CycleObservation:
                              "than any task of this world (%g s)", ev.task,
                              t - self.start[ev.task], self.task_bound)
         else:
+            if agent != self.plan.agent.get(ev.task):
+                self.taken.add(ev.task)
             (self.start if ev.event == "start" else self.end)[ev.task] = t
             log.info("cycle %d: %s %s %s at %.2f s", self.plan.cycle, ev.agent, ev.task,
                      ev.event, t)
@@ -306,9 +316,13 @@ class CycleObservation:
         """Every body point has a sample stamped at cell time ``t`` or later."""
         return all(self._tracks.get(n) and self._tracks[n][-1][0] >= t for n in self.points)
 
+    def doer(self, task: str) -> str | None:
+        """Who does ``task``: the plan's agent, the person for a robot task they took."""
+        return "human" if task in self.taken else self.plan.agent.get(task)
+
     def durations(self, agent: str) -> dict[str, float]:
-        return {t: self.end[t] - self.start[t] for t, a in self.plan.agent.items()
-                if a == agent and t in self.end}
+        return {t: self.end[t] - self.start[t] for t in self.plan.agent
+                if self.doer(t) == agent and t in self.end}
 
     def human_executions(self, dt: float) -> dict[str, HumanExecution]:
         """The person's tasks as the loop takes them: duration from the events, path (T, K, 3)

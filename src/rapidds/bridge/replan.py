@@ -5,8 +5,9 @@ a live cell's hub has no executor while the cycle runs, only the events and the 
 receives, so this is the same re-plan on what the hub sees. Deviations, as the executor knows
 them: the person started a task of theirs other than their plan's next (``order``), or a task
 of theirs ran past the 90 % quantile of its learned duration, mean + z sd (``overran``: a pause,
-a slow hand). A robot task the person takes (the executor's ``took``) is not one yet: the
-hub's observation refuses an event of a task by an agent the plan did not give it to.
+a slow hand), or the person started a robot task the hub had not sent (``took``: the hub's
+observation accepts it for a task the person may do, and the task is theirs from then on).
+A pause is seen as an overrun, as in the simulated executor.
 
 The re-plan re-sequences the robot's tasks not yet sent with
 :func:`~rapidds.execution.replan.replan_remainder` (the learned means as they stand, the
@@ -43,6 +44,7 @@ class LiveReplanner:
     after: dict[str, list[str]]
     rp: Replanning
     replans: list[dict[str, Any]] = field(default_factory=list)
+    taken: set[str] = field(default_factory=set)  # robot tasks the person took
     _seen: set[str] = field(default_factory=set)  # the person's starts already looked at
     _overran: set[str] = field(default_factory=set)
 
@@ -56,6 +58,10 @@ class LiveReplanner:
             if task in self._seen:
                 continue
             self._seen.add(task)
+            if task in self.order["robot"]:
+                self.taken.add(task)
+                out.append(("took", task))
+                continue
             mine = [t for t in self.order["human"] if t not in start or t == task]
             if mine and mine[0] != task:
                 out.append(("order", task))
@@ -74,6 +80,7 @@ class LiveReplanner:
         t0 = time.perf_counter()
         rp = self.rp
         agent = {t: a for a, o in self.order.items() for t in o}
+        agent.update({t: "human" for t in self.taken})
         fixed: dict[str, tuple[str, float, float]] = {}
         free = {"human": now, "robot": now}
         for t, s in start.items():
@@ -85,6 +92,7 @@ class LiveReplanner:
             fixed[t] = (a, s, f)
         current = {"human": [t for t in self.order["human"] if t not in start],
                    "robot": [t for t in self.order["robot"] if t not in sent and t not in start]}
+        was = [t for t in self.order["robot"] if t not in self.taken]
         mean = {f"human:{t}": m for t, m in rp.mean.items()}
         mean.update({f"robot:{t}": d for t, d in rp.robot.items()})
         rem = replan_remainder(self.problem, now, current, fixed, free, mean,
@@ -92,9 +100,8 @@ class LiveReplanner:
                                claimed=frozenset(current["human"]))
         robot = list(rem.robot) if list(rem.human) == current["human"] else current["robot"]
         changed = robot != current["robot"]
-        if changed:  # unchanged, the plan's order and waits stay (as the executor's queue does)
-            self.order["robot"] = [t for t in self.order["robot"]
-                                   if t in sent or t in start] + robot
+        if changed or was != self.order["robot"]:  # unchanged, the plan's order and waits stay
+            self.order["robot"] = [t for t in was if t in sent or t in start] + robot
             prev = next((t for t in reversed(self.order["robot"]) if t in sent), None)
             for t in robot:
                 self.after[t] = sorted({*self.problem.preceding[t], *([prev] if prev else [])})

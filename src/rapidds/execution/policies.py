@@ -29,8 +29,9 @@ import numpy as np
 
 from rapidds.worlds.reactions import SafetyLimits
 
-__all__ = ["OpenLoop", "RobotPolicy", "Scene", "SpeedSeparation", "directed_speeds",
-           "protective_check", "protective_distance", "separation"]
+__all__ = ["OpenLoop", "RobotPolicy", "Scene", "SpeedSeparation", "directed_arrays",
+           "directed_speeds", "monitor_rates", "protective_check", "protective_distance",
+           "separation"]
 
 
 def separation(a: np.ndarray, b: np.ndarray) -> float:
@@ -59,35 +60,60 @@ class Scene:
         return replace(self, robot_velocity=v)
 
 
-def _towards(points: np.ndarray, velocity: np.ndarray, other: np.ndarray) -> float:
-    """The fastest of ``points``' speeds towards the nearest of ``other``'s (0 if none
-    approaches): each point's velocity along the unit vector to its nearest other point."""
-    diff = other[None] - points[:, None]  # (n, m, d)
-    dist = np.linalg.norm(diff, axis=-1)
-    near = dist.argmin(axis=1)
-    rows = np.arange(len(points))
-    unit = diff[rows, near] / np.maximum(dist[rows, near], 1e-12)[:, None]
-    return max(float(np.einsum("nd,nd->n", velocity, unit).max(initial=0.0)), 0.0)
-
-
-def directed_speeds(scene: Scene) -> tuple[float, float, float]:
-    """(d, v_h, v_r) of ISO/TS 15066 5.5.4: the separation; the person's speed towards the
-    robot (the fastest of their body points' velocity components towards the robot's nearest
-    point); the robot's towards the person at full rate, likewise (where a direction is
-    unknown, the speed the scene gives). Both floored at 0: a person walking away counts as
-    standing (the standard allows the directed speed; a floor of 0 is the common and
-    conservative choice). The fastest point's, not only the closest pair's: a hand may close
-    in faster than the nearest point does."""
-    sep = separation(scene.human, scene.robot)
-    v_h = (scene.human_speed if scene.human_velocity is None
-           else _towards(scene.human, scene.human_velocity, scene.robot))
-    v_r = (scene.robot_speed if scene.robot_velocity is None
-           else _towards(scene.robot, scene.robot_velocity, scene.human))
+def directed_arrays(human: np.ndarray, human_velocity: np.ndarray, robot: np.ndarray,
+                    robot_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d, v_h, v_r) of ISO/TS 15066 5.5.4 for a batch of instants: the person's body points
+    (..., K, d) and velocities, the robot's (..., P, d) and velocities at full rate -> three
+    (...) arrays. Each point's velocity component along the unit vector to its nearest point of
+    the other agent, the fastest of them, floored at 0. The one computation behind the monitor
+    (:func:`directed_speeds`, one instant) and the planner's predicted holds
+    (:mod:`rapidds.execution.slowdowns`, every step of every candidate at once)."""
+    diff = robot[..., None, :, :] - human[..., :, None, :]  # (..., K, P, d): person -> robot
+    dist = np.linalg.norm(diff, axis=-1)  # (..., K, P)
+    sep = dist.min(axis=(-2, -1))
+    near_r = dist.argmin(axis=-1)[..., None, None]  # each person's point's nearest robot point
+    to_r = (np.take_along_axis(diff, near_r, axis=-2)[..., 0, :]
+            / np.maximum(np.take_along_axis(dist, near_r[..., 0], axis=-1), 1e-12))
+    near_h = dist.argmin(axis=-2)[..., None, :, None]  # each robot point's nearest person's
+    to_h = (-np.take_along_axis(diff, near_h, axis=-3)[..., 0, :, :]
+            / np.maximum(np.take_along_axis(dist, near_h[..., 0], axis=-2)[..., 0, :, None],
+                         1e-12))
+    v_h = np.maximum(np.einsum("...kd,...kd->...k", human_velocity, to_r).max(axis=-1), 0.0)
+    v_r = np.maximum(np.einsum("...pd,...pd->...p", robot_velocity, to_h).max(axis=-1), 0.0)
     return sep, v_h, v_r
 
 
-def protective_distance(limits: SafetyLimits, human_speed: float, robot_speed: float) -> float:
-    """S_p of ISO/TS 15066 Eq. 1 for a robot moving at ``robot_speed`` (see the module)."""
+def directed_speeds(scene: Scene) -> tuple[float, float, float]:
+    """(d, v_h, v_r) of ISO/TS 15066 5.5.4 at one instant (:func:`directed_arrays`): the
+    separation; the person's speed towards the robot (the fastest of their body points'
+    velocity components towards the robot's nearest point); the robot's towards the person at
+    full rate, likewise (where a direction is unknown, the speed the scene gives). Both floored
+    at 0: a person walking away counts as standing (the standard allows the directed speed; a
+    floor of 0 is the common and conservative choice). The fastest point's, not only the
+    closest pair's: a hand may close in faster than the nearest point does."""
+    h_vel = np.zeros_like(scene.human) if scene.human_velocity is None else scene.human_velocity
+    r_vel = np.zeros_like(scene.robot) if scene.robot_velocity is None else scene.robot_velocity
+    sep, v_h, v_r = directed_arrays(scene.human, h_vel, scene.robot, r_vel)
+    return (float(sep), scene.human_speed if scene.human_velocity is None else float(v_h),
+            scene.robot_speed if scene.robot_velocity is None else float(v_r))
+
+
+def monitor_rates(limits: SafetyLimits, separation: np.ndarray, human_speed: np.ndarray,
+                  robot_speed: np.ndarray) -> np.ndarray:
+    """The monitor's rate for arrays of (d, v_h, v_r): the largest r in [0, 1] with
+    d >= S_p(r); S_p is affine in the robot's speed, so r = (d - S_p(0)) / (S_p(v_r) - S_p(0)).
+    :meth:`SpeedSeparation.rate_at` is this at one instant."""
+    still = protective_distance(limits, human_speed, 0.0 * robot_speed)
+    per_rate = protective_distance(limits, human_speed, robot_speed) - still
+    room = separation - still
+    safe = np.where(per_rate > 0.0, per_rate, 1.0)
+    r = np.where(per_rate > 0.0, np.minimum(room / safe, 1.0), 1.0)
+    return np.where(room < 0.0, 0.0, r)
+
+
+def protective_distance(limits: SafetyLimits, human_speed: Any, robot_speed: Any) -> Any:
+    """S_p of ISO/TS 15066 Eq. 1 for a robot moving at ``robot_speed`` (see the module); floats
+    or arrays that broadcast."""
     t_r, t_s = limits.reaction_time, limits.stopping_time
     return (human_speed * (t_r + t_s) + robot_speed * t_r + robot_speed * t_s / 2.0
             + limits.margin)
@@ -129,10 +155,5 @@ class SpeedSeparation:
 
     def rate_at(self, separation: float, human_speed: float, robot_speed: float) -> float:
         """The largest r in [0, 1] with separation >= S_p(r), for the (directed) speeds."""
-        still = protective_distance(self.limits, human_speed, 0.0)
-        if separation < still:
-            return 0.0
-        per_rate = protective_distance(self.limits, human_speed, robot_speed) - still
-        if per_rate <= 0.0:
-            return 1.0
-        return min(1.0, (separation - still) / per_rate)
+        return float(monitor_rates(self.limits, np.asarray(separation), np.asarray(human_speed),
+                                   np.asarray(robot_speed)))

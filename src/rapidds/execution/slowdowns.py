@@ -14,8 +14,15 @@ motion is done, with
   the whole task, not where they are at that instant, so it predicts a hold wherever the robot
   passes the person's route; the learned correction (:mod:`rapidds.human.slowdowns`) scales
   that to what the monitor really does.
-- v_h: the person's speed on that task (the population's typical fastest body-point speed);
-- v_r: the fastest of the robot's body points at full speed (as the executor measures it).
+- the directed speeds of the monitor (:func:`~rapidds.execution.policies.directed_arrays`,
+  the executor's own computation, and its rate :func:`~.policies.monitor_rates`). v_r: each
+  robot body point's full-rate velocity along the trajectory towards the person's route (the
+  route's nearest point lies along the belief's gradient). v_h: the person's *approach* speed
+  at x, :func:`approach_speeds`: on the population's paths of that task, by how much the
+  monitor's person term v_h (T_r + T_s), with v_h directed at each instant of the path,
+  brings the person closer than their closest approach, over T_r + T_s. A person who walks
+  straight at x counts their full speed, one who passes x at a distance little of it: total
+  speeds (what the prediction used before) overpredicted the holds of the directed monitor.
 
 A stop (r = 0) is counted as ``floor`` (r = 0.1: a step in the stop zone costs 9 dt more): the
 person moves on and the robot resumes, which a path belief cannot time. Everything is
@@ -28,66 +35,105 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import RegularGridInterpolator
 
-from rapidds.execution.policies import protective_distance
+from rapidds.execution.policies import directed_arrays, monitor_rates
 from rapidds.human.slowdowns import SlowdownBelief
 from rapidds.human.spatial import SpatialModel
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import SafetyLimits
 
-__all__ = ["HoldModel", "hold_rates", "human_speeds", "predicted_hold"]
+__all__ = ["HoldModel", "approach_speeds", "directed_rates", "lost_time", "predicted_hold"]
 
 FLOOR = 0.1
-
-
-def hold_rates(limits: SafetyLimits, separation: np.ndarray, human_speed: np.ndarray,
-               robot_speed: np.ndarray) -> np.ndarray:
-    """The monitor's rate for arrays of (d, v_h, v_r): the largest r in [0, 1] with
-    d >= S_p(r); S_p is affine in the robot's speed, so r = (d - S_p(0)) / (S_p(v_r) - S_p(0)).
-    Equal to ``SpeedSeparation(limits).rate_at`` elementwise (tests/test_slowdowns.py checks)."""
-    still = protective_distance(limits, human_speed, 0.0 * robot_speed)
-    per_rate = protective_distance(limits, human_speed, robot_speed) - still
-    room = separation - still
-    safe = np.where(per_rate > 0.0, per_rate, 1.0)
-    r = np.where(per_rate > 0.0, np.clip(room / safe, 0.0, 1.0), 1.0)
-    return np.where(room < 0.0, 0.0, r)
 
 
 def predicted_hold(limits: SafetyLimits, separation: np.ndarray, human_speed: np.ndarray,
                    robot_speed: np.ndarray, active: np.ndarray, dt: float,
                    floor: float = FLOOR) -> np.ndarray:
-    """Seconds the monitor adds to each motion: (..., H) separations, speeds and the steps
-    still moving (``active``) -> (...). Broadcasting arrays only."""
-    r = np.maximum(hold_rates(limits, separation, human_speed, robot_speed), floor)
+    """Seconds the monitor adds to each motion: (..., H) separations, directed speeds and the
+    steps still moving (``active``) -> (...). Broadcasting arrays only."""
+    return lost_time(monitor_rates(limits, separation, human_speed, robot_speed), active, dt,
+                     floor)
+
+
+def lost_time(rates: np.ndarray, active: np.ndarray, dt: float,
+              floor: float = FLOOR) -> np.ndarray:
+    """A step of dt at rate r takes dt / r: the seconds (..., H) rates add to each motion."""
+    r = np.maximum(rates, floor)
     return (dt * (1.0 / r - 1.0) * active).sum(axis=-1)
 
 
-def human_speeds(world: World) -> dict[str, float]:
-    """Per person's task, the population's median of the fastest body point's speed while
-    moving (units / s), from the world's prior paths at its dt."""
+def directed_rates(limits: SafetyLimits, robot: np.ndarray, velocity: np.ndarray,
+                   distance: np.ndarray, gradient: np.ndarray,
+                   approach: np.ndarray) -> np.ndarray:
+    """The monitor's rate at each robot step beside the person's route: robot body points
+    (..., P, d) and their full-rate velocities, each point's distance to the route (..., P);
+    at the body point nearest to the route, that distance's gradient (..., d) and the person's
+    approach speed (...) -> (...). v_r comes from the monitor's own directed speeds with the
+    person at the route's point nearest to that body point (along the gradient). Where the
+    gradient is flat (no direction to the route), the robot's total speed counts, as the
+    monitor counts a speed whose direction it does not know."""
+    near = distance.argmin(axis=-1)[..., None]
+    d = np.take_along_axis(distance, near, axis=-1)[..., 0]  # (...)
+    norm = np.linalg.norm(gradient, axis=-1, keepdims=True)
+    at = np.take_along_axis(robot, near[..., None], axis=-2)[..., 0, :]
+    route = (at - d[..., None] * gradient / np.maximum(norm, 1e-12))[..., None, :]
+    _, _, v_r = directed_arrays(route, np.zeros_like(route), robot, velocity)
+    total = np.linalg.norm(velocity, axis=-1).max(axis=-1)
+    v_r = np.where(norm[..., 0] <= 1e-9, total, v_r)
+    return monitor_rates(limits, d, approach, v_r)
+
+
+def approach_speeds(world: World, spatial: SpatialModel, limits: SafetyLimits,
+                    chunk: int = 1024, paths_max: int = 16) -> dict[str, np.ndarray]:
+    """Per person's task, the approach speed at each point of the path belief's grid (V,):
+    on each of the world's prior paths, the closest approach d* to the point and the
+    smallest d - v_h (T_r + T_s) over the path's instants, with d and v_h what
+    :func:`~rapidds.execution.policies.directed_arrays` gives for the person beside a still
+    robot point there (written out here for one point, ~5x faster; tests/test_slowdowns.py
+    checks it against that function); (d* - that) / (T_r + T_s), averaged over the paths
+    (at most ``paths_max`` of them, evenly spread: a painting grid has 10648 points, 40 paths
+    cost ~10 s of CPU at every run's start, 16 ~3 s). At most the person's fastest speed, 0
+    where they never close in."""
+    grid = spatial.config.grid()
+    react = limits.reaction_time + limits.stopping_time
     out = {}
-    for task, paths in world.prior().paths.items():
-        speeds = []
+    for task, every in world.prior().paths.items():
+        pick = np.unique(np.linspace(0, len(every) - 1, min(len(every), paths_max)).round())
+        paths = [every[int(k)] for k in pick]
+        total = np.zeros(len(grid))
         for p in paths:
             arr = np.asarray(p, dtype=float)
-            arr = arr[:, None] if arr.ndim == 2 else arr
-            if len(arr) > 1:
-                step = np.linalg.norm(np.diff(arr, axis=0), axis=-1).max(axis=-1) / world.dt
-                speeds.append(step[step > 1e-9])
-        flat = np.concatenate(speeds) if speeds else np.zeros(0)
-        out[task] = float(np.median(flat)) if flat.size else 0.0
+            arr = arr[:, None] if arr.ndim == 2 else arr  # (T, K, d)
+            vel = np.concatenate([np.diff(arr, axis=0), np.zeros_like(arr[:1])]) / world.dt
+            for lo in range(0, len(grid), chunk):
+                sep, v_h = _towards_point(arr, vel, grid[lo:lo + chunk])
+                total[lo:lo + chunk] += sep.min(axis=-1) - (sep - v_h * react).min(axis=-1)
+        out[task] = total / max(len(paths), 1) / react if react > 0 else total
     return out
+
+
+def _towards_point(points: np.ndarray, velocity: np.ndarray,
+                   x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d and v_h of :func:`~rapidds.execution.policies.directed_arrays` for the person's
+    points (T, K, d) and velocities against each single still point x (V, d): (V, T) each."""
+    diff = x[:, None, None, :] - points[None]  # (V, T, K, d)
+    dist = np.sqrt(np.einsum("vtkd,vtkd->vtk", diff, diff))
+    along = np.einsum("vtkd,tkd->vtk", diff, velocity) / np.maximum(dist, 1e-12)
+    return dist.min(axis=-1), np.maximum(along.max(axis=-1), 0.0)
 
 
 @dataclass
 class HoldModel:
     """The predicted lost time of robot trajectories beside the person's tasks, from the path
-    belief ``spatial``, corrected by ``belief`` (None: the prediction as it is)."""
+    belief ``spatial`` and the person's approach speeds on its grid (``speeds``,
+    :func:`approach_speeds`), corrected by ``belief`` (None: the prediction as it is)."""
 
     world: World
     spatial: SpatialModel
     limits: SafetyLimits
-    speeds: Mapping[str, float]
+    speeds: Mapping[str, np.ndarray]
     belief: SlowdownBelief | None = None
 
     def raw(self, task: str, concurrent: Iterable[str], xi: np.ndarray) -> dict[str, np.ndarray]:
@@ -96,18 +142,46 @@ class HoldModel:
         xi = np.asarray(xi, dtype=float)
         dt = self.world.dt
         pts = np.asarray(self.world.robot_points(xi), dtype=float)      # (N, H, P, d_ws)
-        step = np.linalg.norm(np.diff(pts, axis=1), axis=-1).max(axis=-1) / dt
-        v_r = np.concatenate([step, np.zeros((len(xi), 1))], axis=1)   # (N, H)
+        vel = np.concatenate([np.diff(pts, axis=1) / dt, np.zeros_like(pts[:, :1])], axis=1)
         done = np.asarray(self.world.completion_time(task, xi), dtype=float)  # (N,)
         active = np.arange(xi.shape[1])[None] * dt < done[:, None] - 1e-9
-        beta = self.spatial.config.beta
         out = {}
         for i in dict.fromkeys(concurrent):
-            s = np.asarray(self.spatial[i].point_cost(pts), dtype=float)   # (N, H, P)
-            sep = (-np.log(np.maximum(s, 1e-300)) / beta).min(axis=-1)     # (N, H)
-            out[i] = predicted_hold(self.limits, sep, np.asarray(self.speeds.get(i, 0.0)),
-                                    v_r, active, dt)
+            dist = self._distance(i, pts)  # (N, H, P)
+            near = dist.argmin(axis=-1)[..., None, None]
+            x = np.take_along_axis(pts, near, axis=-2)[..., 0, :]  # the nearest body point
+            rates = directed_rates(self.limits, pts, vel, dist, self._gradient(i, x),
+                                   self._approach(i, x))
+            out[i] = lost_time(rates, active, dt)
         return out
+
+    def _approach(self, task: str, x: np.ndarray) -> np.ndarray:
+        """The person's approach speed on ``task`` at points (..., d), interpolated on the grid
+        (multilinear; points outside it clamped onto it); 0 for a task with none."""
+        v = self.speeds.get(task)
+        if v is None:
+            return np.zeros(x.shape[:-1])
+        cfg = self.spatial.config
+        axes = [np.linspace(lo, hi, n) for (lo, hi), n in zip(cfg.bounds, cfg.shape, strict=True)]
+        lo, hi = np.asarray(cfg.bounds, dtype=float).T
+        return RegularGridInterpolator(axes, np.asarray(v).reshape(cfg.shape))(np.clip(x, lo, hi))
+
+    def _distance(self, task: str, x: np.ndarray) -> np.ndarray:
+        """The distance -ln s(x) / beta from points (..., d) to the person's route on ``task``
+        as the path belief has it."""
+        s = np.asarray(self.spatial[task].point_cost(x), dtype=float)
+        return -np.log(np.maximum(s, 1e-300)) / self.spatial.config.beta
+
+    def _gradient(self, task: str, x: np.ndarray) -> np.ndarray:
+        """The distance's gradient at points (..., d), by central differences a tenth of a grid
+        cell wide (the grid is multilinear: its gradient is constant inside a cell)."""
+        cfg = self.spatial.config
+        lo, hi = np.asarray(cfg.bounds, dtype=float).T
+        step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
+        inside = np.clip(x, lo + step, hi - step)
+        dist = self._distance
+        return np.stack([(dist(task, inside + h * e) - dist(task, inside - h * e)) / (2 * h)
+                         for h, e in zip(step, np.eye(len(lo)), strict=True)], axis=-1)
 
     def hold(self, task: str, concurrent: Iterable[str], xi: np.ndarray) -> np.ndarray:
         """Predicted lost time beside C_j = ``concurrent``: the largest over its tasks of the

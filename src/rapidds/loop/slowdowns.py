@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from rapidds.execution.deployment import Deployment
-from rapidds.execution.slowdowns import HoldModel, human_speeds
+from rapidds.execution.slowdowns import HoldModel, approach_speeds
 from rapidds.human.slowdowns import SlowdownBelief, pair_key
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
@@ -61,7 +61,7 @@ class Slowdowns:
         self.world, self.mode = world, config.slowdown_mode
         self.reactive = config.execution == "reactive"
         self.limits = cell_reactions(world)[1]
-        self.speeds = human_speeds(world) if self.mode != "off" else {}
+        self._speeds: tuple[Any, dict[str, np.ndarray]] | None = None  # (grid, speeds)
         self.prior = (config.slowdown_mean, config.slowdown_sd)
 
     def belief(self) -> SlowdownBelief | None:
@@ -72,8 +72,15 @@ class Slowdowns:
         """The hold model against the path belief ``spatial`` (None when off)."""
         if self.mode == "off":
             return None
-        return HoldModel(self.world, spatial, self.limits, self.speeds,
+        return HoldModel(self.world, spatial, self.limits, self.speeds(spatial),
                          belief if self.mode == "learned" else None)
+
+    def speeds(self, spatial: SpatialModel) -> dict[str, np.ndarray]:
+        """The person's approach speeds on ``spatial``'s grid, computed once per grid."""
+        grid = (spatial.config.bounds, spatial.config.shape)
+        if self._speeds is None or self._speeds[0] != grid:
+            self._speeds = (grid, approach_speeds(self.world, spatial, self.limits))
+        return self._speeds[1]
 
     def wrap(self, motion: MotionModel, model: HoldModel | None) -> MotionModel:
         return motion if model is None else WithHolds(motion, model)
