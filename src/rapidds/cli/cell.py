@@ -108,8 +108,6 @@ def deploy_cmd(
     not recorded and the hub exits with code 3; --resume continues the run."""
     if bridge != "zenoh":
         fail(f"unknown --bridge {bridge!r}; the live link is zenoh")
-    if execution not in ("planned", "reactive"):
-        fail(f"unknown --execution {execution!r}; one of planned, reactive")
     if not (time_scale > 0 and robot_timeout > 0 and startup_timeout > 0 and cycle_timeout > 0):
         fail("--time-scale and the timeouts must be > 0")
     from rapidds.bridge.cell import CellOptions, hub_topics
@@ -140,7 +138,7 @@ def deploy_cmd(
               config=config, wire=hub_wire) as link:
         _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
             time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
-            cycle_timeout=cycle_timeout, execution=execution), profile)
+            cycle_timeout=cycle_timeout), profile)
 
 
 def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None, resume: bool,

@@ -4,24 +4,52 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import (
+    AfterValidator,
+    BeforeValidator,
+    Field,
+    PlainSerializer,
+    ValidationInfo,
+    field_validator,
+)
 
+from rapidds.execution.registry import (
+    ExecutionSetting,
+    Planned,
+    execution_names,
+    parse_execution,
+    stored_execution,
+)
 from rapidds.settings import Settings
 
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
-__all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "EXECUTIONS", "Adapt", "Device", "Execution",
+__all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "Adapt", "Device", "Execution", "ExecutionField",
            "RunConfig", "Slowdowns"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
-Execution = Literal["planned", "reactive"]
 Slowdowns = Literal["learned", "predicted", "off"]
-EXECUTIONS: tuple[str, ...] = ("planned", "reactive")
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
 _Count = Annotated[int, Field(ge=1)]
 _Weight = Annotated[float, Field(ge=0)]
+
+
+
+def _registered(name: str) -> str:
+    if name not in execution_names():
+        raise ValueError(f"must be one of {', '.join(execution_names())}")
+    return name
+
+
+Execution = Annotated[str, AfterValidator(_registered)]
+"""A registered execution's name (:mod:`rapidds.execution.registry`), for settings that keep the
+name (the ablation's)."""
+ExecutionField = Annotated[ExecutionSetting, BeforeValidator(parse_execution),
+                           PlainSerializer(stored_execution)]
+"""A run's execution: a registered entry, given and stored by its name (or a mapping with its
+parameters, where they are not the entry's defaults)."""
 
 Device = Literal["auto", "cpu", "cuda"]
 DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
@@ -80,9 +108,10 @@ class RunConfig(Settings):
         are evidence about their gamma too (stored with the comfort evidence); False: only
         what they say (run id ``-saidonly`` when learning).
     Inside the cycle (docs/design-notes.md "Reacting inside the cycle"):
-    execution: ``planned`` (the paper: the robot follows its plan whatever happens) or
-        ``reactive`` (speed and separation monitoring, and re-planning the rest of the cycle
-        when the person deviates).
+    execution: a registered entry of :mod:`rapidds.execution.registry`: ``planned`` (the
+        paper: the robot follows its plan whatever happens), ``monitored`` (speed and
+        separation monitoring), ``replanning`` (re-planning the rest of the cycle when the
+        person deviates) or ``reactive`` (both).
     reacts: the simulated person slows down or pauses when the moving robot comes close.
     deviate: probability per cycle that the simulated person deviates from the plan (another
         order, a pause, or taking a robot task).
@@ -134,7 +163,7 @@ class RunConfig(Settings):
     gamma_plan: Literal["mean", "cautious"] = "mean"
     comfort: Annotated[float, Field(gt=0)] | None = None
     gamma_reactions: bool = True
-    execution: Execution = "planned"
+    execution: ExecutionField = Planned()
     reacts: bool = False
     deviate: Annotated[float, Field(ge=0, le=1)] = 0.0
     device: Device = Field("auto", exclude=True, description=DEVICE_HELP)
@@ -161,9 +190,10 @@ class RunConfig(Settings):
     @field_validator("slowdowns")
     @classmethod
     def _check_slowdowns(cls, v: str | None, info: ValidationInfo) -> str | None:
-        if v in ("learned", "predicted") and info.data.get("execution") != "reactive":
-            raise ValueError("needs --execution reactive (only there does a monitor slow the "
-                             "robot)")
+        execution = info.data.get("execution")
+        if v in ("learned", "predicted") and not (execution is not None and execution.monitor):
+            raise ValueError("needs an --execution that monitors, e.g. reactive (only there "
+                             "does a monitor slow the robot)")
         return v
 
     @field_validator("gamma_prior")
@@ -180,7 +210,7 @@ class RunConfig(Settings):
     @property
     def slowdown_mode(self) -> Slowdowns:
         """What the plan expects of the monitor, ``slowdowns`` with its default filled in."""
-        if self.execution != "reactive":
+        if not self.execution.monitor:
             return "off"
         return self.slowdowns or "learned"
 
@@ -200,7 +230,7 @@ class RunConfig(Settings):
             lam=problem.objective.lam if self.lam is None else self.lam,
             beta=world.spatial_beta if self.beta is None else self.beta,
             grid_points=world.spatial_grid if self.grid_points is None else self.grid_points,
-            slowdowns=self.slowdowns or ("learned" if self.execution == "reactive" else None),
+            slowdowns=self.slowdowns or ("learned" if self.execution.monitor else None),
         )
 
     @property
@@ -224,8 +254,8 @@ class RunConfig(Settings):
     def cell_suffix(self) -> str:
         """What the run id says of execution inside the cycle; empty for the paper's."""
         slow = {"off": "-noslow", "predicted": "-slowpred"}.get(str(self.slowdowns), "")
-        return ("-reactive" * (self.execution == "reactive") + slow * (self.execution ==
-                "reactive") + "-reacts" * self.reacts
+        return (self.execution.run_suffix + slow * self.execution.monitor
+                + "-reacts" * self.reacts
                 + (f"-dev{self.deviate:g}" if self.deviate else ""))
 
     @property
