@@ -83,6 +83,14 @@ class ExecutionSetting(Settings):
         return self.monitor or self.replan
 
     @property
+    def replays(self) -> bool:
+        """Whether a cycle whose person neither reacts nor deviates is the schedule replayed on
+        the durations taken (the paper's closed form, :func:`rapidds.loop.deploy.deploy`)
+        rather than run on the executor's clock: so where the robot neither watches nor
+        re-plans (the executor gives the same times and costs to the last bit)."""
+        return not self.in_cycle
+
+    @property
     def run_suffix(self) -> str:
         """What a run id says of the entry: nothing for the paper's open loop."""
         return f"-{self.kind}" if self.in_cycle else ""

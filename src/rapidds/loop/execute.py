@@ -26,12 +26,13 @@ from rapidds.execution import (
 )
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
+from rapidds.loop.deploy import deploy
 from rapidds.loop.model import workspace_cost
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
-from rapidds.schedule import Schedule
+from rapidds.schedule import Schedule, compile_schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.reactions import (
     Deviation,
@@ -141,7 +142,11 @@ def execute_cycle(
     memory: Mapping[MotionKey, MotionPlan] | None = None,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
-    do (``human``), under the run's execution settings; the deviation it had, if any.
+    do (``human``), under the run's execution settings; the deviation it had, if any. Where the
+    execution entry replays (the paper's) and the person neither reacts nor deviates, the
+    cycle is the open-loop replay (:func:`~rapidds.loop.deploy.deploy`), else (and for an order
+    the replay cannot compile, a live cell's re-planned one) it runs on the executor
+    (:func:`cycle_executor`).
     beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
     robot's motions for tasks it was not planned to do (:func:`contingency_motions`); order: the
     order a live person took their tasks in (None: the plan's, or the simulated deviation's);
@@ -159,6 +164,10 @@ def execute_cycle(
         assert isinstance(teammate, SimulatedTeammate)
         return teammate.at(cycle).perform(task, rng)
 
+    undisturbed = reaction is None and deviation is None and order is None
+    if (config.execution.replays and undisturbed
+            and compile_schedule(problem, schedule) is not None):
+        return deploy(world, problem, schedule, motions, human, beta=beta), None
     person = SimulatedHuman(world, human, perform, reaction, deviation, order)
     executor = cycle_executor(world, problem, config, schedule, motions, person, beliefs,
                               spatial, beta, steering=steering, memory=memory)
