@@ -119,7 +119,7 @@ def test_a_design_stores_the_execution_inside_the_round(tmp_path, capsys):
                                                                            0.25)
     with StudyStore.open_readonly(study_path(out)) as st:
         cfg = st.config_for("P03", "none")
-        assert (cfg.execution, cfg.reacts, cfg.deviate) == ("reactive", True, 0.25)
+        assert (cfg.execution.kind, cfg.reacts, cfg.deviate) == ("reactive", True, 0.25)
         assert "-reactive-reacts-dev0.25-" in cfg.run_id
     code, _, err = _main(capsys, "study", "design", "--participants", "16", "--out", str(out))
     _one_line(code, err, "already holds a different study (run differs)")  # planned != reactive
