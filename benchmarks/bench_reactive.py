@@ -102,16 +102,16 @@ def _cycle(rec: dict) -> dict:
 
 
 # the parts of reactive execution, each run on the same plan, person and deviation:
-# name -> (execution, speed and separation monitoring, re-planning, steering in re-plans,
-# recalling motions the run steered before); "no memory" steers every changed pair anew (what
-# steering costs a re-plan's latency when nothing can be recalled)
+# name -> (the registered execution entry: speed and separation monitoring and/or re-planning,
+# steering in re-plans, recalling motions the run steered before); "no memory" steers every
+# changed pair anew (what steering costs a re-plan's latency when nothing can be recalled)
 PARTS = {
-    "open loop": ("planned", False, False, False, False),
-    "monitoring": ("reactive", True, False, False, False),
-    "re-planning": ("reactive", False, True, True, True),
-    "both, no steering": ("reactive", True, True, False, False),
-    "both (reactive)": ("reactive", True, True, True, True),
-    "both, no memory": ("reactive", True, True, True, False),
+    "open loop": ("planned", False, False),
+    "monitoring": ("monitored", False, False),
+    "re-planning": ("replanning", True, True),
+    "both, no steering": ("reactive", False, False),
+    "both (reactive)": ("reactive", True, True),
+    "both, no memory": ("reactive", True, False),
 }
 
 
@@ -139,7 +139,7 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
     spatial = run.model.spatial
     beliefs = (run.model.temporal.mean(), run.model.temporal.std())
     out = []
-    for part, (execution, monitor, replan, steer, recall) in PARTS.items():
+    for part, (execution, steer, recall) in PARTS.items():
         c = cfg.replace(execution=execution)
         human = run.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"),
                                      copy.deepcopy(plan.rng))
@@ -151,8 +151,7 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
             spare=contingency_motions(run.world, run.problem, c, 0, run.policy, spatial,
                                       plan.best.motions),
             steering=steering if steer else None,
-            memory=valid_plans(plan.motions, spatial_stamps(spatial)) if recall else {},
-            monitor=monitor, replan=replan)
+            memory=valid_plans(plan.motions, spatial_stamps(spatial)) if recall else {})
         out.append({
             "world": world, "deviate": deviate, "seed": seed, "part": part,
             "deviation": None if dev is None else dev.kind, "cost": dep.cost,

@@ -17,6 +17,7 @@ from rapidds.bridge.failsafe import planned_joint_speeds
 from rapidds.bridge.live import STOP_TOPIC
 from rapidds.bridge.profiles import RobotProfile, robot_profile
 from rapidds.bridge.reactive import planned_speeds
+from rapidds.execution.registry import execution_setting
 from rapidds.motion.timing import parameterize
 from rapidds.worlds.registry import make_world
 
@@ -66,9 +67,10 @@ def test_a_rest_to_rest_step_is_expected_at_its_peak_not_its_row_speed() -> None
 
 
 def _cell(world: Any, profile: RobotProfile, sent: list[tuple[str, Any]]) -> LiveCell:
-    run = SimpleNamespace(world=world, next_cycle=0)
+    run = SimpleNamespace(world=world, next_cycle=0,
+                          config=SimpleNamespace(execution=execution_setting("reactive")))
     link = SimpleNamespace(faults=None, publish=lambda topic, msg: sent.append((topic, msg)))
-    return LiveCell(run, link, CellOptions(execution="reactive"), profile)  # type: ignore[arg-type]
+    return LiveCell(run, link, CellOptions(), profile)  # type: ignore[arg-type]
 
 
 def _plan(path: np.ndarray) -> Any:

@@ -119,7 +119,7 @@ def test_a_design_stores_the_execution_inside_the_round(tmp_path, capsys):
                                                                            0.25)
     with StudyStore.open_readonly(study_path(out)) as st:
         cfg = st.config_for("P03", "none")
-        assert (cfg.execution, cfg.reacts, cfg.deviate) == ("reactive", True, 0.25)
+        assert (cfg.execution.kind, cfg.reacts, cfg.deviate) == ("reactive", True, 0.25)
         assert "-reactive-reacts-dev0.25-" in cfg.run_id
     code, _, err = _main(capsys, "study", "design", "--participants", "16", "--out", str(out))
     _one_line(code, err, "already holds a different study (run differs)")  # planned != reactive
@@ -134,7 +134,7 @@ def test_a_design_stores_the_execution_inside_the_round(tmp_path, capsys):
         old = {k: v for k, v in run.items() if k not in ("execution", "reacts", "deviate")}
         con.execute("UPDATE meta SET value=? WHERE key='run'", (json.dumps(old),))
     with StudyStore.open_readonly(path) as st:
-        assert st.config_for("P01", "full").execution == "planned"
+        assert st.config_for("P01", "full").execution.kind == "planned"
 
 
 def test_design_with_own_items_and_foreign_store(tmp_path, capsys):

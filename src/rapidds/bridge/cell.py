@@ -10,12 +10,16 @@ own. The cycle is realised from what was observed: the person's durations and pa
 robot's durations from its start and end events (its trajectories stay the planned paths: the
 loop scores and stores those).
 
-Reactive execution (``execution="reactive"``): while the cycle runs, a
-:class:`~rapidds.bridge.reactive.SpeedMonitor` ticks at ``scaling_rate`` Hz of the cell clock and
-publishes the robot's speed scaling on ``/rapidds/robot/speed_scaling``; the robot driver obeys
-it. The robot's expected speeds come from the very trajectories dispatched
-(:meth:`LiveCell.timed`, once per plan). Its pauses and protective check go into the cycle's
-record, as a simulated reactive cycle's.
+Execution inside the cycle is the run's registered execution entry
+(:mod:`rapidds.execution.registry`), the same one the simulated executor runs. Where it monitors
+(``reactive``, ``monitored``): while the cycle runs, a
+:class:`~rapidds.bridge.reactive.SpeedMonitor` with the entry's policy ticks at ``scaling_rate``
+Hz of the cell clock and publishes the robot's speed scaling on ``/rapidds/robot/speed_scaling``;
+the robot driver obeys it. Where it re-plans (``reactive``, ``replanning``): the robot's rest is
+re-planned with the entry's re-planner on each deviation of the person. The monitor takes the
+robot's expected speeds from the very trajectories dispatched (:meth:`LiveCell.timed`, once per
+plan). Its pauses, protective check and re-plans go into the cycle's record, as a simulated
+reactive cycle's.
 
 Faults: the robot falls silent (no ``JointState`` for ``robot_timeout`` wall seconds), a node
 leaves the link (its liveliness token goes: its process ended, its connection dropped) or the
@@ -103,16 +107,14 @@ class CellOptions:
     """time_scale: cell seconds per wall second. robot_timeout: wall s without a JointState
     before the robot counts as silent. startup_timeout: wall s to wait for the nodes.
     cycle_timeout: cell s a cycle may take. lead: wall s between publishing a plan and its
-    start (the nodes' time to read it). execution: ``planned`` (the robot follows its plan) or
-    ``reactive`` (speed and separation monitoring); scaling_rate: the monitor's ticks per cell
-    second."""
+    start (the nodes' time to read it). scaling_rate: the monitor's ticks per cell second
+    (where the run's execution monitors)."""
 
     time_scale: float = 1.0
     robot_timeout: float = 2.0
     startup_timeout: float = 60.0
     cycle_timeout: float = 120.0
     lead: float = 0.3
-    execution: str = "planned"
     scaling_rate: float = 20.0
 
 
@@ -320,11 +322,14 @@ class LiveCell:
             obs.handle(rec)
 
     def _monitor(self, plan: CyclePlan) -> SpeedMonitor | None:
-        if self.options.execution != "reactive":
+        """The cycle's monitor, where the run's execution monitors (None: the robot runs at
+        full speed)."""
+        execution = self.run.config.execution
+        if not execution.monitor:
             return None
         timed = self.timed(plan)
         monitor = SpeedMonitor(self.run.world, planned_speeds(self.run.world, timed),
-                               period=1.0 / self.options.scaling_rate)
+                               period=1.0 / self.options.scaling_rate, execution=execution)
         self._guard = MonitorGuard(planned_joint_speeds(timed), monitor.limits.stopping_time)
         return monitor
 
@@ -394,15 +399,15 @@ class LiveCell:
             self._take(live, obs)
         return obs
 
-    def _replanning(self, plan: CyclePlan) -> Replanning:
-        """What the cycle's re-plans use: the learned models as they stand (as a simulated
-        reactive cycle's re-plans have them)."""
+    def _replanning(self, plan: CyclePlan) -> Replanning | None:
+        """What the cycle's re-plans use, built by the run's execution entry from the learned
+        models as they stand (as a simulated cycle's re-plans have them); None: no re-plans."""
         from rapidds.loop.execute import cycle_replanning
 
         run = self.run
-        return cycle_replanning(run.world, run.problem, plan.best.motions,
-                                (run.model.temporal.mean(), run.model.temporal.std()),
-                                run.model.spatial)
+        return run.config.execution.replanner(lambda: cycle_replanning(
+            run.world, run.problem, plan.best.motions,
+            (run.model.temporal.mean(), run.model.temporal.std()), run.model.spatial))
 
     def _deviations(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                     replanner: LiveReplanner) -> None:
@@ -425,7 +430,7 @@ class LiveCell:
         run = self.run
         plan = run.plan()
         monitor = self._monitor(plan)
-        replans: list[dict[str, Any]] | None = [] if monitor is not None else None
+        replans: list[dict[str, Any]] | None = [] if run.config.execution.replan else None
         try:
             obs = self.observe(plan, monitor, replans)
         finally:
@@ -437,8 +442,11 @@ class LiveCell:
             if fault is not None:
                 raise self._stop(plan.cycle, fault)
             self.link.publish(SPEED_SCALING_TOPIC, float64_message(1.0))  # between cycles
-            reacted = Reactions(tuple(monitor.pauses), tuple(replans or ()),
-                                monitor.protective(), _ran(plan, obs))
+        if monitor is not None or replans is not None:
+            reacted = Reactions(() if monitor is None else tuple(monitor.pauses),
+                                tuple(replans or ()),
+                                None if monitor is None else monitor.protective(),
+                                _ran(plan, obs))
         try:
             human = obs.human_executions(run.world.dt)
         except MessageError as exc:

@@ -2,9 +2,12 @@
 
 At a fixed rate of the cell clock the layer takes the person's body points (their last tracked
 positions), the robot's (its last ``JointState`` through the world's forward kinematics) and
-asks the executor's :class:`~rapidds.execution.SpeedSeparation` policy for the robot's rate,
-which goes out as the speed scaling (:data:`~rapidds.bridge.live.SPEED_SCALING_TOPIC`). The
-math is the executor's: the same policy and :func:`~rapidds.execution.protective_distance`,
+asks the run's policy for the robot's rate, which goes out as the speed scaling
+(:data:`~rapidds.bridge.live.SPEED_SCALING_TOPIC`). The policy is built by the same factory as
+the simulated executor's, the run's registered execution entry
+(:meth:`~rapidds.execution.registry.ExecutionSetting.policy`: speed and separation monitoring,
+:class:`~rapidds.execution.SpeedSeparation`, for the built-in entries), so the math is the
+executor's: the same policy and :func:`~rapidds.execution.protective_distance`,
 the person's speed the fastest body point's (here between its last two tracked samples, by
 their stamps); what a live robot changes is the robot's side: its points are measured, not
 replayed (its speed measured over ``WINDOW`` cell s of joint states), and its speed
@@ -35,12 +38,14 @@ from typing import Any
 
 import numpy as np
 
+from rapidds.errors import RapiddsError
 from rapidds.execution.policies import (
+    RobotPolicy,
     Scene,
-    SpeedSeparation,
     directed_speeds,
     protective_check,
 )
+from rapidds.execution.registry import ExecutionSetting, Monitored
 from rapidds.motion.timing import TimedTrajectory
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import SafetyLimits, cell_reactions
@@ -85,11 +90,13 @@ def planned_speeds(world: World, timed: Mapping[str, TimedTrajectory]) -> dict[s
 class SpeedMonitor:
     """One cycle's monitor. ``speeds``: :func:`planned_speeds` of the cycle's robot tasks
     (their trajectories as the hub sends them);
-    ``period``: cell seconds between its ticks."""
+    ``period``: cell seconds between its ticks; ``execution``: the run's execution entry, which
+    builds the policy (one that monitors)."""
 
     world: World
     speeds: Mapping[str, float]
     period: float = 0.05
+    execution: ExecutionSetting = field(default_factory=Monitored)
     limits: SafetyLimits = field(init=False)
     rate: float = 1.0
     pauses: list[dict[str, Any]] = field(default_factory=list)
@@ -104,6 +111,9 @@ class SpeedMonitor:
 
     def __post_init__(self) -> None:
         _, self.limits = cell_reactions(self.world)
+        if not self.execution.monitor:
+            raise RapiddsError(f"execution '{self.execution.kind}' does not monitor: the cell "
+                               "runs no monitor under it")
 
     def joint_state(self, q: np.ndarray, at: float) -> None:
         """The robot's joint positions at cell time ``at`` (its state's stamp). Kept as they
@@ -174,15 +184,17 @@ class SpeedMonitor:
         span = seen[-1][0] - seen[0][0] if len(seen) > 1 else 0.0
         return np.abs(seen[-1][1] - seen[0][1]) / span if span > 0 else None
 
-    def policy_now(self, age: float) -> SpeedSeparation:
-        """The policy with ISO/TS 15066's T_r as the whole reaction time of this safety
-        function: the world's (the robot's own) plus the latencies the live monitor adds, the
-        age of the person's sample, up to a tick period until it looks again, and the
+    def policy_now(self, age: float) -> RobotPolicy:
+        """The execution entry's policy with ISO/TS 15066's T_r as the whole reaction time of
+        this safety function: the world's (the robot's own) plus the latencies the live monitor
+        adds, the age of the person's sample, up to a tick period until it looks again, and the
         scaling's delivery. The arm's T_s stays the world's: the reference arm stops well
         within it (docs/design-notes.md). The protective check keeps the world's limits."""
         late = max(age, 0.0) + self.period + DELIVERY
-        return SpeedSeparation(replace(self.limits,
-                                       reaction_time=self.limits.reaction_time + late))
+        policy = self.execution.policy(replace(self.limits,
+                                               reaction_time=self.limits.reaction_time + late))
+        assert policy is not None  # an entry that monitors builds one (__post_init__)
+        return policy
 
     def _log(self, now: float, rate: float, task: str | None, why: str) -> None:
         kind = "" if rate >= 1.0 or task is None else "stop" if rate <= 0.0 else "slow"

@@ -17,6 +17,7 @@ from collections.abc import Callable, Mapping
 from typing import Annotated, Any, Literal, TypeVar, get_args, get_origin
 
 import typer
+from pydantic import BaseModel, TypeAdapter
 
 from rapidds.errors import ConfigError
 from rapidds.loop.config import RunConfig
@@ -129,6 +130,8 @@ def _group_of(name: str) -> str | None:
 def _parameter(name: str, default: Any, panel: str | None) -> inspect.Parameter:
     """The typer parameter of the setting ``name``, its default ``default``."""
     field = RunConfig.flat_fields()[name]
+    if isinstance(default, BaseModel):  # a typed setting (an execution entry): its stored form
+        default = TypeAdapter(field.annotation).dump_python(default)
     extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
     show = extra.get("show", True) if default == field.default else True  # a command's own
     kind = _option_type(field.annotation, bool(extra.get("text")))

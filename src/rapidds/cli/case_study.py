@@ -120,7 +120,7 @@ def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: in
         with RunStore.open_readonly(sub / "run.sqlite") as st:
             resume = st.last_cycle(rid) is not None
     run = execute(cfg, policy, sub, resume, False, con,
-                  title=f"{setting.name}{', reactive' * (execution == 'reactive')}, "
+                  title=f"{setting.name}{f', {cfg.execution}' * cfg.execution.in_cycle}, "
                         f"teammate {human}, seed {seed}")
     assert run.store is not None
     records = run.store.cycle_records(rid)

@@ -122,7 +122,7 @@ def deploy_cmd(
               config=config, wire=hub_wire) as link:
         _deploy(cfg, w, link, out, policy, resume, as_json, CellOptions(
             time_scale=time_scale, robot_timeout=robot_timeout, startup_timeout=startup_timeout,
-            cycle_timeout=cycle_timeout, execution=cfg.execution), profile)
+            cycle_timeout=cycle_timeout), profile)
 
 
 def _deploy(cfg: RunConfig, w: World, link: Link, out: Path, policy: Path | None, resume: bool,

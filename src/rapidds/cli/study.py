@@ -99,7 +99,7 @@ def _summary(store: StudyStore, out: Path) -> dict[str, Any]:
     return {"out": str(out), "participants": design.participants, "systems": design.systems,
             "rounds": design.rounds, "seed": design.seed, "world": run.world,
             "variant": run.variant, "gamma": run.gamma, "balanced": design.balanced,
-            "execution": run.execution, "reacts": run.reacts, "deviate": run.deviate,
+            "execution": run.execution.kind, "reacts": run.reacts, "deviate": run.deviate,
             "items": list(store.items.ids),
             "runs_finished": sum(store.rounds_done(p.id, s) >= design.rounds
                                  for p in store.participants() for s in p.systems),
@@ -133,7 +133,7 @@ def design_cmd(
     typer.echo(table.assign(order=table["order"].map(" > ".join)).to_string(index=False))
     typer.echo(f"{design.participants} participants x {len(design.systems)} systems x "
                f"{design.rounds} rounds on {run.world} ({run.variant}), gamma {run.gamma:g}"
-               f"{', reactive robot' if run.execution == 'reactive' else ''}; "
+               f"{f', {run.execution} robot' if run.execution.in_cycle else ''}; "
                f"wrote {out / 'design.csv'} and {out / 'study.sqlite'}")
 
 

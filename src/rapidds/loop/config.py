@@ -14,7 +14,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
+    BeforeValidator,
     Field,
+    PlainSerializer,
     SerializationInfo,
     SerializerFunctionWrapHandler,
     ValidationInfo,
@@ -24,22 +27,42 @@ from pydantic import (
 )
 from pydantic.fields import FieldInfo
 
+from rapidds.execution.registry import (
+    ExecutionSetting,
+    Planned,
+    execution_names,
+    parse_execution,
+    stored_execution,
+)
 from rapidds.settings import Settings, SettingsGroup, cli_field, option_name
 
 if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
-__all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "EXECUTIONS", "Adapt", "ChangeSettings", "Device",
-           "Execution", "GammaLearning", "ObjectiveSettings", "RunConfig", "SearchSettings",
+__all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "Adapt", "ChangeSettings", "Device", "Execution",
+           "ExecutionField", "GammaLearning", "ObjectiveSettings", "RunConfig", "SearchSettings",
            "Slowdowns", "SpatialSettings", "TeammateSettings"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
-Execution = Literal["planned", "reactive"]
 Slowdowns = Literal["learned", "predicted", "off"]
-EXECUTIONS: tuple[str, ...] = ("planned", "reactive")
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
 _Weight = Annotated[float, Field(ge=0)]
+
+
+def _registered(name: str) -> str:
+    if name not in execution_names():
+        raise ValueError(f"must be one of {', '.join(execution_names())}")
+    return name
+
+
+Execution = Annotated[str, AfterValidator(_registered)]
+"""A registered execution's name (:mod:`rapidds.execution.registry`), for settings that keep the
+name (the ablation's)."""
+ExecutionField = Annotated[ExecutionSetting, BeforeValidator(parse_execution),
+                           PlainSerializer(stored_execution)]
+"""A run's execution: a registered entry, given and stored by its name (or a mapping with its
+parameters, where they are not the entry's defaults)."""
 
 Device = Literal["auto", "cpu", "cuda"]
 DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
@@ -218,10 +241,11 @@ class RunConfig(Settings):
     teammate: TeammateSettings = TeammateSettings()
     changes: ChangeSettings = ChangeSettings()
     learning: GammaLearning = GammaLearning()
-    execution: Execution = cli_field(
-        "planned", "Inside the cycle: planned (the paper: the robot follows its plan) or "
-        "reactive (speed and separation monitoring, and re-planning the rest of the cycle when "
-        "the person deviates).")
+    execution: ExecutionField = cli_field(
+        Planned(), "Inside the cycle, a registered execution: planned (the paper: the robot "
+        "follows its plan), monitored (speed and separation monitoring), replanning (the rest "
+        "of the cycle re-planned when the person deviates) or reactive (both).", show="planned",
+        text=True)
     device: Device = Field("auto", exclude=True, description=DEVICE_HELP)
     slowdowns: Slowdowns | None = cli_field(
         None, "With --execution reactive: plan for the safety monitor's slowdowns, learned (the "
@@ -301,15 +325,16 @@ class RunConfig(Settings):
     @field_validator("slowdowns")
     @classmethod
     def _check_slowdowns(cls, v: str | None, info: ValidationInfo) -> str | None:
-        if v in ("learned", "predicted") and info.data.get("execution") != "reactive":
-            raise ValueError("needs --execution reactive (only there does a monitor slow the "
-                             "robot)")
+        execution = info.data.get("execution")
+        if v in ("learned", "predicted") and not (execution is not None and execution.monitor):
+            raise ValueError("needs an --execution that monitors, e.g. reactive (only there "
+                             "does a monitor slow the robot)")
         return v
 
     @property
     def slowdown_mode(self) -> Slowdowns:
         """What the plan expects of the monitor, ``slowdowns`` with its default filled in."""
-        if self.execution != "reactive":
+        if not self.execution.monitor:
             return "off"
         return self.slowdowns or "learned"
 
@@ -329,7 +354,7 @@ class RunConfig(Settings):
             lam=problem.objective.lam if self.lam is None else self.lam,
             beta=world.spatial_beta if self.beta is None else self.beta,
             grid_points=world.spatial_grid if self.grid_points is None else self.grid_points,
-            slowdowns=self.slowdowns or ("learned" if self.execution == "reactive" else None),
+            slowdowns=self.slowdowns or ("learned" if self.execution.monitor else None),
         )
 
     @property
@@ -353,8 +378,8 @@ class RunConfig(Settings):
     def cell_suffix(self) -> str:
         """What the run id says of execution inside the cycle; empty for the paper's."""
         slow = {"off": "-noslow", "predicted": "-slowpred"}.get(str(self.slowdowns), "")
-        return ("-reactive" * (self.execution == "reactive") + slow * (self.execution ==
-                "reactive") + "-reacts" * self.reacts
+        return (self.execution.run_suffix + slow * self.execution.monitor
+                + "-reacts" * self.reacts
                 + (f"-dev{self.deviate:g}" if self.deviate else ""))
 
     @property

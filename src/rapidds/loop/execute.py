@@ -3,8 +3,9 @@
 Which sources and policies a run's settings ask for: the teammate's executions (drawn from the
 cycle's stream as the paper's replay draws them), a person who reacts (``reacts``: their own
 reaction drawn once per run around the cell's population) and deviates (``deviate``: drawn per
-cycle from its own stream, so the plan's numbers never move), and a robot that follows its plan
-(``planned``) or monitors speed and separation and re-plans (``reactive``).
+cycle from its own stream, so the plan's numbers never move), and the robot's policy and
+re-planner, which the run's registered execution entry builds (:mod:`rapidds.execution.registry`:
+``planned`` follows the plan, ``reactive`` monitors speed and separation and re-plans).
 """
 
 from __future__ import annotations
@@ -22,16 +23,16 @@ from rapidds.execution import (
     PlannedRobot,
     Replanning,
     SimulatedHuman,
-    SpeedSeparation,
 )
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
+from rapidds.loop.deploy import deploy
 from rapidds.loop.model import workspace_cost
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
-from rapidds.schedule import Schedule
+from rapidds.schedule import Schedule, compile_schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.capabilities import robot_duration
 from rapidds.worlds.reactions import (
@@ -82,11 +83,11 @@ def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
                         policy: DiffusionPolicy, spatial: SpatialModel,
                         planned: Mapping[str, MotionPlan]) -> dict[str, MotionPlan]:
-    """For reactive execution: a steered motion (beside nothing) for every task the robot may
-    do but was not planned to, steered before the cycle starts, so that re-planning inside it
-    may hand the robot one of the person's tasks without steering (which costs far more than
-    its latency budget)."""
-    if config.execution != "reactive":
+    """For an execution that re-plans: a steered motion (beside nothing) for every task the
+    robot may do but was not planned to, steered before the cycle starts, so that re-planning
+    inside it may hand the robot one of the person's tasks without steering (which costs far
+    more than its latency budget)."""
+    if not config.execution.replan:
         return {}
     todo = [t for t in problem.ids if problem.task(t).can("robot") and t not in planned]
     if not todo:
@@ -126,9 +127,9 @@ class CycleMotions:
 
 def replan_steering(world: World, problem: Problem, config: RunConfig, cycle: int,
                     policy: DiffusionPolicy, spatial: SpatialModel) -> DiffusionMotion | None:
-    """For reactive execution: the steering model re-plans inside the cycle steer new motions
-    with (seeded by (seed, cycle, 24026)); None otherwise."""
-    if config.execution != "reactive":
+    """For an execution that re-plans: the steering model re-plans inside the cycle steer new
+    motions with (seeded by (seed, cycle, 24026)); None otherwise."""
+    if not config.execution.replan:
         return None
     return _cycle_motion(world, problem, config, cycle, policy, spatial, _RESTEER_STREAM)
 
@@ -139,19 +140,20 @@ def execute_cycle(
     teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
     spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
     order: Sequence[str] | None = None, steering: MotionModel | None = None,
-    memory: Mapping[MotionKey, MotionPlan] | None = None, monitor: bool = True,
-    replan: bool = True,
+    memory: Mapping[MotionKey, MotionPlan] | None = None,
 ) -> tuple[Deployment, Deviation | None]:
     """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
-    do (``human``), under the run's execution settings; the deviation it had, if any.
+    do (``human``), under the run's execution settings; the deviation it had, if any. Where the
+    execution entry replays (the paper's) and the person neither reacts nor deviates, the
+    cycle is the open-loop replay (:func:`~rapidds.loop.deploy.deploy`), else (and for an order
+    the replay cannot compile, a live cell's re-planned one) it runs on the executor
+    (:func:`cycle_executor`).
     beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
     robot's motions for tasks it was not planned to do (:func:`contingency_motions`); order: the
     order a live person took their tasks in (None: the plan's, or the simulated deviation's);
     steering (:func:`replan_steering`), memory (motions steered for (task, concurrent set)
     pairs against the spatial models as they stand): what re-plans give the robot new motions
-    from where they change what runs beside it (None: they keep the plan's); monitor, replan:
-    whether speed and separation monitoring and re-planning act under reactive execution
-    (both, unless a decomposition of what each does turns one off)."""
+    from where they change what runs beside it (None: they keep the plan's)."""
     motions = {**(spare or {}), **motions}
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
     population, _ = cell_reactions(world)
@@ -163,10 +165,13 @@ def execute_cycle(
         assert isinstance(teammate, SimulatedTeammate)
         return teammate.at(cycle).perform(task, rng)
 
+    undisturbed = reaction is None and deviation is None and order is None
+    if (config.execution.replays and undisturbed
+            and compile_schedule(problem, schedule) is not None):
+        return deploy(world, problem, schedule, motions, human, beta=beta), None
     person = SimulatedHuman(world, human, perform, reaction, deviation, order)
     executor = cycle_executor(world, problem, config, schedule, motions, person, beliefs,
-                              spatial, beta, steering=steering, memory=memory, monitor=monitor,
-                              replan=replan)
+                              spatial, beta, steering=steering, memory=memory)
     return executor.run(), deviation
 
 
@@ -175,22 +180,20 @@ def cycle_executor(
     motions: Mapping[str, MotionPlan], person: HumanSource,
     beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel, beta: float,
     max_time: float = 600.0, *, steering: MotionModel | None = None,
-    memory: Mapping[MotionKey, MotionPlan] | None = None, monitor: bool = True,
-    replan: bool = True,
+    memory: Mapping[MotionKey, MotionPlan] | None = None,
 ) -> CycleExecutor:
     """The executor of one cycle of ``schedule`` with the person ``person`` (a simulated one,
-    or the browser game's avatar), under the run's execution settings: the robot follows its
-    ``motions`` (planned and spare) open loop, or monitors speed and separation and re-plans
-    with the learned models as they stand (``beliefs``, ``spatial``); steering, memory,
-    monitor, replan as in :func:`execute_cycle`."""
+    or the browser game's avatar): the robot follows its ``motions`` (planned and spare) under
+    the policy and the re-planner the run's execution entry builds (the re-planner from the
+    learned models as they stand: ``beliefs``, ``spatial``); steering, memory as in
+    :func:`execute_cycle`."""
     _, limits = cell_reactions(world)
-    replanning = (cycle_replanning(world, problem, motions, beliefs, spatial,
-                                   steering=steering, memory=memory)
-                  if config.execution == "reactive" and replan else None)
+    replanning = config.execution.replanner(lambda: cycle_replanning(
+        world, problem, motions, beliefs, spatial, steering=steering, memory=memory))
     return CycleExecutor(
         world, problem, schedule, person, PlannedRobot(world, motions),
-        SpeedSeparation(limits) if config.execution == "reactive" and monitor else None,
-        beta=beta, replanning=replanning, limits=limits, max_time=max_time)
+        config.execution.policy(limits), beta=beta, replanning=replanning, limits=limits,
+        max_time=max_time)
 
 
 def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, MotionPlan],
@@ -222,8 +225,8 @@ def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, Motio
 def cycle_record(config: RunConfig, dep: Deployment,
                  deviation: Deviation | None) -> dict[str, Any]:
     """What a cycle's record says of execution inside it: nothing for the paper's execution
-    (its records stay as they were), else who did what, the pauses and the re-plans, and under
-    reactive execution the robot's yields."""
+    (its records stay as they were), else who did what, the pauses and the re-plans, and where
+    a monitor may hold the robot its yields."""
     if not config.in_cycle:
         return {}
     sched = dep.timeline.schedule
@@ -232,5 +235,4 @@ def cycle_record(config: RunConfig, dep: Deployment,
             "pauses": [dict(p) for p in dep.pauses], "replans": [dict(r) for r in dep.replans],
             "protective": dep.protective,
             # only where a policy can hold the robot (and so yield): other records unchanged
-            **({"yields": [dict(y) for y in dep.yields]} if config.execution == "reactive"
-               else {})}
+            **({"yields": [dict(y) for y in dep.yields]} if config.execution.monitor else {})}

@@ -25,6 +25,7 @@ import numpy as np
 from rapidds.errors import CheckpointError, RapiddsError, StateError
 from rapidds.execution import CycleExecutor, HumanSource
 from rapidds.execution.deployment import Reactions
+from rapidds.execution.registry import Planned
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
@@ -417,9 +418,10 @@ class AdaptiveRun:
         self._check_current(plan)
         t0 = time.perf_counter()
         tasks = plan.best.schedule.tasks("human")
-        if played is not None and self.config.execution != "reactive":
-            raise ValueError("a cycle played live on the executor needs reactive execution")
-        if (played is None and observed is None and self.config.execution == "reactive"
+        if played is not None and not self.config.execution.in_cycle:
+            raise ValueError("a cycle played live on the executor needs an execution that acts "
+                             "inside the cycle (e.g. reactive)")
+        if (played is None and observed is None and self.config.execution.in_cycle
                 and isinstance(self.teammate, ReactiveTeammate)):
             played = self.teammate.play(plan, self.live_executor(plan))
         if played is not None:
@@ -434,7 +436,7 @@ class AdaptiveRun:
         if missing:
             raise ValueError(f"no observation of human task(s) {sorted(missing)}")
         cfg = (self.config if reacted is None
-               else self.config.model_copy(update={"execution": "planned"}))
+               else self.config.model_copy(update={"execution": Planned()}))
         steering = replan_steering(self.world, self.problem, cfg, plan.cycle, self.policy,
                                    self._spatial())
         ran = plan.best.schedule if reacted is None else reacted.schedule or plan.best.schedule

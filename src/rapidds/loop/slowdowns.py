@@ -59,7 +59,7 @@ class Slowdowns:
 
     def __init__(self, world: World, config: RunConfig):
         self.world, self.mode = world, config.slowdown_mode
-        self.reactive = config.execution == "reactive"
+        self.monitored = config.execution.monitor  # only a monitor holds the robot
         self.limits = cell_reactions(world)[1]
         self._speeds: tuple[Any, dict[str, np.ndarray]] | None = None  # (grid, speeds)
         self.prior = (config.slowdown_mean, config.slowdown_sd)
@@ -93,7 +93,7 @@ class Slowdowns:
         of the loss in the robot's pauses while that task ran. ``spatial`` must still be the
         path belief the plan was made with. Motions a re-plan replaced are not learned from.
         None under planned execution (its records stay the paper's)."""
-        if not self.reactive:
+        if not self.monitored:
             return None
         model = self.model(spatial, None)
         tl, idx = dep.timeline, dep.timeline.problem.index

@@ -118,7 +118,7 @@ class PlaySession:
 
     def info(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "cycles": self.cycles, "player": self.player.name,
-                "adapt": self.config.adapt, "execution": self.config.execution,
+                "adapt": self.config.adapt, "execution": self.config.execution.kind,
                 "hz": self.player.hz, "speed": self.player.speed,
                 "scene": scene(self.world)}
 

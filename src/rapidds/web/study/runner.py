@@ -291,7 +291,7 @@ class StudySession:
         under reactive execution (the one ``rapidds play --execution reactive`` uses); None
         under planned execution, or when their next step is not a round."""
         held = self.plan(pid)
-        if held is None or self.store.base_config.execution != "reactive":
+        if held is None or not self.store.base_config.execution.in_cycle:
             return None
         step = self.store.next_step(pid)
         assert step.system is not None
