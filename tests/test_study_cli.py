@@ -65,7 +65,7 @@ def test_design_writes_csv_and_store_and_never_mixes_designs(tmp_path, capsys):
     (["--items", "missing.yaml"], "missing.yaml: no such file"),
     (["--gamma", "-1"], "--gamma"),
     (["--learn-gamma"], "--learn-gamma needs --comfort-item"),
-    (["--execution", "sideways"], "--execution: Input should be 'planned' or 'reactive'"),
+    (["--execution", "sideways"], "--execution: must be one of planned, reactive"),
     (["--deviate", "1.5"], "--deviate: Input should be less than or equal to 1"),
     (["--deviate", "-0.1"], "--deviate: Input should be greater than or equal to 0"),
 ])

@@ -131,7 +131,7 @@ def _parameter(name: str, default: Any, panel: str | None) -> inspect.Parameter:
     """The typer parameter of the setting ``name``, its default ``default``."""
     field = RunConfig.flat_fields()[name]
     if isinstance(default, BaseModel):  # a typed setting (an execution entry): its stored form
-        default = TypeAdapter(field.annotation).dump_python(default)
+        default = TypeAdapter(Annotated[(field.annotation, *field.metadata)]).dump_python(default)
     extra = field.json_schema_extra if isinstance(field.json_schema_extra, dict) else {}
     show = extra.get("show", True) if default == field.default else True  # a command's own
     kind = _option_type(field.annotation, bool(extra.get("text")))

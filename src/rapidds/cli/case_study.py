@@ -52,9 +52,18 @@ def case_study_cmd(
     if reactive is not None:
         deprecated("--reactive", "--execution planned,reactive")
         executions = "planned,reactive" if reactive else "planned"
-    if executions.replace(" ", "") not in ("planned", "planned,reactive"):
-        fail(f"--execution is planned or planned,reactive, got {executions!r}")
-    reactive = "reactive" in executions
+    from rapidds.execution.registry import parse_execution
+
+    try:
+        entries = [parse_execution(e.strip()) for e in executions.split(",") if e.strip()]
+    except ValueError as exc:
+        fail(f"--execution: {exc}")
+    # the table has the paper's columns and one pair for an execution inside the cycle
+    if not entries or entries[0].in_cycle or len(entries) > 2 or not all(
+            e.in_cycle for e in entries[1:]):
+        fail(f"--execution is planned, or planned and one execution inside the cycle (e.g. "
+             f"planned,reactive), got {executions!r}")
+    inside = entries[1].kind if len(entries) == 2 else None
     if world not in _STUDIES:
         fail(f"no case study for world {world!r}; case studies: {', '.join(_STUDIES)}")
     from rich.console import Console
@@ -84,12 +93,12 @@ def case_study_cmd(
     for setting in chosen:
         runs[setting], behaviours[setting.name] = _run_setting(
             setting, world, human, seed, cycles, out / setting.name, policy, gif, con)
-        if reactive:
-            name = f"{setting.name}-reactive"
+        if inside is not None:
+            name = f"{setting.name}-{inside}"
             reacted[setting], behaviours[name] = _run_setting(
                 setting, world, human, seed, cycles, out / name, policy, gif, con,
-                execution="reactive")
-    rows = table_rows(w, human, runs, reacted if reactive else None)
+                execution=inside)
+    rows = table_rows(w, human, runs, reacted if inside is not None else None)
     md, cs = write_tables(out, rows)
     if as_json:
         print(json.dumps({"rows": rows, "behaviours": behaviours}), flush=True)
