@@ -26,7 +26,6 @@ k = 0 .. ceil(duration / dt), the teammates' convention.
 from __future__ import annotations
 
 import logging
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -46,6 +45,7 @@ from rapidds.bridge.mapping import (
 )
 from rapidds.bridge.tf import TfBuffer, tracked_frames
 from rapidds.errors import ConfigError, RapiddsError
+from rapidds.loop.observation import resample, sample_times
 from rapidds.worlds.base import HumanExecution, World, body_point_names
 from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
@@ -343,13 +343,10 @@ def bind_plan(cycle: RecordedCycle, world: World, mapping: TrackingMapping,
     return reader.out
 
 
-def resample(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
-    """Linear interpolation of samples (N, ...) taken at ``times_ns`` at the times ``at_ns``."""
-    flat = values.reshape(len(values), -1)
-    t = (times_ns - times_ns[0]) / _NS
-    x = (at_ns - times_ns[0]) / _NS
-    cols = [np.interp(x, t, flat[:, j]) for j in range(flat.shape[1])]
-    return np.stack(cols, axis=-1).reshape(len(at_ns), *values.shape[1:])
+def _at_ns(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
+    """The one resampler (:func:`~rapidds.loop.observation.resample`) on a bag's clock: samples
+    (N, ...) at ``times_ns`` read at ``at_ns``, both taken in seconds from the first sample."""
+    return resample((times_ns - times_ns[0]) / _NS, values, (at_ns - times_ns[0]) / _NS)
 
 
 def _covers(times: np.ndarray, start: int, end: int, dt: float) -> bool:
@@ -372,15 +369,14 @@ def human_executions(cycle: RecordedCycle, world: World,
         if (why := _unlearnable(cycle, world, names, start, end)) is not None:
             log.warning("human task %r %s; task dropped", task, why)
             continue
-        rows = math.ceil(duration / dt - 1e-9) + 1
-        at = start + np.round(np.minimum(np.arange(rows) * dt, duration) * _NS).astype(np.int64)
+        at = start + np.round(sample_times(duration, dt) * _NS).astype(np.int64)
         missing = [n for n in names if n not in cycle.points
                    or not _covers(cycle.points[n][0], start, end, dt)]
         if missing:
             log.warning("body point %r was not tracked through human task %r; task dropped",
                         missing[0], task)
             continue
-        path = np.stack([resample(*cycle.points[n], at) for n in names], axis=1)
+        path = np.stack([_at_ns(*cycle.points[n], at) for n in names], axis=1)
         out[task] = HumanExecution(task, duration, path)
     return out
 
@@ -519,7 +515,7 @@ def robot_demonstrations(path: str | Path, world: World, mapping: TrackingMappin
                 continue
             at = start + np.round(np.minimum(np.arange(horizon) * dt, (end - start) / _NS)
                                   * _NS).astype(np.int64)
-            rows.append(resample(*cycle.joints, at))
+            rows.append(_at_ns(*cycle.joints, at))
             index.append(tasks.index(task))
     if not rows:
         raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "

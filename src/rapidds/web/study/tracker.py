@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from rapidds.errors import RapiddsError
+from rapidds.loop.observation import resample, sample_times
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
 from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
@@ -49,7 +50,6 @@ __all__ = [
     "TrackerError",
     "group_teammate",
     "parse_tracker",
-    "resample",
     "tracker_csv",
     "typed_execution",
 ]
@@ -78,21 +78,6 @@ def group_teammate(world: World, group: str) -> SimulatedTeammate:
     return world.teammate(group)
 
 
-def _rows_of(world: World, duration: float) -> np.ndarray:
-    """Times of a path's rows: min(k dt, duration), k = 0..ceil(duration / dt)."""
-    n = math.ceil(duration / world.dt - 1e-9) + 1
-    return np.minimum(np.arange(n) * world.dt, duration)
-
-
-def resample(times: np.ndarray, path: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(len(rows), K, d) body points at ``rows`` from (T, K, d) samples at increasing
-    ``times``, linearly interpolated, held at the ends."""
-    p = body_points(path)
-    flat = p.reshape(len(p), -1)
-    out = np.stack([np.interp(rows, times, flat[:, j]) for j in range(flat.shape[1])], axis=-1)
-    return out.reshape(len(rows), *p.shape[1:])
-
-
 def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
                     duration: float) -> HumanExecution:
     """A typed-in duration with the teammate's nominal path of ``task`` stretched to it."""
@@ -107,7 +92,7 @@ def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
         d0, raw = teammate.perform(task, np.random.default_rng(0))
         path = body_points(raw)
         phase = np.minimum(np.arange(len(path)) * world.dt, d0) / d0
-    rows = _rows_of(world, float(duration))
+    rows = sample_times(float(duration), world.dt)
     return HumanExecution(task, float(duration), resample(phase, path, rows / duration))
 
 
@@ -283,7 +268,7 @@ def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: 
         raise TrackerError(f"task {task}: its samples span {t1 - t0:g} s, longer than any "
                            f"task of this study ({limit:g} s): are t in seconds, one "
                            "round per file?")
-    grid = _rows_of(world, t1 - t0)
+    grid = sample_times(t1 - t0, world.dt)
     path = np.empty((len(grid), k, xyz.shape[1]))
     for j in range(k):
         sel = rows & (point == j)
