@@ -30,7 +30,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,11 +45,15 @@ from rapidds.bridge.mapping import (
 )
 from rapidds.bridge.tf import TfBuffer, tracked_frames
 from rapidds.errors import ConfigError, RapiddsError
-from rapidds.loop.observation import resample, sample_times
+from rapidds.loop.observation import Observation, Said, resample, sample_times
 from rapidds.worlds.base import HumanExecution, World, body_point_names
 from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
+if TYPE_CHECKING:
+    from rapidds.loop.cycle import Cycle
+
 __all__ = [
+    "BagSource",
     "RecordedCycle",
     "RecordedTeammate",
     "RigidTransform",
@@ -414,25 +418,40 @@ def observed_for(cycle: RecordedCycle, world: World,
 @dataclass(frozen=True)
 class RecordedTeammate:
     """The person of a bag, as a :class:`~rapidds.worlds.base.Teammate`: a live person whose
-    truth is unknown (no plan cost against it), who did what the bag holds, and said what
-    ``answer`` (their comfort answer 1-7, None: not asked) and ``too_close`` (signal times, s
-    into the cycle) hold."""
+    truth is unknown (no plan cost against it), who did what the bag holds
+    (:class:`BagSource` hands it to the loop)."""
 
-    observed: Mapping[str, HumanExecution]
+    observed: Mapping[str, HumanExecution] = field(default_factory=dict)
     name: str = "recorded"
-    answer: int | None = None
-    too_close: tuple[float, ...] = ()
-
-    def comfort_report(self, cycle: int) -> tuple[int | None, list[float]] | None:
-        """What the person said about the cycle; None when the bag and the operator say
-        nothing (a cycle recorded without the comfort item)."""
-        if self.answer is None and not self.too_close:
-            return None
-        return self.answer, list(self.too_close)
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         return {t: self.observed[t] for t in tasks}
+
+
+@dataclass(frozen=True)
+class BagSource:
+    """A recorded cycle as the loop's :class:`~rapidds.loop.observation.Source`: the bag's
+    human tasks, with the events of boundary rules that waited for an order bound to the
+    cycle's plan, and what the person said: the operator's comfort ``answer`` (1-7; None: not
+    asked) and the bag's "too close" signals."""
+
+    recorded: RecordedCycle
+    world: World
+    mapping: TrackingMapping
+    answer: int | None = None
+
+    def observe(self, cycle: Cycle) -> Observation:
+        schedule = cycle.best.schedule
+        rules = self.mapping.boundaries
+        waiting = set() if rules is None else rules.unordered()
+        bound = bind_plan(self.recorded, self.world, self.mapping,
+                          {a: schedule.tasks(a) for a in waiting})
+        human = observed_for(bound, self.world, schedule.tasks("human"))
+        too_close = tuple(self.recorded.too_close_times())
+        said = None if self.answer is None and not too_close else Said(self.answer, too_close)
+        events = {t: (s / _NS, e / _NS) for t, (a, s, e) in bound.tasks.items() if a == "human"}
+        return Observation(human=human, events=events, said=said)
 
 
 def bag_paths(path: str | Path) -> list[Path]:

@@ -192,7 +192,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     rest = np.asarray(world.human_rest(), dtype=float)
     k, dim = rest.shape
     table = _columns(table, k, _AXES[:dim], line0)
-    point, t, xyz = _samples(table, world, k, _AXES[:dim], line0)
+    samples = _samples(table, world, k, _AXES[:dim], line0)
     names = table["task"].to_numpy()
     wanted = list(dict.fromkeys(tasks))
     extra = sorted(set(names) - set(wanted))
@@ -201,7 +201,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
                            f"{' ...' if len(extra) > 3 else ''} that the person "
                            f"does not do this round (their tasks: {', '.join(wanted)})")
     limit = world_task_bound(world) if at_most is None else at_most
-    return {task: _execution(world, task, names == task, point, t, xyz, k, limit, wanted)
+    return {task: _execution(world, task, names == task, samples, limit, wanted)
             for task in wanted}
 
 
@@ -253,10 +253,13 @@ def _samples(table: pd.DataFrame, world: World, k: int, axes: Sequence[str],
     return point, t, xyz
 
 
-def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: np.ndarray,
-               xyz: np.ndarray, k: int, limit: float, wanted: Sequence[str]) -> HumanExecution:
-    """One task's execution from its ``rows``: duration from first to last sample, every body
-    point resampled at the world's dt."""
+def _execution(world: World, task: str, rows: np.ndarray,
+               samples: tuple[np.ndarray, np.ndarray, np.ndarray], limit: float,
+               wanted: Sequence[str]) -> HumanExecution:
+    """One task's execution from its ``rows`` of the file's ``samples`` (body point, t, xyz per
+    row): duration from first to last sample, every body point resampled at the world's dt."""
+    point, t, xyz = samples
+    k = int(np.asarray(world.human_rest()).shape[0])
     if not rows.any():
         raise TrackerError(f"the tracker file has no rows for task {task} (the person's "
                            f"tasks this round: {', '.join(wanted)})")
