@@ -97,7 +97,7 @@ def test_the_runs_simulated_person_reacts_by_their_comfort(policy):
     relaxed, nervous = (r.context.reaction for r in runs)
     assert relaxed is not None and nervous is not None
     assert relaxed.comfort < nervous.comfort and relaxed.stop < nervous.stop
-    plain = AdaptiveRun(RunConfig(cycles=1, reacts=True, **SMALL), policy)._reaction
+    plain = AdaptiveRun(RunConfig(cycles=1, reacts=True, **SMALL), policy).context.reaction
     assert plain is not None and relaxed.comfort < plain.comfort < nervous.comfort
 
 

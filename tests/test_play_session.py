@@ -17,8 +17,8 @@ from play_bot import RouteBot
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
 from rapidds.loop.execute import CycleSetup, execute_cycle
-from rapidds.loop.observation import Observation
 from rapidds.loop.model import HumanModel, prior_model
+from rapidds.loop.observation import Observation
 from rapidds.loop.run import AdaptiveRun, CyclePlan, FreeOrderTeammate, LiveTeammate
 from rapidds.motion.interface import MotionPlan
 from rapidds.motion.policy import DiffusionPolicy

@@ -138,20 +138,20 @@ class Says(Protocol):
 
 @dataclass
 class TeammateSource:
-    """The run's own teammate as a :class:`~rapidds.loop.observation.Source`. ``reactive``:
-    the run's execution lets a :class:`ReactiveTeammate` play the cycle live; ``ask``: a
-    teammate who :class:`Says` is asked about the cycle (off when the run simulates the
-    person's comfort itself)."""
+    """The run's own teammate as a :class:`~rapidds.loop.observation.Source`. ``executor``:
+    under reactive execution, what builds a cycle's live executor (the run's
+    :meth:`~rapidds.loop.run.AdaptiveRun.live_executor`), on which a :class:`ReactiveTeammate`
+    plays the cycle; ``ask``: a teammate who :class:`Says` is asked about the cycle (off when
+    the run simulates the person's comfort itself)."""
 
     teammate: Teammate
-    reactive: bool = False
+    executor: Callable[[Cycle], ExecutorFactory] | None = None
     ask: bool = True
 
     def observe(self, cycle: Cycle) -> Observation:
         mate = self.teammate
-        if self.reactive and isinstance(mate, ReactiveTeammate):
-            assert cycle.live_executor is not None, "a cycle planned by a run"
-            played = mate.play(cycle, cycle.live_executor())
+        if self.executor is not None and isinstance(mate, ReactiveTeammate):
+            played = mate.play(cycle, self.executor(cycle))
             return Observation(played=played, said=self._said(cycle.cycle))
         if isinstance(mate, LiveTeammate):
             mate.show(cycle)

@@ -324,7 +324,8 @@ class AdaptiveRun:
     # -- observe and execute ------------------------------------------------------------------
     def source(self) -> Source:
         """The run's own teammate as a source (what :meth:`step` observes without one)."""
-        return TeammateSource(self.teammate, reactive=self.config.execution == "reactive",
+        reactive = self.config.execution == "reactive"
+        return TeammateSource(self.teammate, self.live_executor if reactive else None,
                               ask=self.context.comfort is None)
 
     def execute(self, plan: Cycle, observation: Observation | None = None, *,
