@@ -28,7 +28,7 @@ from rapidds.worlds.base import HumanExecution
 
 if TYPE_CHECKING:
     from rapidds.execution.deployment import Deployment, Reactions
-    from rapidds.loop.run import Cycle
+    from rapidds.loop.cycle import Cycle
 
 __all__ = ["Observation", "Said", "Source", "Track", "execution_of", "resample", "sample_times"]
 

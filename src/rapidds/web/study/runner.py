@@ -344,7 +344,6 @@ class StudySession:
             fields = {k: v for k, v in fields.items() if k not in COMFORT_FIELDS}
         observed = self._observed(pid, source, fields, tracker, tasks, played, live)
         run = self._run(pid, step.system)
-        said = None if said is None else Said(said[0], tuple(said[1]))
         try:
             return run.step(_Round(run.teammate, observed, said, live), plan).record
         finally:  # recorded or not, the next plan starts from the store
@@ -352,8 +351,7 @@ class StudySession:
             if run.next_cycle != plan.cycle + 1:
                 self._forget(pid, step.system)
 
-    def _comfort(self, source: str, fields: Mapping[str, str]
-                 ) -> tuple[int, list[float]] | None:
+    def _comfort(self, source: str, fields: Mapping[str, str]) -> Said | None:
         """The round's comfort answer and "too close" times (seconds on the round clock) when
         the design asks the item, else None; the fields are unknown to a design without it."""
         if not self.store.design.comfort:
@@ -363,7 +361,7 @@ class StudySession:
             raise InputError(f"\u201c{COMFORT_ITEM}\u201d: the answer must be 1..7, got "
                              f"{answer[:20]!r}" if answer else
                              f"please answer \u201c{COMFORT_ITEM}\u201d (1-7)")
-        return int(answer), parse_presses(str(fields.get("too_close", "")))
+        return Said(int(answer), tuple(parse_presses(str(fields.get("too_close", "")))))
 
     def _observed(self, pid: str, source: str, fields: Mapping[str, str], tracker: str | None,
                   tasks: Sequence[str], played: Mapping[str, HumanExecution] | None,
