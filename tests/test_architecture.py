@@ -224,7 +224,6 @@ def test_every_size_exception_is_still_needed() -> None:
 # shrinks.
 MAX_PARAMETERS = 8
 PARAMETER_EXCEPTIONS: dict[str, str] = {
-    "bridge/rmw_zenoh.py:entity_token": "one field per part of rmw_zenoh's liveliness key",
     "execution/executor.py:CycleExecutor.__init__": "changed elsewhere this cycle (r32-exec)",
     "execution/replan.py:_score": "changed elsewhere this cycle (r32-exec)",
     "execution/replan.py:replan_remainder": "changed elsewhere this cycle (r32-exec)",
