@@ -228,8 +228,6 @@ PARAMETER_EXCEPTIONS: dict[str, str] = {
     "execution/replan.py:_score": "changed elsewhere this cycle (r32-exec)",
     "execution/replan.py:replan_remainder": "changed elsewhere this cycle (r32-exec)",
     "motion/steering.py:steer": "the hot steering kernel; not reached by issue 32's cycle work",
-    "plots/maps.py:plot_spatial_cost": "not reached by issue 32's cycle work",
-    "plots/maps.py:save_cost_maps": "not reached by issue 32's cycle work",
     "scheduler/evaluate.py:evaluate_population": "the GA's hot path; not reached this cycle",
     "scheduler/evaluate.py:_overlap_round": "the GA's hot path; not reached this cycle",
     "scheduler/evaluator.py:Evaluator.__init__": "the GA's hot path; not reached this cycle",
