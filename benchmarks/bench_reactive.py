@@ -123,6 +123,7 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
     from rapidds.loop import AdaptiveRun, RunConfig
     from rapidds.loop.carry import spatial_stamps, valid_plans
     from rapidds.loop.execute import (
+        CycleSetup,
         contingency_motions,
         execute_cycle,
         person_reaction,
@@ -143,15 +144,15 @@ def decompose_one(world: str, deviate: float, seed: int, policy: object) -> list
         c = cfg.replace(execution=execution)
         human = run.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"),
                                      copy.deepcopy(plan.rng))
-        steering = replan_steering(run.world, run.problem, c, 0, run.policy, spatial)
-        dep, dev = execute_cycle(
-            run.world, run.problem, c, 0, plan.best.schedule, plan.best.motions, human,
-            run.teammate, person_reaction(run.world, c), beliefs, spatial,
-            beta=spatial.config.beta,
-            spare=contingency_motions(run.world, run.problem, c, 0, run.policy, spatial,
-                                      plan.best.motions),
+        steering = replan_steering(run.world, c, 0, plan.gamma, run.policy, spatial)
+        spare = contingency_motions(run.world, run.problem, c, 0, plan.gamma, run.policy,
+                                    spatial, plan.best.motions)
+        setup = CycleSetup(
+            run.world, run.problem, c, 0, plan.gamma, plan.best.schedule,
+            {**spare, **plan.best.motions}, beliefs, spatial, spatial.config.beta,
             steering=steering if steer else None,
             memory=valid_plans(plan.motions, spatial_stamps(spatial)) if recall else {})
+        dep, dev = execute_cycle(setup, human, run.teammate, person_reaction(run.world, c))
         out.append({
             "world": world, "deviate": deviate, "seed": seed, "part": part,
             "deviation": None if dev is None else dev.kind, "cost": dep.cost,

@@ -182,7 +182,7 @@ def test_the_persons_path_is_rebuilt_from_tracking(painting) -> None:
     assert ex["secure_piece"].duration == pytest.approx(d)
     np.testing.assert_allclose(ex["secure_piece"].trajectory, path, atol=1e-6)
     with pytest.raises(ros2.MessageError, match="no tracking"):  # prep_vise was not tracked
-        obs._path("prep_vise", np.array([0.0, 1.0]), 0.15)
+        obs._task_tracks("prep_vise", 1.0, 0.15)
 
 
 def test_the_arm_tracks_a_painting_motion_under_physics_and_feels_a_hand(painting) -> None:

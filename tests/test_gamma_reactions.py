@@ -94,10 +94,10 @@ def policy(fetch_policy):
 def test_the_runs_simulated_person_reacts_by_their_comfort(policy):
     runs = [AdaptiveRun(RunConfig(cycles=1, comfort=g, reacts=True, **SMALL), policy)
             for g in (0.3, 10.0)]
-    relaxed, nervous = (r._reaction for r in runs)
+    relaxed, nervous = (r.context.reaction for r in runs)
     assert relaxed is not None and nervous is not None
     assert relaxed.comfort < nervous.comfort and relaxed.stop < nervous.stop
-    plain = AdaptiveRun(RunConfig(cycles=1, reacts=True, **SMALL), policy)._reaction
+    plain = AdaptiveRun(RunConfig(cycles=1, reacts=True, **SMALL), policy).context.reaction
     assert plain is not None and relaxed.comfort < plain.comfort < nervous.comfort
 
 

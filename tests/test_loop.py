@@ -13,6 +13,7 @@ from conftest import SMALL_SEARCH as SMALL
 from record_helpers import stored
 
 from rapidds.loop import AdaptiveRun, RunConfig
+from rapidds.loop.observation import Observation
 from rapidds.schedule import Wait
 
 
@@ -132,7 +133,7 @@ def test_a_cycle_in_steps_equals_a_whole_step(policy):
     while not stepped.finished:
         plan = stepped.plan()
         seen = stepped.teammate.execute(plan.cycle, plan.best.schedule.tasks("human"), plan.rng)
-        dep = stepped.execute(plan, observed=seen)
+        dep = stepped.execute(plan, Observation(human=seen))
         stepped.learn(plan, dep)
         got.append(stored(stepped.record(plan, dep)))
     assert got == want

@@ -19,7 +19,7 @@ from play_bot import RouteBot, human_tasks
 
 from rapidds.execution import CycleExecutor, Deployment, HumanSource
 from rapidds.loop.config import RunConfig
-from rapidds.loop.execute import cycle_executor
+from rapidds.loop.execute import CycleSetup, cycle_executor
 from rapidds.loop.model import prior_model
 from rapidds.loop.run import AdaptiveRun, CyclePlan, ReactiveTeammate
 from rapidds.motion.interface import MotionPlan
@@ -55,9 +55,11 @@ def _builder(world: FetchWorld, plan: CyclePlan,
              motions: dict[str, MotionPlan]) -> Callable[[HumanSource], CycleExecutor]:
     cfg = RunConfig(world="fetch", human="tester", cycles=1, seed=0, execution="reactive")
     model = prior_model(world, cfg.resolved(world))
-    return lambda person: cycle_executor(
-        world, world.problem(), cfg, plan.best.schedule, motions, person,
-        (model.temporal.mean(), model.temporal.std()), model.spatial, 1.0, max_time=math.inf)
+    problem = world.problem()
+    setup = CycleSetup(world, problem, cfg, 0, problem.objective.gamma, plan.best.schedule,
+                       motions, (model.temporal.mean(), model.temporal.std()), model.spatial,
+                       1.0)
+    return lambda person: cycle_executor(setup, person, max_time=math.inf)
 
 
 class _Played:

@@ -16,8 +16,9 @@ from play_bot import RouteBot
 
 from rapidds.errors import RapiddsError
 from rapidds.loop.config import RunConfig
-from rapidds.loop.execute import execute_cycle
+from rapidds.loop.execute import CycleSetup, execute_cycle
 from rapidds.loop.model import HumanModel, prior_model
+from rapidds.loop.observation import Observation
 from rapidds.loop.run import AdaptiveRun, CyclePlan, FreeOrderTeammate, LiveTeammate
 from rapidds.motion.interface import MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
@@ -242,7 +243,8 @@ def test_the_loop_shows_a_live_teammate_the_plan_before_asking(
     run.step()
     assert calls == [("show", 0), ("execute", 0)]
     plan = run.plan()
-    run.execute(plan, observed=person.execute(1, plan.best.schedule.tasks("human"), plan.rng))
+    run.execute(plan, Observation(
+        human=person.execute(1, plan.best.schedule.tasks("human"), plan.rng)))
     assert calls == [("show", 0), ("execute", 0)]  # observations given: nobody is asked
 
 
@@ -266,10 +268,10 @@ def test_the_loop_records_the_order_the_person_fetched_in(fetch_world: FetchWorl
     cfg = RunConfig(world="fetch", human="tester", cycles=1, seed=0, **SEARCH)
     model = prior_model(fetch_world, cfg.resolved(fetch_world))
     problem = fetch_world.problem()
-    dep, deviation = execute_cycle(
-        fetch_world, problem, cfg, 0, plan.best.schedule, plan.best.motions, obs, player, None,
-        (model.temporal.mean(), model.temporal.std()), model.spatial, beta=1.0,
-        order=player.played_order(0))
+    setup = CycleSetup(fetch_world, problem, cfg, 0, problem.objective.gamma,
+                       plan.best.schedule, plan.best.motions,
+                       (model.temporal.mean(), model.temporal.std()), model.spatial, 1.0)
+    dep, deviation = execute_cycle(setup, obs, player, None, order=player.played_order(0))
     assert deviation is None
     assert dep.timeline.schedule.tasks("human") == ("t3", "t2")
     for t, (s, f) in state["times"].items():
@@ -277,7 +279,5 @@ def test_the_loop_records_the_order_the_person_fetched_in(fetch_world: FetchWorl
         assert (dep.timeline.start[0, k], dep.timeline.finish[0, k]) == pytest.approx(
             (s, f), abs=2e-3)
     # without the order, the plan's order is replayed: another timeline than the one played
-    dep_plan, _ = execute_cycle(
-        fetch_world, problem, cfg, 0, plan.best.schedule, plan.best.motions, obs, player, None,
-        (model.temporal.mean(), model.temporal.std()), model.spatial, beta=1.0)
+    dep_plan, _ = execute_cycle(setup, obs, player, None)
     assert dep_plan.timeline.schedule.tasks("human") == ("t2", "t3")

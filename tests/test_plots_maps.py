@@ -11,6 +11,7 @@ import pytest
 from rapidds.human.spatial import SpatialConfig, SpatialCostModel, SpatialModel
 from rapidds.plots._mpl import plt
 from rapidds.plots.maps import (
+    MapView,
     plot_obstacles,
     plot_paths,
     plot_points,
@@ -54,8 +55,9 @@ def test_3d_projection_and_bad_input():
     cfg = SpatialConfig(bounds=((0, 1), (0, 1), (0, 1)), beta=8.0, grid_points=8)
     m = SpatialCostModel.from_population(cfg, [np.linspace((0, 0, 0.2), (1, 1, 0.8), 40)])
     fig, (a, b) = plt.subplots(1, 2)
-    top = plot_spatial_cost(m, a, resolution=40, colorbar=False).get_array()
-    mid = plot_spatial_cost(m, b, resolution=40, projection="slice", colorbar=False).get_array()
+    top = plot_spatial_cost(m, a, view=MapView(resolution=40), colorbar=False).get_array()
+    mid = plot_spatial_cost(m, b, view=MapView(resolution=40, projection="slice"),
+                            colorbar=False).get_array()
     assert np.all(top >= mid - 1e-12) and top.max() > mid.max() + 0.15  # max over z dominates
     with pytest.raises(ValueError, match="must be an"):
         plot_paths(a, [np.zeros((3, 1))])
@@ -76,7 +78,8 @@ def test_side_view_projects_along_the_remaining_axis_and_body_points_draw_apart(
     path = np.linspace((0.9, 0.2, 0.1), (0.9, 1.8, 0.9), 40)  # at x = 0.9 only
     m = SpatialCostModel.from_population(cfg, [path])
     fig, ax = plt.subplots()
-    side = plot_spatial_cost(m, ax, resolution=30, colorbar=False, axes=(1, 2)).get_array()
+    side = plot_spatial_cost(m, ax, view=MapView(resolution=30, axes=(1, 2)),
+                             colorbar=False).get_array()
     assert side.shape == (30, 30) and ax.get_xlim() == (0, 2) and ax.get_ylim() == (0, 1)
     ys, zs = np.linspace(0, 2, 30), np.linspace(0, 1, 30)
     for i, j in ((5, 10), (20, 25), (15, 3)):  # row = z, column = y
@@ -84,7 +87,7 @@ def test_side_view_projects_along_the_remaining_axis_and_body_points_draw_apart(
                                          np.full(15, zs[i])], axis=-1))
         assert side[i, j] == pytest.approx(along_x.max(), abs=0.02)
     with pytest.raises(ValueError, match="two different axes"):
-        plot_spatial_cost(m, ax, axes=(1, 1))
+        plot_spatial_cost(m, ax, view=MapView(axes=(1, 1)))
     plt.close(fig)
 
     model = SpatialModel.from_population(cfg, {"a": [path]})

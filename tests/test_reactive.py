@@ -257,7 +257,7 @@ def test_a_replan_can_hand_the_robot_a_task_of_the_person(plans):
     handed = 0
     for run, plan in plans:
         cfg = run.config.replace(execution="reactive")
-        spare = contingency_motions(run.world, run.problem, cfg, 0, run.policy,
+        spare = contingency_motions(run.world, run.problem, cfg, 0, plan.gamma, run.policy,
                                     run.model.spatial, plan.best.motions)
         assert set(spare) == set(run.problem.ids) - set(plan.best.motions)
         motions = {**spare, **plan.best.motions}
@@ -321,9 +321,9 @@ def _steering_cycle(run, plan, deviation, steer_max):
     from rapidds.loop.model import workspace_cost
 
     cfg = run.config.replace(execution="reactive")
-    motions = {**contingency_motions(run.world, run.problem, cfg, 0, run.policy,
+    motions = {**contingency_motions(run.world, run.problem, cfg, 0, plan.gamma, run.policy,
                                      run.model.spatial, plan.best.motions), **plan.best.motions}
-    supply = CycleMotions(motions, {}, replan_steering(run.world, run.problem, cfg, 0,
+    supply = CycleMotions(motions, {}, replan_steering(run.world, cfg, 0, plan.gamma,
                                                        run.policy, run.model.spatial),
                           workspace_cost(run.world, run.model.spatial))
     rp = _replanning(run, plan)

@@ -49,16 +49,15 @@ def test_keys_and_tokens_match_the_design_documents_examples() -> None:
         f"0/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
     assert rmw_zenoh.data_key(0, "/robot1/chatter", "std_msgs/msg/String") == \
         f"0/robot1/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
-    assert rmw_zenoh.node_token(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "listener") == \
+    listener = rmw_zenoh.NodeName(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "listener")
+    talker = rmw_zenoh.NodeName(2, "8b20917502ee955ac4476e0266340d5c", 0, "talker")
+    assert rmw_zenoh.node_token(listener) == \
         "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
-    assert rmw_zenoh.entity_token(
-        2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, 10, "MS", "listener", "/chatter",
-        "std_msgs/msg/String") == (
+    assert rmw_zenoh.entity_token(listener, 10, "MS", "/chatter", "std_msgs/msg/String") == (
         "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
         f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,10:,:,:,,")
-    assert rmw_zenoh.entity_token(
-        2, "8b20917502ee955ac4476e0266340d5c", 0, 10, "MP", "talker", "/chatter",
-        "std_msgs/msg/String", depth=7) == (
+    assert rmw_zenoh.entity_token(talker, 10, "MP", "/chatter", "std_msgs/msg/String",
+                                  depth=7) == (
         "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
         f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,7:,:,:,,")
     assert rmw_zenoh.dds_type_name("sensor_msgs/msg/JointState") == \

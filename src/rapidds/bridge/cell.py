@@ -85,6 +85,7 @@ from rapidds.worlds.bounds import Plausibility, world_task_bound
 
 if TYPE_CHECKING:
     from rapidds.execution.executor import Replanning
+    from rapidds.loop.observation import Observation
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult
     from rapidds.motion.timing import TimedTrajectory
 
@@ -118,6 +119,16 @@ class CellOptions:
     scaling_rate: float = 20.0
 
 
+@dataclass(frozen=True)
+class _LinkSource:
+    """A live cell as a :class:`~rapidds.loop.observation.Source`."""
+
+    cell: LiveCell
+
+    def observe(self, cycle: CyclePlan) -> Observation:
+        return self.cell.observe_cycle(cycle)
+
+
 class LinkTeammate:
     """The person at the far end of the link: the loop never asks them directly (the cell
     passes what it observed), and their truth is unknown, so no plan cost is computed."""
@@ -126,16 +137,6 @@ class LinkTeammate:
 
     def execute(self, cycle: int, tasks: Any, rng: np.random.Generator) -> dict[str, Any]:
         raise RapiddsError("a live person's cycle comes from the link, not from execute()")
-
-
-def _as_executed(plan: CyclePlan, robot: dict[str, float]) -> CyclePlan:
-    """``plan`` with each robot motion's duration the one the robot took, so the realised
-    timeline is the cycle that happened (its trajectories stay the planned ones)."""
-    from dataclasses import replace
-
-    motions = {t: replace(m, duration=robot.get(t, m.duration))
-               for t, m in plan.best.motions.items()}
-    return replace(plan, best=replace(plan.best, motions=motions))
 
 
 def _ran(plan: CyclePlan, obs: CycleObservation) -> Schedule | None:
@@ -401,13 +402,9 @@ class LiveCell:
 
     def _replanning(self, plan: CyclePlan) -> Replanning | None:
         """What the cycle's re-plans use, built by the run's execution entry from the learned
-        models as they stand (as a simulated cycle's re-plans have them); None: no re-plans."""
-        from rapidds.loop.execute import cycle_replanning
-
-        run = self.run
-        return run.config.execution.replanner(lambda: cycle_replanning(
-            run.world, run.problem, plan.best.motions,
-            (run.model.temporal.mean(), run.model.temporal.std()), run.model.spatial))
+        models as they stand and the cycle's gamma (as a simulated cycle's re-plans have them);
+        None: no re-plans."""
+        return self.run.config.execution.replanner(lambda: self.run.replanning(plan))
 
     def _deviations(self, live: LivePlan, obs: CycleObservation, sent: set[str],
                     replanner: LiveReplanner) -> None:
@@ -421,16 +418,16 @@ class LiveCell:
                      reason, task, replanner.order["robot"],
                      "" if entry["changed"] else " (unchanged)")
 
-    def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
-        """Plan, run over the link, learn, record. Returns the result and what the link saw
-        beyond the deployment (the robot's realised durations, contacts; also the record's
-        ``live``)."""
-        from rapidds.loop.run import CycleResult
+    def observe_cycle(self, plan: CyclePlan) -> Observation:
+        """The cell as the loop's :class:`~rapidds.loop.observation.Source`: run ``plan`` over
+        the link (:meth:`observe`) and hand back what the person did, what the cell's reactive
+        layer did (pauses, re-plans, protective check), the durations the robot took (the
+        cycle is realised with them) and what the record keeps beyond the deployment (the
+        robot's realised and planned durations, contacts). CellFault on a fault."""
+        from rapidds.loop.observation import Observation
 
-        run = self.run
-        plan = run.plan()
         monitor = self._monitor(plan)
-        replans: list[dict[str, Any]] | None = [] if run.config.execution.replan else None
+        replans: list[dict[str, Any]] | None = [] if self.run.config.execution.replan else None
         try:
             obs = self.observe(plan, monitor, replans)
         finally:
@@ -448,16 +445,23 @@ class LiveCell:
                                 None if monitor is None else monitor.protective(),
                                 _ran(plan, obs))
         try:
-            human = obs.human_executions(run.world.dt)
+            human = obs.human_executions(self.run.world.dt)
         except MessageError as exc:
             raise self._stop(plan.cycle, str(exc)) from None
         planned = {t: float(m.duration) for t, m in plan.best.motions.items()}
-        plan = _as_executed(plan, obs.durations("robot"))
-        dep = run.execute(plan, observed=human, reacted=reacted)
-        run.learn(plan, dep)
-        live = {"robot_durations": obs.durations("robot"), "planned_robot_durations": planned,
+        robot = obs.durations("robot")
+        live = {"robot_durations": robot, "planned_robot_durations": planned,
                 "contacts": obs.contacts}
-        return CycleResult(run.record(plan, dep, live), plan, dep), live
+        return Observation(human=human, events={t: (obs.start[t], obs.end[t]) for t in human},
+                           reacted=reacted, robot_durations=robot, live=live)
+
+    def cycle(self) -> tuple[CycleResult, dict[str, Any]]:
+        """Plan, run over the link, learn, record (:meth:`AdaptiveRun.step` with the cell as
+        its source). Returns the result and what the link saw beyond the deployment (the
+        robot's realised durations, contacts; also the record's ``live``)."""
+        res = self.run.step(_LinkSource(self))
+        assert res.plan.observation is not None and res.plan.observation.live is not None
+        return res, res.plan.observation.live
 
     def run_all(self, on_cycle: Callable[[CycleResult, dict[str, Any]], None] | None = None,
                 ) -> None:

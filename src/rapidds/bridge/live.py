@@ -25,6 +25,7 @@ import numpy as np
 from rapidds.bridge.faults import CLOCK_SKEW, FaultLog
 from rapidds.bridge.link import Received, StampGate, log
 from rapidds.bridge.ros2 import EVENTS_TOPIC, MessageError, parse_event, plan_payload, stamp_ns
+from rapidds.loop.observation import Track, execution_of
 from rapidds.worlds.bounds import Plausibility, mostly_implausible
 
 if TYPE_CHECKING:
@@ -326,15 +327,12 @@ class CycleObservation:
 
     def human_executions(self, dt: float) -> dict[str, HumanExecution]:
         """The person's tasks as the loop takes them: duration from the events, path (T, K, 3)
-        from the tracking, resampled at rows min(k dt, duration) from the task's start."""
-        from rapidds.worlds.base import HumanExecution
-
+        from the tracking (:func:`~rapidds.loop.observation.execution_of`)."""
         out = {}
         for task, d in self.durations("human").items():
             self._check_plausible(task)
-            times = self.start[task] + np.minimum(
-                np.arange(int(np.ceil(d / dt - 1e-9)) + 1) * dt, d)
-            out[task] = HumanExecution(task, float(d), self._path(task, times, dt))
+            out[task] = execution_of(task, self.start[task], float(d),
+                                     self._task_tracks(task, self.start[task] + d, dt), dt)
         return out
 
     def _check_plausible(self, task: str) -> None:
@@ -349,17 +347,18 @@ class CycleObservation:
                                    f"implausible ({dropped} of {dropped + kept} samples "
                                    "dropped); the task cannot be learned")
 
-    def _path(self, task: str, times: np.ndarray, dt: float) -> np.ndarray:
-        path = np.empty((len(times), len(self.points), 3))
-        for k, name in enumerate(self.points):
+    def _task_tracks(self, task: str, end: float, dt: float) -> list[Track]:
+        """Each body point's samples; MessageError when one has none near ``task``."""
+        out = []
+        for name in self.points:
             track = self._tracks.get(name, [])
             t = np.array([s for s, _ in track])
-            near = (t >= times[0] - dt) & (t <= times[-1] + dt) if track else np.zeros(0, bool)
+            near = ((t >= self.start[task] - dt) & (t <= end + dt) if track
+                    else np.zeros(0, bool))
             if not near.any():
                 raise MessageError(f"no tracking of {name} during {task}")
-            pos = np.stack([p for _, p in track])
-            path[:, k] = np.stack([np.interp(times, t, pos[:, c]) for c in range(3)], axis=1)
-        return path
+            out.append(Track(t, np.stack([p for _, p in track])))
+        return out
 
 
 def joint_rows(names: Iterable[str], known: Sequence[str]) -> list[int] | None:

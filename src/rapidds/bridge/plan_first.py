@@ -73,7 +73,7 @@ def _next_run(run_dir: Path, config: Any, run_id: str | None, policy: Path | Non
         raise RapiddsError(f"{run_dir} holds another run than --config's; plan into another "
                            "folder")
     run = AdaptiveRun(cfg, load_policy(world, policy), None, world,
-                      teammate=RecordedTeammate({}))
+                      teammate=RecordedTeammate())
     if last is not None:
         if state is None:
             raise RapiddsError(f"run '{cfg.run_id}' cycle {last} has no stored model")

@@ -26,12 +26,11 @@ k = 0 .. ceil(duration / dt), the teammates' convention.
 from __future__ import annotations
 
 import logging
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -46,10 +45,15 @@ from rapidds.bridge.mapping import (
 )
 from rapidds.bridge.tf import TfBuffer, tracked_frames
 from rapidds.errors import ConfigError, RapiddsError
+from rapidds.loop.observation import Observation, Said, resample, sample_times
 from rapidds.worlds.base import HumanExecution, World, body_point_names
 from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
+if TYPE_CHECKING:
+    from rapidds.loop.cycle import Cycle
+
 __all__ = [
+    "BagSource",
     "RecordedCycle",
     "RecordedTeammate",
     "RigidTransform",
@@ -343,13 +347,10 @@ def bind_plan(cycle: RecordedCycle, world: World, mapping: TrackingMapping,
     return reader.out
 
 
-def resample(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
-    """Linear interpolation of samples (N, ...) taken at ``times_ns`` at the times ``at_ns``."""
-    flat = values.reshape(len(values), -1)
-    t = (times_ns - times_ns[0]) / _NS
-    x = (at_ns - times_ns[0]) / _NS
-    cols = [np.interp(x, t, flat[:, j]) for j in range(flat.shape[1])]
-    return np.stack(cols, axis=-1).reshape(len(at_ns), *values.shape[1:])
+def _at_ns(times_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
+    """The one resampler (:func:`~rapidds.loop.observation.resample`) on a bag's clock: samples
+    (N, ...) at ``times_ns`` read at ``at_ns``, both taken in seconds from the first sample."""
+    return resample((times_ns - times_ns[0]) / _NS, values, (at_ns - times_ns[0]) / _NS)
 
 
 def _covers(times: np.ndarray, start: int, end: int, dt: float) -> bool:
@@ -372,15 +373,14 @@ def human_executions(cycle: RecordedCycle, world: World,
         if (why := _unlearnable(cycle, world, names, start, end)) is not None:
             log.warning("human task %r %s; task dropped", task, why)
             continue
-        rows = math.ceil(duration / dt - 1e-9) + 1
-        at = start + np.round(np.minimum(np.arange(rows) * dt, duration) * _NS).astype(np.int64)
+        at = start + np.round(sample_times(duration, dt) * _NS).astype(np.int64)
         missing = [n for n in names if n not in cycle.points
                    or not _covers(cycle.points[n][0], start, end, dt)]
         if missing:
             log.warning("body point %r was not tracked through human task %r; task dropped",
                         missing[0], task)
             continue
-        path = np.stack([resample(*cycle.points[n], at) for n in names], axis=1)
+        path = np.stack([_at_ns(*cycle.points[n], at) for n in names], axis=1)
         out[task] = HumanExecution(task, duration, path)
     return out
 
@@ -418,25 +418,40 @@ def observed_for(cycle: RecordedCycle, world: World,
 @dataclass(frozen=True)
 class RecordedTeammate:
     """The person of a bag, as a :class:`~rapidds.worlds.base.Teammate`: a live person whose
-    truth is unknown (no plan cost against it), who did what the bag holds, and said what
-    ``answer`` (their comfort answer 1-7, None: not asked) and ``too_close`` (signal times, s
-    into the cycle) hold."""
+    truth is unknown (no plan cost against it), who did what the bag holds
+    (:class:`BagSource` hands it to the loop)."""
 
-    observed: Mapping[str, HumanExecution]
+    observed: Mapping[str, HumanExecution] = field(default_factory=dict)
     name: str = "recorded"
-    answer: int | None = None
-    too_close: tuple[float, ...] = ()
-
-    def comfort_report(self, cycle: int) -> tuple[int | None, list[float]] | None:
-        """What the person said about the cycle; None when the bag and the operator say
-        nothing (a cycle recorded without the comfort item)."""
-        if self.answer is None and not self.too_close:
-            return None
-        return self.answer, list(self.too_close)
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         return {t: self.observed[t] for t in tasks}
+
+
+@dataclass(frozen=True)
+class BagSource:
+    """A recorded cycle as the loop's :class:`~rapidds.loop.observation.Source`: the bag's
+    human tasks, with the events of boundary rules that waited for an order bound to the
+    cycle's plan, and what the person said: the operator's comfort ``answer`` (1-7; None: not
+    asked) and the bag's "too close" signals."""
+
+    recorded: RecordedCycle
+    world: World
+    mapping: TrackingMapping
+    answer: int | None = None
+
+    def observe(self, cycle: Cycle) -> Observation:
+        schedule = cycle.best.schedule
+        rules = self.mapping.boundaries
+        waiting = set() if rules is None else rules.unordered()
+        bound = bind_plan(self.recorded, self.world, self.mapping,
+                          {a: schedule.tasks(a) for a in waiting})
+        human = observed_for(bound, self.world, schedule.tasks("human"))
+        too_close = tuple(self.recorded.too_close_times())
+        said = None if self.answer is None and not too_close else Said(self.answer, too_close)
+        events = {t: (s / _NS, e / _NS) for t, (a, s, e) in bound.tasks.items() if a == "human"}
+        return Observation(human=human, events=events, said=said)
 
 
 def bag_paths(path: str | Path) -> list[Path]:
@@ -519,7 +534,7 @@ def robot_demonstrations(path: str | Path, world: World, mapping: TrackingMappin
                 continue
             at = start + np.round(np.minimum(np.arange(horizon) * dt, (end - start) / _NS)
                                   * _NS).astype(np.int64)
-            rows.append(resample(*cycle.joints, at))
+            rows.append(_at_ns(*cycle.joints, at))
             index.append(tasks.index(task))
     if not rows:
         raise RapiddsError(f"{path}: no robot task with joint states through it (robot start "

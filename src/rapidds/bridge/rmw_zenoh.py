@@ -32,7 +32,7 @@ from typing import Any
 
 from rapidds.errors import RapiddsError
 
-__all__ = ["ADMIN_SPACE", "GID_SIZE", "Attachment", "WireError", "attachment_bytes",
+__all__ = ["ADMIN_SPACE", "GID_SIZE", "Attachment", "NodeName", "WireError", "attachment_bytes",
            "data_key", "dds_type_name", "domain_id", "entity_token", "gid_of", "mangle",
            "node_token", "parse_attachment", "qos_key", "type_hash"]
 
@@ -98,21 +98,34 @@ def qos_key(depth: int = 10) -> str:
     return f"::,{depth}:,:,:,,"
 
 
-def node_token(domain: int, session_id: str, node_id: int, node: str,
-               namespace: str = "/", enclave: str = "/") -> str:
+@dataclass(frozen=True)
+class NodeName:
+    """Where a node's liveliness keys start: the ROS domain, the Zenoh session's id, the node's
+    id in the session, its name, namespace and enclave."""
+
+    domain: int
+    session_id: str
+    node_id: int
+    name: str
+    namespace: str = "/"
+    enclave: str = "/"
+
+    def prefix(self, entity_id: int, kind: str) -> str:
+        return (f"{ADMIN_SPACE}/{self.domain}/{self.session_id}/{self.node_id}/{entity_id}/"
+                f"{kind}/{mangle(self.enclave)}/{mangle(self.namespace)}/{self.name}")
+
+
+def node_token(node: NodeName) -> str:
     """The liveliness key announcing a node (``NN``)."""
-    return (f"{ADMIN_SPACE}/{domain}/{session_id}/{node_id}/{node_id}/NN/{mangle(enclave)}/"
-            f"{mangle(namespace)}/{node}")
+    return node.prefix(node.node_id, "NN")
 
 
-def entity_token(domain: int, session_id: str, node_id: int, entity_id: int, kind: str,
-                 node: str, topic: str, msgtype: str, *, namespace: str = "/",
-                 enclave: str = "/", depth: int = 10) -> str:
+def entity_token(node: NodeName, entity_id: int, kind: str, topic: str, msgtype: str, *,
+                 depth: int = 10) -> str:
     """The liveliness key announcing a publisher (``MP``) or a subscription (``MS``)."""
     if kind not in ("MP", "MS"):
         raise ValueError(f"entity kind {kind!r}: MP or MS")
-    return (f"{ADMIN_SPACE}/{domain}/{session_id}/{node_id}/{entity_id}/{kind}/"
-            f"{mangle(enclave)}/{mangle(namespace)}/{node}/{mangle(topic)}/"
+    return (f"{node.prefix(entity_id, kind)}/{mangle(topic)}/"
             f"{dds_type_name(msgtype)}/{type_hash(msgtype)}/{qos_key(depth)}")
 
 

@@ -63,12 +63,13 @@ class RmwZenohWire(Wire):
         self._tokens.append(self._session.liveliness().declare_token(key))
 
     def _entity(self, kind: str, topic: str, msgtype: str) -> str:
-        return rmw_zenoh.entity_token(self.domain, str(self._session.zid()), 0, next(self._ids),
-                                      kind, self.node, topic, msgtype)
+        name = rmw_zenoh.NodeName(self.domain, str(self._session.zid()), 0, self.node)
+        return rmw_zenoh.entity_token(name, next(self._ids), kind, topic, msgtype)
 
     def start(self, session: Any) -> None:
         self._session = session
-        self._announce(rmw_zenoh.node_token(self.domain, str(session.zid()), 0, self.node))
+        self._announce(rmw_zenoh.node_token(
+            rmw_zenoh.NodeName(self.domain, str(session.zid()), 0, self.node)))
 
     def subscribe(self, topic: str, msgtype: str) -> str:
         self._announce(self._entity("MS", topic, msgtype))

@@ -92,11 +92,10 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     """Plan the run's next cycle, realise it with what the bag recorded (and the person's
     ``comfort`` answer, 1-7), learn and record it; the cycle's record."""
     from rapidds.bridge.recorded import (
+        BagSource,
         RecordedTeammate,
-        bind_plan,
         default_mapping,
         load_mapping,
-        observed_for,
         read_cycle,
     )
     from rapidds.loop.config import RunConfig
@@ -131,15 +130,8 @@ def observe_cycle(run_dir: Path, bag: Path, mapping: Path | None, config: Path |
     # the store is written only now, with a usable bag in hand
     with RunStore(path, lock_as="rapidds observe") as store:
         run = AdaptiveRun(cfg, load_policy(world, policy, device), store, world,
-                          teammate=RecordedTeammate({}, answer=comfort,
-                                                    too_close=tuple(recorded.too_close_times())))
-        plan = run.plan()
-        schedule = plan.best.schedule
-        recorded = bind_plan(recorded, world, maps, {a: schedule.tasks(a) for a in waiting})
-        observed = observed_for(recorded, world, schedule.tasks("human"))
-        dep = run.execute(plan, observed=observed)
-        run.learn(plan, dep)
-        return run.record(plan, dep)
+                          teammate=RecordedTeammate())
+        return run.step(BagSource(recorded, world, maps, comfort)).record
 
 
 @app.command("observe")

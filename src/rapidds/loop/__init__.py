@@ -12,8 +12,11 @@ from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
     from rapidds.loop.config import ADAPT_LEVELS, RunConfig
+    from rapidds.loop.context import RunContext
+    from rapidds.loop.cycle import Cycle
     from rapidds.loop.deploy import Deployment, deploy
     from rapidds.loop.model import HumanModel, prior_model
+    from rapidds.loop.observation import Observation, Source
     from rapidds.loop.run import AdaptiveRun, CyclePlan, CycleResult, LiveTeammate, load_policy
 
 _WHERE = {
@@ -21,11 +24,13 @@ _WHERE = {
     "Deployment": "deploy", "deploy": "deploy",
     "HumanModel": "model", "prior_model": "model",
     "AdaptiveRun": "run", "CyclePlan": "run", "CycleResult": "run", "load_policy": "run",
-    "LiveTeammate": "run",
+    "LiveTeammate": "run", "Cycle": "cycle", "RunContext": "context",
+    "Observation": "observation", "Source": "observation",
 }
 __all__ = [
-    "ADAPT_LEVELS", "AdaptiveRun", "CyclePlan", "CycleResult", "Deployment", "HumanModel",
-    "LiveTeammate", "RunConfig", "deploy", "load_policy", "prior_model",
+    "ADAPT_LEVELS", "AdaptiveRun", "Cycle", "CyclePlan", "CycleResult", "Deployment",
+    "HumanModel", "LiveTeammate", "Observation", "RunConfig", "RunContext", "Source", "deploy",
+    "load_policy", "prior_model",
 ]
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from rapidds.human.gamma import GammaEvidence
 from rapidds.loop.deploy import Deployment, separations
+from rapidds.loop.observation import Said
 from rapidds.worlds.base import World
 from rapidds.worlds.reactions import Reaction, cell_reactions
 
@@ -115,20 +116,18 @@ def reaction_evidence(world: World, dep: Deployment, beta: float
 
 
 def said_and_signalled(world: World, dep: Deployment, beta: float,
-                       comfort: SimulatedComfort | None, teammate: object, seed: int,
+                       comfort: SimulatedComfort | None, said: Said | None, seed: int,
                        cycle: int) -> GammaEvidence | None:
     """Cycle ``cycle``'s evidence: from the SIMULATED person's response model (``comfort``,
-    drawing from (seed, cycle)), else from a live teammate's ``comfort_report(cycle)`` if they
-    offer one (None: they cannot say, or were not asked)."""
+    drawing from (seed, cycle)), else from what a live person ``said`` (their source's
+    :class:`~rapidds.loop.observation.Said`; None: they cannot say, or were not asked)."""
     if comfort is not None:
         rng = np.random.default_rng([seed, cycle, 26])
         answer, signals = comfort.respond(world, dep, beta, rng)
+    elif said is None:
+        return None
     else:
-        report = getattr(teammate, "comfort_report", None)
-        said = report(cycle) if report is not None else None
-        if said is None:
-            return None
-        answer, signals = said
+        answer, signals = said.answer, list(said.too_close)
     return cycle_evidence(world, dep, beta, answer, signals)
 
 

@@ -11,6 +11,7 @@ re-planner, which the run's registered execution entry builds (:mod:`rapidds.exe
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -43,8 +44,8 @@ from rapidds.worlds.reactions import (
     draw_deviation,
 )
 
-__all__ = ["CycleMotions", "check_cell", "contingency_motions", "cycle_executor", "cycle_record",
-           "execute_cycle", "person_reaction", "replan_steering"]
+__all__ = ["CycleMotions", "CycleSetup", "check_cell", "contingency_motions", "cycle_executor",
+           "cycle_record", "execute_cycle", "person_reaction", "replan_steering"]
 
 _REACTION_STREAM = 24_023  # the person's reaction: drawn once per run
 _DEVIATION_STREAM = 24_024  # this cycle's deviation and any task the person takes on
@@ -67,13 +68,13 @@ def check_cell(config: RunConfig, teammate: Teammate) -> None:
                            "what they do")
 
 
-def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
+def _cycle_motion(world: World, config: RunConfig, cycle: int, gamma: float,
                   policy: DiffusionPolicy, spatial: SpatialModel, stream: int) -> DiffusionMotion:
-    """A steering model with the run's settings, seeded by (seed, cycle, stream), so a resumed
-    run steers the same."""
+    """A steering model with the run's settings and the cycle's ``gamma``, seeded by (seed,
+    cycle, stream), so a resumed run steers the same."""
     seed = int(np.random.default_rng([config.seed, cycle, stream]).integers(2**31))
     return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
-                           problem.objective.gamma,
+                           gamma,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
@@ -81,7 +82,7 @@ def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
-                        policy: DiffusionPolicy, spatial: SpatialModel,
+                        gamma: float, policy: DiffusionPolicy, spatial: SpatialModel,
                         planned: Mapping[str, MotionPlan]) -> dict[str, MotionPlan]:
     """For an execution that re-plans: a steered motion (beside nothing) for every task the
     robot may do but was not planned to, steered before the cycle starts, so that re-planning
@@ -92,7 +93,7 @@ def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle
     todo = [t for t in problem.ids if problem.task(t).can("robot") and t not in planned]
     if not todo:
         return {}
-    motion = _cycle_motion(world, problem, config, cycle, policy, spatial, _CONTINGENCY_STREAM)
+    motion = _cycle_motion(world, config, cycle, gamma, policy, spatial, _CONTINGENCY_STREAM)
     return {m.task: m for m in motion.plan([(t, frozenset()) for t in todo])}
 
 
@@ -125,85 +126,98 @@ class CycleMotions:
             else 0.0
 
 
-def replan_steering(world: World, problem: Problem, config: RunConfig, cycle: int,
+def replan_steering(world: World, config: RunConfig, cycle: int, gamma: float,
                     policy: DiffusionPolicy, spatial: SpatialModel) -> DiffusionMotion | None:
     """For an execution that re-plans: the steering model re-plans inside the cycle steer new
     motions with (seeded by (seed, cycle, 24026)); None otherwise."""
     if not config.execution.replan:
         return None
-    return _cycle_motion(world, problem, config, cycle, policy, spatial, _RESTEER_STREAM)
+    return _cycle_motion(world, config, cycle, gamma, policy, spatial, _RESTEER_STREAM)
 
 
-def execute_cycle(
-    world: World, problem: Problem, config: RunConfig, cycle: int, schedule: Schedule,
-    motions: Mapping[str, MotionPlan], human: Mapping[str, HumanExecution],
-    teammate: Teammate, reaction: Reaction | None, beliefs: tuple[np.ndarray, np.ndarray],
-    spatial: SpatialModel, beta: float, spare: Mapping[str, MotionPlan] | None = None,
-    order: Sequence[str] | None = None, steering: MotionModel | None = None,
-    memory: Mapping[MotionKey, MotionPlan] | None = None,
-) -> tuple[Deployment, Deviation | None]:
-    """One cycle of ``schedule`` with the robot's ``motions`` and what the person was going to
-    do (``human``), under the run's execution settings; the deviation it had, if any. Where the
-    execution entry replays (the paper's) and the person neither reacts nor deviates, the
-    cycle is the open-loop replay (:func:`~rapidds.loop.deploy.deploy`), else (and for an order
-    the replay cannot compile, a live cell's re-planned one) it runs on the executor
-    (:func:`cycle_executor`).
-    beliefs: the person's (mean, std) duration per problem task, for re-planning; spare: the
-    robot's motions for tasks it was not planned to do (:func:`contingency_motions`); order: the
-    order a live person took their tasks in (None: the plan's, or the simulated deviation's);
-    steering (:func:`replan_steering`), memory (motions steered for (task, concurrent set)
-    pairs against the spatial models as they stand): what re-plans give the robot new motions
-    from where they change what runs beside it (None: they keep the plan's)."""
-    motions = {**(spare or {}), **motions}
+@dataclass(frozen=True)
+class CycleSetup:
+    """What one cycle's executor is built from: the run's ``world``, ``problem`` and
+    ``config``, the ``cycle`` and the ``gamma`` it was planned with, the ``schedule`` it runs
+    and the robot's ``motions`` (planned and spare: :func:`contingency_motions`), the person's
+    learned ``beliefs`` ((mean, std) duration per problem task) and ``spatial`` model as they
+    stand, for re-planning, and the closeness scale ``beta``. steering
+    (:func:`replan_steering`), memory (motions steered for (task, concurrent set) pairs against
+    the spatial models as they stand): what re-plans give the robot new motions from where they
+    change what runs beside it (None: they keep the plan's); monitor, replan: whether speed and
+    separation monitoring and re-planning act under reactive execution (both, unless a
+    decomposition of what each does turns one off)."""
+
+    world: World
+    problem: Problem
+    config: RunConfig
+    cycle: int
+    gamma: float
+    schedule: Schedule
+    motions: Mapping[str, MotionPlan]
+    beliefs: tuple[np.ndarray, np.ndarray]
+    spatial: SpatialModel
+    beta: float
+    steering: MotionModel | None = None
+    memory: Mapping[MotionKey, MotionPlan] | None = None
+
+
+def execute_cycle(setup: CycleSetup, human: Mapping[str, HumanExecution], teammate: Teammate,
+                  reaction: Reaction | None, order: Sequence[str] | None = None,
+                  ) -> tuple[Deployment, Deviation | None]:
+    """One cycle of ``setup`` with what the person was going to do (``human``), under the
+    run's execution entry; the deviation it had, if any. Where the entry replays (the paper's)
+    and the person neither reacts nor deviates, the cycle is the open-loop replay
+    (:func:`~rapidds.loop.deploy.deploy`), else (and for an order the replay cannot compile, a
+    live cell's re-planned one) it runs on the executor (:func:`cycle_executor`). reaction: the
+    simulated person's (None: they do not react); order: the order a live person took their
+    tasks in (None: the plan's, or the simulated deviation's)."""
+    config, cycle = setup.config, setup.cycle
     rng = np.random.default_rng([config.seed, cycle, _DEVIATION_STREAM])
-    population, _ = cell_reactions(world)
+    population, _ = cell_reactions(setup.world)
     deviation = (draw_deviation(config.deviate, rng, population,
-                                deviation_kinds(problem, schedule))
+                                deviation_kinds(setup.problem, setup.schedule))
                  if config.deviate else None)
 
     def perform(task: str) -> tuple[float, np.ndarray]:
         assert isinstance(teammate, SimulatedTeammate)
         return teammate.at(cycle).perform(task, rng)
 
+    s = setup
     undisturbed = reaction is None and deviation is None and order is None
     if (config.execution.replays and undisturbed
-            and compile_schedule(problem, schedule) is not None):
-        return deploy(world, problem, schedule, motions, human, beta=beta), None
-    person = SimulatedHuman(world, human, perform, reaction, deviation, order)
-    executor = cycle_executor(world, problem, config, schedule, motions, person, beliefs,
-                              spatial, beta, steering=steering, memory=memory)
-    return executor.run(), deviation
+            and compile_schedule(s.problem, s.schedule) is not None):
+        return deploy(s.world, s.problem.with_objective(gamma=s.gamma), s.schedule, s.motions,
+                      human, beta=s.beta), None
+    person = SimulatedHuman(s.world, human, perform, reaction, deviation, order)
+    return cycle_executor(setup, person).run(), deviation
 
 
-def cycle_executor(
-    world: World, problem: Problem, config: RunConfig, schedule: Schedule,
-    motions: Mapping[str, MotionPlan], person: HumanSource,
-    beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel, beta: float,
-    max_time: float = 600.0, *, steering: MotionModel | None = None,
-    memory: Mapping[MotionKey, MotionPlan] | None = None,
-) -> CycleExecutor:
-    """The executor of one cycle of ``schedule`` with the person ``person`` (a simulated one,
-    or the browser game's avatar): the robot follows its ``motions`` (planned and spare) under
+def cycle_executor(setup: CycleSetup, person: HumanSource,
+                   max_time: float = 600.0) -> CycleExecutor:
+    """The executor of the cycle ``setup`` describes with the person ``person`` (a simulated
+    one, or the browser game's avatar): the robot follows its motions (planned and spare) under
     the policy and the re-planner the run's execution entry builds (the re-planner from the
-    learned models as they stand: ``beliefs``, ``spatial``); steering, memory as in
-    :func:`execute_cycle`."""
-    _, limits = cell_reactions(world)
-    replanning = config.execution.replanner(lambda: cycle_replanning(
-        world, problem, motions, beliefs, spatial, steering=steering, memory=memory))
+    learned models as they stand). Costs are weighed with the cycle's gamma."""
+    s = setup
+    _, limits = cell_reactions(s.world)
+    replanning = s.config.execution.replanner(lambda: cycle_replanning(
+        s.world, s.problem, s.motions, s.beliefs, s.spatial, s.gamma, steering=s.steering,
+        memory=s.memory))
     return CycleExecutor(
-        world, problem, schedule, person, PlannedRobot(world, motions),
-        config.execution.policy(limits), beta=beta, replanning=replanning, limits=limits,
-        max_time=max_time)
+        s.world, s.problem.with_objective(gamma=s.gamma), s.schedule, person,
+        PlannedRobot(s.world, s.motions), s.config.execution.policy(limits),
+        beta=s.beta, replanning=replanning, limits=limits, max_time=max_time)
 
 
 def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, MotionPlan],
-                     beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel, *,
-                     steering: MotionModel | None = None,
+                     beliefs: tuple[np.ndarray, np.ndarray], spatial: SpatialModel,
+                     gamma: float, *, steering: MotionModel | None = None,
                      memory: Mapping[MotionKey, MotionPlan] | None = None) -> Replanning:
     """What a cycle's re-plans use (the simulated, browser and live cells alike): the learned
     ``beliefs`` (mean, std per task) and ``spatial`` model as they stand, the robot's
-    ``motions``; with ``steering``, motions steered where a re-plan changes what runs beside
-    them (``memory``: those the plan's search steered)."""
+    ``motions``, the cycle's ``gamma``; with ``steering``, motions steered where a re-plan
+    changes what runs beside them (``memory``: those the plan's search steered)."""
     cost = workspace_cost(world, spatial)
     mean, std = beliefs
     ids = problem.ids
@@ -217,7 +231,7 @@ def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, Motio
         std={t: float(s) for t, s in zip(ids, std, strict=True) if np.isfinite(s)},
         robot={j: m.duration + m.hold for j, m in motions.items()  # hold: 0 open loop
                if m.trajectory is not None},
-        spatial=spatial_cost, gamma=problem.objective.gamma,
+        spatial=spatial_cost, gamma=gamma,
         motions=None if steering is None else CycleMotions(motions, memory or {}, steering,
                                                             cost))
 

@@ -1,10 +1,15 @@
 """The RAPIDDS multi-cycle loop (paper Algorithm 1), one cycle in four steps.
 
-:meth:`AdaptiveRun.plan` searches the schedule with the genetic scheduler, whose robot motions
-come from the steered diffusion policy; :meth:`~AdaptiveRun.execute` has the teammate do their
-part and realises the cycle; :meth:`~AdaptiveRun.learn` updates the models the adaptation level
-names; :meth:`~AdaptiveRun.record` stores the cycle in one transaction. Each step can be called
-on its own, so a caller can show the plan to a person, wait for what they did, then learn.
+A run builds its :class:`~rapidds.loop.context.RunContext` once (world, config, problem,
+policy, teammate, beliefs). Each cycle then: :meth:`AdaptiveRun.plan` searches the schedule
+with the genetic scheduler, whose robot motions come from the steered diffusion policy, and
+returns a :class:`~rapidds.loop.cycle.Cycle` carrying the plan, the gamma it was planned with
+and its own random stream; a :class:`~rapidds.loop.observation.Source` observes what the person
+did in it; :meth:`~AdaptiveRun.execute` realises the cycle from that observation;
+:meth:`~AdaptiveRun.learn` updates the models the adaptation level names;
+:meth:`~AdaptiveRun.record` stores the cycle in one transaction. :meth:`~AdaptiveRun.step` is
+the four together, and every driver (the simulated run, a bag, the live cell, the study page)
+calls it with its own source; each step can still be called on its own.
 
 A run resumes from its last stored cycle with the models exactly as they were, because every
 cycle draws its random numbers from (seed, cycle) and the stored state holds everything learned.
@@ -16,53 +21,50 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
-from rapidds.errors import CheckpointError, RapiddsError, StateError
-from rapidds.execution import CycleExecutor, HumanSource
-from rapidds.execution.deployment import Reactions
+from rapidds.errors import RapiddsError, StateError
+from rapidds.execution import CycleExecutor, HumanSource, Replanning
 from rapidds.execution.registry import Planned
 from rapidds.human.spatial import SpatialModel
-from rapidds.loop.carry import CarriedMotions, Stamped, spatial_stamps, valid_plans
+from rapidds.loop.carry import CarriedMotions, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
 from rapidds.loop.comfort import (
-    SimulatedComfort,
     cycle_evidence,
     reaction_anchor,
     reaction_evidence,
     said_and_signalled,
-    simulated_comfort,
 )
 from rapidds.loop.config import RunConfig
+from rapidds.loop.context import RunContext, load_policy
+from rapidds.loop.cycle import (
+    Cycle,
+    CyclePlan,
+    CycleResult,
+    FreeOrderTeammate,
+    LiveTeammate,
+    ReactiveTeammate,
+    TeammateSource,
+)
 from rapidds.loop.deploy import Deployment
 from rapidds.loop.execute import (
-    check_cell,
+    CycleSetup,
     contingency_motions,
     cycle_executor,
     cycle_record,
     execute_cycle,
-    person_reaction,
     replan_steering,
 )
-from rapidds.loop.model import (
-    HumanModel,
-    check_teammate,
-    gamma_prior,
-    oracle_spatial,
-    prior_model,
-    workspace_cost,
-)
-from rapidds.loop.slowdowns import Slowdowns
+from rapidds.loop.model import HumanModel, oracle_spatial, workspace_cost
+from rapidds.loop.observation import Observation, Source
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.record import CycleRecord, Execution, InCycle, PlanCost, PlanPart, Predicted, Realised
-from rapidds.schedule import Timeline
+from rapidds.schedule import Schedule, Timeline
 from rapidds.scheduler import (
     Evaluation,
     GAConfig,
@@ -70,15 +72,12 @@ from rapidds.scheduler import (
     evaluate_population,
     solve_exact,
 )
-from rapidds.settings import require_memory
 from rapidds.store import RunStore, path_arrays
-from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
+from rapidds.worlds.base import SimulatedTeammate, Teammate, World
 from rapidds.worlds.capabilities import robot_duration
-from rapidds.worlds.reactions import Deviation
-from rapidds.worlds.registry import make_world
 
-__all__ = ["AdaptiveRun", "CyclePlan", "CycleResult", "FreeOrderTeammate", "LiveTeammate",
-           "ReactiveTeammate", "load_policy", "timeline_of"]
+__all__ = ["AdaptiveRun", "Cycle", "CyclePlan", "CycleResult", "FreeOrderTeammate",
+           "LiveTeammate", "ReactiveTeammate", "RunContext", "load_policy", "timeline_of"]
 
 PLAN_COST_SAMPLES = 256  # true-duration samples behind a cycle's plan cost (s.e. ~0.01 s)
 
@@ -92,19 +91,6 @@ LEARNS: dict[str, tuple[bool, bool]] = {  # adapt level -> (temporal, spatial) m
 }
 
 
-def load_policy(world: World, path: Path | None = None, device: str = "auto"
-                ) -> DiffusionPolicy:
-    """The checkpoint at ``path``, or the world's bundled policy, on ``device`` ("auto": a CUDA
-    GPU when there is one; "cuda" without one is a ConfigError, one line at the CLI)."""
-    directory = path or world.bundled_policy()
-    if directory is None:
-        raise CheckpointError(
-            f"no bundled {world.name} policy in this install; train one with "
-            f"'rapidds train-policy --world {world.name} --out DIR' and pass --policy DIR"
-        )
-    return DiffusionPolicy.load(directory, device=device)
-
-
 def timeline_of(problem: Problem, record: CycleRecord) -> Timeline:
     """The realised timeline of a stored cycle record (for charts drawn after the fact)."""
     schedule = record.done  # who did what, where the person deviated
@@ -112,60 +98,6 @@ def timeline_of(problem: Problem, record: CycleRecord) -> Timeline:
     start = np.array([[times[t][0] for t in problem.ids]])
     finish = np.array([[times[t][1] for t in problem.ids]])
     return Timeline(problem, schedule, start, finish)
-
-
-@dataclass
-class CyclePlan:
-    """The plan of one cycle: the best evaluated schedule with its robot motions and expected
-    costs, the lambda it was planned with, and what the search did.
-
-    ``rng`` is the cycle's random stream after planning; execution continues from it, so a
-    simulated cycle draws the same numbers whether it is run in one call or step by step.
-    ``motions`` are the steered plans to carry into the next cycle once this one is recorded.
-    """
-
-    cycle: int
-    best: Evaluation
-    lam: float
-    search: dict[str, Any]
-    rng: np.random.Generator = field(repr=False)
-    seconds: float = 0.0
-    motions: dict[MotionKey, Stamped] = field(default_factory=dict, repr=False)
-
-
-@runtime_checkable
-class LiveTeammate(Teammate, Protocol):
-    """A teammate who has to see the plan before doing their part: a person at a screen (the
-    browser game's player), a person told by an experimenter. :meth:`AdaptiveRun.execute` shows
-    them the plan right before asking what they did, so ``run.step()`` works with them too."""
-
-    def show(self, plan: CyclePlan) -> None:
-        """Present ``plan`` (its schedule, the robot's motions); called once per cycle, in the
-        thread that then calls :meth:`~rapidds.worlds.base.Teammate.execute`."""
-        ...
-
-
-@runtime_checkable
-class FreeOrderTeammate(Teammate, Protocol):
-    """A live teammate who may do their tasks in another order than the plan's (any that
-    precedence allows: the browser game's player); the executor replays the order they took."""
-
-    def played_order(self, cycle: int) -> list[str] | None:
-        """The person's tasks of cycle ``cycle`` in the order they did them (None: unknown)."""
-        ...
-
-
-@runtime_checkable
-class ReactiveTeammate(LiveTeammate, Protocol):
-    """A live teammate the robot reacts to while the cycle runs (the browser game's player
-    under ``--execution reactive``): the cycle runs live on the loop's executor, built around
-    the person's own :class:`~rapidds.execution.HumanSource`."""
-
-    def play(self, plan: CyclePlan,
-             executor: Callable[[HumanSource], CycleExecutor]) -> Deployment:
-        """Show ``plan`` and run it live with the executor ``executor`` builds around the
-        person; block until the cycle is over; what happened."""
-        ...
 
 
 class _PlannedMotions:
@@ -190,16 +122,6 @@ class _PlannedMotions:
         return out
 
 
-@dataclass
-class CycleResult:
-    """A finished cycle: its record (typed; its ``to_json`` is what was stored), the plan and
-    what happened."""
-
-    record: CycleRecord
-    plan: CyclePlan
-    deployment: Deployment
-
-
 class AdaptiveRun:
     """One teammate, one adaptation level, ``cycles`` cycles; optionally stored and resumable.
 
@@ -212,49 +134,41 @@ class AdaptiveRun:
     def __init__(self, config: RunConfig, policy: DiffusionPolicy | None = None,
                  store: RunStore | None = None, world: World | None = None,
                  teammate: Teammate | None = None, prior: HumanModel | None = None):
-        self.world = world or make_world(config.world, config.variant)
-        self.config = config.resolved(self.world)
-        self.teammate = check_teammate(self.world, self.config, teammate)
-        if self.config.adapt == "oracle" and not isinstance(self.teammate, SimulatedTeammate):
-            raise RapiddsError("--adapt oracle needs a simulated teammate (it plans with their "
-                               "true model)")
-        c = self.config
-        n, h, d = len(self.world.task_ids), self.world.horizon, self.world.state_dim
-        # a generation's timelines (C x K x n, a few arrays) and one steering batch of every
-        # motion request of a generation (C x n requests x B x M rows, network activations)
-        require_memory(8 * 8 * c.population * c.samples * n
-                       + 4 * 256 * c.population * n * c.particles * c.candidates * h * d,
-                       "this search (--population, --samples, --particles, --candidates)")
-        self.policy = policy or load_policy(self.world, device=c.device)
+        self.context = RunContext.build(config, policy, world, teammate, prior)
         self.store = store
-        self.problem: Problem = self.world.problem().with_objective(
-            gamma=self.config.gamma, lam=self.config.lam)
-        # a given prior (e.g. one population prior shared by a study's runs, computed once) is
-        # copied: the run learns into its own model
-        self.model = (HumanModel.from_bytes(prior.to_bytes()) if prior is not None
-                      else prior_model(self.world, self.config))
-        if c.gamma_learn and self.model.gamma is None:
-            self.model.gamma = gamma_prior(self.world, c)
-        # the run's own simulated teammate answers about their comfort; an injected one (a
-        # person) may offer ``comfort_report(cycle)``
-        self.comfort: SimulatedComfort | None = (
-            simulated_comfort(self.world.problem().objective.gamma, c.seed, c.comfort)
-            if c.simulates_comfort and teammate is None else None)
-        self._evidence: dict[int, dict[str, Any]] = {}
         self._oracle_spatial: dict[str, SpatialModel] = {}
-        self._changes: dict[int, list[dict[str, Any]]] = {}
         self.next_cycle = 0
-        self._timing: dict[int, dict[str, float]] = {}
-        check_cell(self.config, self.teammate)
-        # the person's reaction, all run long; a simulated person with a comfort reacts by it
-        self._reaction = person_reaction(self.world, self.config)
-        if self._reaction is not None and self.comfort is not None:
-            self._reaction = self.comfort.reaction(self._reaction, self.model.spatial.config.beta)
-        self._deviations: dict[int, Deviation | None] = {}
-        self.slowdowns, self._slowed = Slowdowns(self.world, self.config), {}
-        self.model.slowdowns = self.model.slowdowns or self.slowdowns.belief()
         if store is not None:
             self._attach(store)
+
+    # the context's parts, by the names drivers read them
+    @property
+    def world(self) -> World:
+        return self.context.world
+
+    @property
+    def config(self) -> RunConfig:
+        return self.context.config
+
+    @property
+    def problem(self) -> Problem:
+        return self.context.problem
+
+    @property
+    def policy(self) -> DiffusionPolicy:
+        return self.context.policy
+
+    @property
+    def teammate(self) -> Teammate:
+        return self.context.teammate
+
+    @property
+    def model(self) -> HumanModel:
+        return self.context.model
+
+    @model.setter
+    def model(self, model: HumanModel) -> None:
+        self.context.model = model
 
     def _attach(self, store: RunStore) -> None:
         rid = self.config.run_id
@@ -318,7 +232,16 @@ class AdaptiveRun:
             self._oracle_spatial[person.name] = oracle_spatial(self.world, self.config, person)
         return self._oracle_spatial[person.name]
 
-    def plan_cost(self, plan: CyclePlan) -> dict[str, float] | None:
+    def _gamma(self, cycle: Cycle | None = None) -> float:
+        """The gamma ``cycle`` was planned with (None: the next one's, the person's as believed
+        now, or the run's fixed one when it does not learn gamma)."""
+        if cycle is not None and cycle.gamma is not None:
+            return cycle.gamma
+        if cycle is None and self.model.gamma is not None:
+            return self.model.gamma.planning(self.config.gamma_plan)
+        return self.problem.objective.gamma
+
+    def plan_cost(self, plan: Cycle) -> dict[str, float] | None:
         """The paper's plan cost (its Figure 5): the plan's schedule with its robot motions,
         scored under the teammate's TRUE model: expected makespan over their true durations
         plus gamma x the motions' spatial cost against their true paths (the oracle's models),
@@ -333,159 +256,160 @@ class AdaptiveRun:
         rng = np.random.default_rng([self.config.seed, plan.cycle, 104_729])
         samples, mean = self._true_durations(PLAN_COST_SAMPLES, rng)
         motion = _PlannedMotions(best.motions, workspace_cost(self.world, self._true_spatial()))
-        gamma = self.problem.objective.gamma
+        gamma = self._gamma(plan)
         ev = evaluate_population(self.problem, [best.schedule], samples, mean,
                                  TrajectoryCache(motion), motion.nominal_durations(self.problem),
                                  gamma, 0.0)[0]
         return {"cost": ev.makespan_mean + gamma * ev.spatial, "makespan": ev.makespan_mean,
                 "spatial": ev.spatial}
 
-    def _plan_exact(
-        self, motion: MotionModel, samples: np.ndarray, mean: np.ndarray
-    ) -> tuple[Evaluation, dict[str, Any]]:
+    def _plan_exact(self, motion: MotionModel, samples: np.ndarray, mean: np.ndarray,
+                    gamma: float) -> tuple[Evaluation, dict[str, Any]]:
         """CP-SAT on the prior mean durations, scored like every other plan."""
         exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
         cache = TrajectoryCache(motion)
         ev = evaluate_population(self.problem, [exact.schedule], samples, mean, cache,
-                                 motion.nominal_durations(self.problem),
-                                 self.problem.objective.gamma, 0.0, self.model.history)[0]
+                                 motion.nominal_durations(self.problem), gamma, 0.0,
+                                 self.model.history)[0]
         return ev, {"solver": "cp-sat", "optimal": exact.optimal,
                     "motion_requests": cache.misses}
 
-    def plan(self) -> CyclePlan:
+    def plan(self) -> Cycle:
         """Plan the next cycle from the current belief (nothing changes until it is recorded)."""
         if self.finished:
             raise RapiddsError(f"run '{self.config.run_id}' is finished "
                                f"({self.config.cycles} cycles)")
         cfg, c = self.config, self.next_cycle
         t0 = time.perf_counter()
-        if self.model.gamma is not None:  # this person's gamma, as believed now
-            self.problem = self.problem.with_objective(gamma=self.model.gamma.planning(
-                cfg.gamma_plan))
+        gamma = self._gamma()  # this person's gamma, as believed now
         rng = np.random.default_rng([cfg.seed, c])
         samples, mean = self._durations(rng)
         exact = cfg.adapt == "exact"
-        gamma = 0.0 if exact else self.problem.objective.gamma  # the CP-SAT user ignores proximity
         spatial = self._spatial()
-        holds = self.slowdowns.model(spatial, self.model.slowdowns)  # None: open-loop robot
+        slowdowns = self.context.slowdowns
+        holds = slowdowns.model(spatial, self.model.slowdowns)  # None: open-loop robot
         motion: MotionModel = DiffusionMotion(
             self.policy, self.world.completion_time,
-            workspace_cost(self.world, spatial), gamma,
+            workspace_cost(self.world, spatial),
+            0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
             duration=robot_duration(self.world),
             hold=None if holds is None else holds.hold)
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
-        held = self.slowdowns.wrap(carried, holds)
+        held = slowdowns.wrap(carried, holds)
         ga_seed = int(rng.integers(2**31))
         lam = 0.0 if exact else cfg.lam_at(c, self.model.changes.last_change)
         if exact:
-            best, search = self._plan_exact(held, samples, mean)
+            best, search = self._plan_exact(held, samples, mean, gamma)
         else:
             # The GA's runner-up polishes off: every new (j, C_j) they reach is a steering
             # call, and they made a fetch trial ~50 % dearer (5.5 s against 3.6 s in the full
             # study) for a 4-task job the GA already solves. The order search off too: on this
             # job it changed no plan and no motion request in 32 cycles, and off keeps the
             # plans of the committed study (docs/reproduction.md).
-            ga = GeneticScheduler(self.problem.with_objective(lam=lam), held, GAConfig(
+            ga = GeneticScheduler(self.problem, held, GAConfig(
                 population=cfg.population, generations=cfg.generations, samples=cfg.samples,
                 patience=cfg.patience, polish_allocations=1, order_search_nodes=0,
                 seed=ga_seed))
-            result = ga.solve(samples, mean, history=self.model.history)
+            result = ga.solve(samples, mean, gamma=gamma, lam=lam, history=self.model.history)
             best = result.best
             search = {"generations": result.generations_run, "evaluations": result.evaluations,
                       "motion_requests": result.cache_misses}
         search["motions_reused"] = carried.reused
-        return CyclePlan(c, best, lam, search, rng, time.perf_counter() - t0,
-                         carried.carried if cfg.reuse_motions else {})
+        cycle = Cycle(c, best, lam, search, rng, time.perf_counter() - t0,
+                      carried.carried if cfg.reuse_motions else {}, gamma)
+        cycle.live_executor = lambda: self.live_executor(cycle)
+        return cycle
 
-    # -- execute ------------------------------------------------------------------------------
-    def execute(self, plan: CyclePlan,
-                observed: Mapping[str, HumanExecution] | None = None,
-                reacted: Reactions | None = None, *,
-                played: Deployment | None = None) -> Deployment:
-        """Deploy ``plan``: the teammate does the human tasks (or ``observed`` holds what a
-        live person did), and the cycle is realised with the robot's planned motions by the
-        clock-driven executor, under the run's execution settings (:mod:`.execute`). Under
-        reactive execution a :class:`ReactiveTeammate` plays the cycle live on that executor
-        (the robot reacts to them as they move) and hands back the whole of it; ``played`` is
-        such a cycle already over, played on :meth:`live_executor` by a caller that waited for
-        it without blocking (the study's game rounds, on the server's event loop).
-        ``reacted``: what a live cell's own reactive layer did (pauses, re-plans, protective
-        check): the robot's reactions already are in the durations it took, so the cycle is
-        realised open loop from what happened and these are its in-cycle record."""
+    # -- observe and execute ------------------------------------------------------------------
+    def source(self) -> Source:
+        """The run's own teammate as a source (what :meth:`step` observes without one)."""
+        reactive = self.config.execution.in_cycle
+        return TeammateSource(self.teammate, self.live_executor if reactive else None,
+                              ask=self.context.comfort is None)
+
+    def execute(self, plan: Cycle, observation: Observation | None = None, *,
+                source: Source | None = None) -> Deployment:
+        """Realise ``plan`` from what the person did: ``observation``, else what ``source``
+        (default: the run's teammate, :meth:`source`) observes of it. The cycle is realised
+        with the robot's planned motions by the clock-driven executor, under the run's
+        execution settings (:mod:`.execute`), replaying the person's executions and order. An
+        observation that holds a cycle already ``played`` live on :meth:`live_executor` (the
+        browser game under reactive execution) is that cycle; one with ``reacted`` (a live
+        cell's own reactive layer: pauses, re-plans, protective check) and the robot's own
+        durations is realised open loop from what happened, with those as its in-cycle
+        record."""
         self._check_current(plan)
         t0 = time.perf_counter()
-        tasks = plan.best.schedule.tasks("human")
-        if played is not None and not self.config.execution.in_cycle:
-            raise ValueError("a cycle played live on the executor needs an execution that acts "
-                             "inside the cycle (e.g. reactive)")
-        if (played is None and observed is None and self.config.execution.in_cycle
-                and isinstance(self.teammate, ReactiveTeammate)):
-            played = self.teammate.play(plan, self.live_executor(plan))
-        if played is not None:
-            self._deviations[plan.cycle] = None  # what a live person did is in the record
-            self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
-            return played
-        if observed is None and isinstance(self.teammate, LiveTeammate):
-            self.teammate.show(plan)
-        human = (dict(observed) if observed is not None
-                 else self.teammate.execute(plan.cycle, tasks, plan.rng))
-        missing = set(tasks) - set(human)
+        obs = observation if observation is not None else (source or self.source()).observe(plan)
+        plan.observation = obs
+        if obs.played is not None:
+            if not self.config.execution.in_cycle:
+                raise ValueError("a cycle played live on the executor needs an execution that "
+                                 "acts inside the cycle (e.g. reactive)")
+            plan.deviation = None  # what a live person did is in the record
+            plan.timing["deploy"] = time.perf_counter() - t0
+            return obs.played
+        if obs.robot_durations is not None:
+            plan.as_executed(dict(obs.robot_durations))
+        human = dict(obs.human)
+        missing = set(plan.best.schedule.tasks("human")) - set(human)
         if missing:
             raise ValueError(f"no observation of human task(s) {sorted(missing)}")
+        reacted = obs.reacted
         cfg = (self.config if reacted is None
                else self.config.model_copy(update={"execution": Planned()}))
-        steering = replan_steering(self.world, self.problem, cfg, plan.cycle, self.policy,
-                                   self._spatial())
         ran = plan.best.schedule if reacted is None else reacted.schedule or plan.best.schedule
-        dep, self._deviations[plan.cycle] = execute_cycle(
-            self.world, self.problem, cfg, plan.cycle, ran,
-            plan.best.motions, human, self.teammate, self._reaction,
-            (self.model.temporal.mean(), self.model.temporal.std()), self._spatial(),
-            beta=self.model.spatial.config.beta,
-            spare=contingency_motions(self.world, self.problem, cfg, plan.cycle,
-                                      self.policy, self._spatial(), plan.best.motions),
-            order=(self.teammate.played_order(plan.cycle)
-                   if isinstance(self.teammate, FreeOrderTeammate) else None),
-            steering=steering, memory=None if steering is None else valid_plans(
-                plan.motions, spatial_stamps(self._spatial())))
+        dep, plan.deviation = execute_cycle(self._setup(plan, cfg, ran), human, self.teammate,
+                                            self.context.reaction, obs.order)
         if reacted is not None:
             dep = dataclasses.replace(dep, pauses=reacted.pauses, replans=reacted.replans,
                                       protective=reacted.protective)
-        self._timing[plan.cycle] = {"deploy": time.perf_counter() - t0}
+        plan.timing["deploy"] = time.perf_counter() - t0
         return dep
 
-    def live_executor(self, plan: CyclePlan) -> Callable[[HumanSource], CycleExecutor]:
+    def _setup(self, plan: Cycle, config: RunConfig, schedule: Schedule) -> CycleSetup:
+        """What the executor of ``plan`` is built from (:class:`~.execute.CycleSetup`): the
+        robot's spare motions steered now, before the cycle starts; its re-plans steer where
+        the concurrency changed, from the motions the plan's search steered."""
+        spatial, gamma = self._spatial(), self._gamma(plan)
+        steering = replan_steering(self.world, config, plan.cycle, gamma, self.policy, spatial)
+        spare = contingency_motions(self.world, self.problem, config, plan.cycle, gamma,
+                                    self.policy, spatial, plan.best.motions)
+        return CycleSetup(
+            self.world, self.problem, config, plan.cycle, gamma, schedule,
+            {**spare, **plan.best.motions}, (self.model.temporal.mean(), self.model.temporal.std()),
+            spatial, self.model.spatial.config.beta, steering=steering,
+            memory=None if steering is None else valid_plans(plan.motions,
+                                                             spatial_stamps(spatial)))
+
+    def live_executor(self, plan: Cycle) -> Callable[[HumanSource], CycleExecutor]:
         """What builds the executor of ``plan`` around a live person (every restart of the
         cycle builds a fresh one): the robot's spare motions are steered once, here, before
         the cycle is shown; its re-plans steer where the concurrency changed as a simulated
         cycle's do; a live cycle has no time limit but the person's patience."""
-        motions = {**contingency_motions(self.world, self.problem, self.config, plan.cycle,
-                                         self.policy, self._spatial(), plan.best.motions),
-                   **plan.best.motions}
-        beliefs = (self.model.temporal.mean(), self.model.temporal.std())
-        spatial, beta = self._spatial(), self.model.spatial.config.beta
-        steering = replan_steering(self.world, self.problem, self.config, plan.cycle,
-                                   self.policy, spatial)
-        memory = None if steering is None else valid_plans(plan.motions, spatial_stamps(spatial))
+        setup = self._setup(plan, self.config, plan.best.schedule)
+        return lambda person: cycle_executor(setup, person, max_time=math.inf)
 
-        def build(person: HumanSource) -> CycleExecutor:
-            return cycle_executor(self.world, self.problem, self.config, plan.best.schedule,
-                                  motions, person, beliefs, spatial, beta, max_time=math.inf,
-                                  steering=steering, memory=memory)
+    def replanning(self, plan: Cycle) -> Replanning:
+        """What a live cell's re-plans inside ``plan`` use: the learned models as they stand
+        and the cycle's gamma (as a simulated reactive cycle's re-plans have them)."""
+        from rapidds.loop.execute import cycle_replanning
 
-        return build
+        return cycle_replanning(self.world, self.problem, plan.best.motions,
+                                (self.model.temporal.mean(), self.model.temporal.std()),
+                                self.model.spatial, self._gamma(plan))
 
     # -- learn --------------------------------------------------------------------------------
-    def learn(self, plan: CyclePlan, deployment: Deployment) -> None:
+    def learn(self, plan: Cycle, deployment: Deployment) -> None:
         """Update the models the adaptation level names with what the person did, and the
         allocation history (every level: it is what happened, not a model)."""
         self._check_current(plan)
         t0 = time.perf_counter()
         learn_time, learn_space = LEARNS[self.config.adapt]
-        self._slowed[plan.cycle] = self.slowdowns.observe(  # before the path belief moves
+        plan.slowed = self.context.slowdowns.observe(  # before the path belief moves
             self._spatial(), plan.best.motions, deployment, self.model.slowdowns)
         for task, ex in deployment.human.items():
             if learn_time:
@@ -494,22 +418,23 @@ class AdaptiveRun:
             if learn_space:
                 self.model.spatial.observe(task, ex.trajectory)
         if self.config.detect and learn_time:
-            self._changes[plan.cycle] = detect_changes(
+            plan.changes = detect_changes(
                 self.config, self.model, self.teammate, plan.cycle, deployment, learn_space)
         if learn_space:
             self.model.spatial.refit(deployment.human)
         self.model.history.record(plan.best.schedule)
         self.model.motions = plan.motions
-        self._learn_gamma(plan.cycle, deployment)
-        self._timing.setdefault(plan.cycle, {})["update"] = time.perf_counter() - t0
+        self._learn_gamma(plan, deployment)
+        plan.timing["update"] = time.perf_counter() - t0
 
-    def _learn_gamma(self, cycle: int, deployment: Deployment) -> None:
+    def _learn_gamma(self, plan: Cycle, deployment: Deployment) -> None:
         """What the person said and signalled about the robot's closeness this cycle, and how
         they reacted to it (kept for the record), and the gamma belief updated with it when the
         run learns gamma. A person who says nothing still shows their reactions."""
-        beta = self.model.spatial.config.beta
-        ev = said_and_signalled(self.world, deployment, beta, self.comfort, self.teammate,
-                                self.config.seed, cycle)
+        beta, comfort = self.model.spatial.config.beta, self.context.comfort
+        said = None if plan.observation is None else plan.observation.said
+        ev = said_and_signalled(self.world, deployment, beta, comfort, said, self.config.seed,
+                                plan.cycle)
         if self.config.reacts and self.config.gamma_reactions and (
                 ev is not None or self.model.gamma is not None):
             onsets, calm = reaction_evidence(self.world, deployment, beta)
@@ -521,23 +446,23 @@ class AdaptiveRun:
             return
         if self.model.gamma is not None:
             self.model.gamma.observe(ev)
-        self._evidence[cycle] = {**ev.to_dict(), **(self.comfort.to_dict() if self.comfort
-                                                     else {})}
+        plan.evidence = {**ev.to_dict(), **(comfort.to_dict() if comfort else {})}
 
     # -- record -------------------------------------------------------------------------------
-    def record(self, plan: CyclePlan, deployment: Deployment,
+    def record(self, plan: Cycle, deployment: Deployment,
                live: dict[str, Any] | None = None) -> CycleRecord:
         """The cycle's record; stored (with the model after learning) in one transaction when a
         store is attached. Advances the run to the next cycle. ``live``: what a live cell saw
         beyond the deployment (the robot's realised durations, touches), kept under ``live``
-        (absent from every other record)."""
+        (absent from every other record); default: the observation's."""
         self._check_current(plan)
         cfg, best, dep = self.config, plan.best, deployment
+        if live is None and plan.observation is not None:
+            live = plan.observation.live
         idx = self.problem.index
-        timing = self._timing.pop(plan.cycle, {})
-        deploy_s, update_s = timing.get("deploy", 0.0), timing.get("update", 0.0)
-        in_cycle = cycle_record(cfg, dep, self._deviations.pop(plan.cycle, None))
-        comfort = cfg.simulates_comfort or plan.cycle in self._evidence
+        deploy_s, update_s = plan.timing.get("deploy", 0.0), plan.timing.get("update", 0.0)
+        in_cycle = cycle_record(cfg, dep, plan.deviation)
+        comfort = cfg.simulates_comfort or plan.evidence is not None
         pc = self.plan_cost(plan)
         typed = CycleRecord(
             cycle=plan.cycle,
@@ -545,7 +470,7 @@ class AdaptiveRun:
                 human=tuple(best.schedule.human), robot=tuple(best.schedule.robot),
                 routes={j: self.world.motion_label(j, p.trajectory)
                         for j, p in best.motions.items() if p.trajectory is not None},
-                gamma=self.problem.objective.gamma, lam=plan.lam,
+                gamma=self._gamma(plan), lam=plan.lam,
                 expected=Predicted(
                     best.makespan_mean, best.makespan_std, best.spatial, best.diversity,
                     best.objective, best.converged,
@@ -562,10 +487,10 @@ class AdaptiveRun:
                                      strict=True) if math.isfinite(m)}},
             plan_cost=None if pc is None else PlanCost(**pc),
             search=plan.search,
-            changes=self._changes.pop(plan.cycle, []) if cfg.detect else None,
-            has_comfort=comfort, comfort=self._evidence.pop(plan.cycle, None) if comfort else None,
+            changes=plan.changes if cfg.detect else None,
+            has_comfort=comfort, comfort=plan.evidence if comfort else None,
             gamma_belief=self.model.gamma.summary() if self.model.gamma else None,
-            live=live, slowdowns=self._slowed.pop(plan.cycle, None),
+            live=live, slowdowns=plan.slowed,
             seconds={"plan": plan.seconds, "deploy": deploy_s, "update": update_s,
                      "total": plan.seconds + deploy_s + update_s},
         )
@@ -576,18 +501,19 @@ class AdaptiveRun:
         self.next_cycle += 1
         return typed
 
-    def _check_current(self, plan: CyclePlan) -> None:
+    def _check_current(self, plan: Cycle) -> None:
         if plan.cycle != self.next_cycle:
             raise RapiddsError(f"plan is for cycle {plan.cycle}, the run is at cycle "
                                f"{self.next_cycle}")
 
-    # -- all together -------------------------------------------------------------------------
-    def step(self) -> CycleResult:
-        """Plan, execute, learn and record one cycle with the run's teammate."""
-        plan = self.plan()
-        dep = self.execute(plan)
-        self.learn(plan, dep)
-        return CycleResult(self.record(plan, dep), plan, dep)
+    # -- all together: Algorithm 1's loop body ------------------------------------------------
+    def step(self, source: Source | None = None, plan: Cycle | None = None) -> CycleResult:
+        """One cycle: plan (unless ``plan``, already shown to the person), observe what the
+        person did through ``source`` (default: the run's teammate), execute, learn, record."""
+        cycle = plan if plan is not None else self.plan()
+        dep = self.execute(cycle, source=source)
+        self.learn(cycle, dep)
+        return CycleResult(self.record(cycle, dep), cycle, dep)
 
     def run(self, on_cycle: Callable[[CycleResult], None] | None = None) -> list[CycleRecord]:
         """Run the remaining cycles; returns their records."""

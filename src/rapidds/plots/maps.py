@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -24,7 +25,8 @@ from numpy.typing import ArrayLike
 from rapidds.human.spatial import SpatialCostModel, SpatialModel
 from rapidds.plots._mpl import plt, save
 
-__all__ = ["plot_obstacles", "plot_paths", "plot_points", "plot_spatial_cost", "save_cost_maps"]
+__all__ = ["MapView", "plot_obstacles", "plot_paths", "plot_points", "plot_spatial_cost",
+           "save_cost_maps"]
 
 RectLike = Any  # (xmin, ymin, xmax, ymax) or an object with those four attributes
 
@@ -59,30 +61,38 @@ def _cost_image(
     return model.point_cost(pts).max(axis=0)
 
 
-def plot_spatial_cost(
-    model: SpatialCostModel,
-    ax: Axes | None = None,
-    *,
-    resolution: int = 200,
-    projection: Literal["max", "slice"] = "max",
-    slice_at: float | None = None,
-    cmap: str = "magma",
-    vmin: float = 0.0,
-    vmax: float = 1.0,
-    colorbar: bool = True,
-    title: str | None = None,
-    axes: tuple[int, int] = (0, 1),
-) -> AxesImage:
+@dataclass(frozen=True)
+class MapView:
+    """How a cost map is drawn: ``resolution`` pixels a side; ``projection`` "max" or "slice"
+    (at ``slice_at``) for a 3-D workspace; the workspace ``axes`` shown (horizontal,
+    vertical); the colour map and its range; the colour of paths drawn over it."""
+
+    resolution: int = 200
+    projection: Literal["max", "slice"] = "max"
+    slice_at: float | None = None
+    axes: tuple[int, int] = (0, 1)
+    cmap: str = "magma"
+    vmin: float = 0.0
+    vmax: float = 1.0
+    path_color: str = "cyan"
+
+
+def plot_spatial_cost(model: SpatialCostModel, ax: Axes | None = None, *,
+                      view: MapView | None = None, colorbar: bool = True,
+                      title: str | None = None) -> AxesImage:
     """Heat map of s_i(x) over the workspace's first two axes, evaluated the way the planner
     evaluates it (MLP or grid interpolation per ``model.config.use_surrogate``).
 
-    For a 3-D workspace, ``projection="max"`` shows the top-down maximum over the third axis
-    (the worst height a robot could meet the person at each (x, y)); ``"slice"`` shows the
-    plane z = ``slice_at`` (default: the middle of the bounds). ``axes``: the workspace axes
-    drawn (horizontal, vertical), e.g. (1, 2) for a side view projected along x. Returns the
-    image, for a shared
-    colour bar; a new figure is made when ``ax`` is None (close it with ``plt.close``).
+    ``view`` (:class:`MapView`): for a 3-D workspace, projection "max" shows the top-down
+    maximum over the third axis (the worst height a robot could meet the person at each
+    (x, y)); "slice" shows the plane z = ``slice_at`` (default: the middle of the bounds);
+    ``axes``: the workspace axes drawn (horizontal, vertical), e.g. (1, 2) for a side view
+    projected along x. Returns the image, for a shared colour bar; a new figure is made when
+    ``ax`` is None (close it with ``plt.close``).
     """
+    view = view or MapView()
+    resolution, projection, slice_at, axes = (view.resolution, view.projection, view.slice_at,
+                                              view.axes)
     if model.config.dim not in (2, 3):
         raise ValueError(f"plot_spatial_cost draws 2-D or 3-D workspaces, got d={model.config.dim}")
     if projection not in ("max", "slice"):
@@ -94,7 +104,8 @@ def plot_spatial_cost(
                          f"workspace, got {axes}")
     img = _cost_image(model, resolution, projection, slice_at, axes)
     (x0, x1), (y0, y1) = model.config.bounds[axes[0]], model.config.bounds[axes[1]]
-    im = ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap=cmap, vmin=vmin, vmax=vmax,
+    im = ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), cmap=view.cmap, vmin=view.vmin,
+                   vmax=view.vmax,
                    interpolation="nearest", aspect="equal")
     if colorbar:
         ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label="spatial cost $s_i(x)$")
@@ -184,15 +195,15 @@ def save_cost_maps(
     paths: Mapping[str, ArrayLike | Sequence[ArrayLike]] | None = None,
     scene: Callable[[Axes], None] | None = None,
     titles: Mapping[str, str] | None = None,
+    view: MapView | None = None,
     ncols: int | None = None,
-    path_color: str = "cyan",
-    resolution: int = 150,
     dpi: int = 120,
 ) -> Path:
     """One panel per human task: its learned cost s_i(x), the static scene (``scene(ax)``, e.g.
     a world's ``draw``), and ``paths[task]`` (robot samples or observed human paths) over it;
     one shared colour bar. Writes ``path`` (format from the suffix, e.g. PNG) and returns it."""
     items = [(tid, models[tid]) for tid in models]
+    view = view or MapView(resolution=150)
     if not items:
         raise ValueError("save_cost_maps needs at least one task model")
     ncols = min(len(items), 4) if ncols is None else ncols
@@ -202,11 +213,11 @@ def save_cost_maps(
     im: AxesImage | None = None
     for ax, (tid, model) in zip(axes.flat, items, strict=False):
         title = (titles or {}).get(tid, f"{tid} (n={model.n_obs})")
-        im = plot_spatial_cost(model, ax, resolution=resolution, colorbar=False, title=title)
+        im = plot_spatial_cost(model, ax, view=view, colorbar=False, title=title)
         if scene is not None:
             scene(ax)
         if paths and tid in paths:
-            plot_paths(ax, paths[tid], color=path_color, alpha=0.8)
+            plot_paths(ax, paths[tid], color=view.path_color, alpha=0.8)
         ax.set_xlabel("x")
         ax.set_ylabel("y")
     for ax in list(axes.flat)[len(items):]:

@@ -14,7 +14,7 @@ from matplotlib.axes import Axes
 from rapidds.human.spatial import SpatialModel
 from rapidds.plots._mpl import plt, save
 from rapidds.plots.curves import plot_run_costs
-from rapidds.plots.maps import plot_paths, plot_spatial_cost
+from rapidds.plots.maps import MapView, plot_paths, plot_spatial_cost
 from rapidds.record import CycleRecord
 from rapidds.store import cycle_paths
 
@@ -78,7 +78,8 @@ def save_cycle_map(
     tasks = list(spatial.tasks)
     fig, panels = plt.subplots(1, len(tasks), figsize=(3.4 * len(tasks), 3.6), squeeze=False)
     for ax, task in zip(panels[0], tasks, strict=True):
-        plot_spatial_cost(spatial[task], ax, colorbar=False, title=f"s_{task}(x)", axes=axes)
+        plot_spatial_cost(spatial[task], ax, view=MapView(axes=axes), colorbar=False,
+                          title=f"s_{task}(x)")
         if scene is not None:
             scene(ax)
         if task in human_paths:

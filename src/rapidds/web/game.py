@@ -41,6 +41,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from rapidds.loop.observation import Track, execution_of
 from rapidds.motion.interface import MotionPlan
 from rapidds.problem import AGENTS, Agent, Problem
 from rapidds.schedule import Schedule, Wait, compile_schedule, item_json
@@ -199,17 +200,11 @@ class FetchGame:
         they did it; only once :attr:`human_done`."""
         if not self.human_done:
             raise RuntimeError("the person has not finished their tasks yet")
-        times = np.asarray(self._times)
-        trace = np.asarray(self._trace)
-        dt = self.world.dt
-        out = {}
-        for task in self.order:
-            s, f = self.start_time[task], self.finish_time[task]
-            d = f - s
-            at = s + np.minimum(np.arange(math.ceil(d / dt - 1e-9) + 1) * dt, d)
-            path = np.stack([np.interp(at, times, trace[:, i]) for i in range(2)], axis=-1)
-            out[task] = HumanExecution(task, float(d), path)
-        return out
+        avatar = Track(np.asarray(self._times), np.asarray(self._trace))
+        return {task: execution_of(task, self.start_time[task],
+                                   self.finish_time[task] - self.start_time[task], avatar,
+                                   self.world.dt)
+                for task in self.order}
 
     def robot_position(self) -> np.ndarray:
         """(2,) where the robot is now: on its current (or last) task's trajectory."""

@@ -36,6 +36,7 @@ from rapidds.experiments.study.store import (
     study_path,
     validate_durations,
 )
+from rapidds.loop.observation import Observation, Said
 from rapidds.schedule import Timeline
 from rapidds.web.study.pages import COMFORT_ITEM, DEMOGRAPHICS, gantt_svg
 from rapidds.web.study.tracker import (
@@ -44,7 +45,7 @@ from rapidds.web.study.tracker import (
     parse_tracker,
     typed_execution,
 )
-from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World
+from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
 from rapidds.worlds.capabilities import capability, lacks
 from rapidds.worlds.registry import make_world
 
@@ -135,60 +136,37 @@ CLOCK_LIMIT_S = MAX_TASK_S_LIMIT
 """The latest time a press may have on the round clock: the longest task any design allows."""
 
 
-class _Says:
-    """What the participant said about the round being recorded, for the loop's
-    ``comfort_report(cycle)`` (loop/comfort.py): set just before the round is learned, taken
-    once. A round recorded without the comfort item says nothing (None), so the run learns and
-    records exactly as without it."""
-
-    said: dict[int, tuple[int, list[float]]]
-
-    def comfort_report(self, cycle: int) -> tuple[int, list[float]] | None:
-        return self.said.pop(cycle, None)
-
-
-class _Simulated(_Says):
-    """The priming group's simulated person (still a SimulatedTeammate, so the oracle and the
-    reference costs are theirs) who also passes on what the page collected."""
-
-    def __init__(self, mate: SimulatedTeammate):
-        self.mate, self.said = mate, {}
-
-    @property
-    def name(self) -> str:
-        return self.mate.name
-
-    def execute(self, cycle: int, tasks: Sequence[str],
-                rng: np.random.Generator) -> dict[str, HumanExecution]:
-        return self.mate.execute(cycle, tasks, rng)
-
-    def at(self, cycle: int) -> SimulatedTeammate:
-        return self.mate.at(cycle)
-
-    def perform(self, task: str, rng: np.random.Generator) -> tuple[float, np.ndarray]:
-        return self.mate.perform(task, rng)
-
-    def true_mean_durations(self) -> dict[str, float]:
-        return self.mate.true_mean_durations()
-
-    def true_std_durations(self) -> dict[str, float]:
-        return self.mate.true_std_durations()
-
-
-class _Unobserved(_Says):
+class _Unobserved:
     """The teammate of a participant whose priming group has no simulated person: the loop
     always gets what they did from the page, and asking it to act is an input error."""
 
     def __init__(self, name: str, why: str):
-        self._name, self._why, self.said = name, why, {}
-
-    @property
-    def name(self) -> str:
-        return self._name
+        self.name, self._why = name, why
 
     def execute(self, cycle: int, tasks: Sequence[str],
                 rng: np.random.Generator) -> dict[str, HumanExecution]:
         raise InputError(self._why)
+
+
+@dataclass(frozen=True)
+class _Round:
+    """A submitted round as the loop's :class:`~rapidds.loop.observation.Source`: what the
+    page sent (``human``; None: the priming group's simulated person does the round, from the
+    cycle's stream), the whole round when the game played it live (``played``), and what the
+    participant said (``said``; None: the design does not ask)."""
+
+    teammate: Teammate
+    human: Mapping[str, HumanExecution] | None
+    said: Said | None
+    played: Deployment | None = None
+
+    def observe(self, cycle: CyclePlan) -> Observation:
+        if self.played is not None:
+            return Observation(played=self.played, said=self.said)
+        human = (self.human if self.human is not None else
+                 self.teammate.execute(cycle.cycle, cycle.best.schedule.tasks("human"),
+                                       cycle.rng))
+        return Observation(human=human, said=self.said)
 
 
 class StudySession:
@@ -276,9 +254,9 @@ class StudySession:
         rid = self.store.run_id(pid, system)
         run = self._runs.get(rid)
         if run is None:
-            mate: _Simulated | _Unobserved
+            mate: Teammate
             try:
-                mate = _Simulated(self.teammate(pid))
+                mate = self.teammate(pid)
             except TrackerError as exc:
                 mate = _Unobserved(pid, str(exc))
             run = AdaptiveRun(self.store.config_for(pid, system), self.policy, self.store,
@@ -368,22 +346,14 @@ class StudySession:
             fields = {k: v for k, v in fields.items() if k not in COMFORT_FIELDS}
         observed = self._observed(pid, source, fields, tracker, tasks, played, live)
         run = self._run(pid, step.system)
-        mate = run.teammate
-        assert isinstance(mate, _Says)
-        if said is not None:
-            mate.said[plan.cycle] = said
         try:
-            dep = run.execute(plan, observed, played=live)
-            run.learn(plan, dep)
-            return run.record(plan, dep)
+            return run.step(_Round(run.teammate, observed, said, live), plan).record
         finally:  # recorded or not, the next plan starts from the store
-            mate.said.pop(plan.cycle, None)
             self._plans.pop(run.config.run_id, None)
             if run.next_cycle != plan.cycle + 1:
                 self._forget(pid, step.system)
 
-    def _comfort(self, source: str, fields: Mapping[str, str]
-                 ) -> tuple[int, list[float]] | None:
+    def _comfort(self, source: str, fields: Mapping[str, str]) -> Said | None:
         """The round's comfort answer and "too close" times (seconds on the round clock) when
         the design asks the item, else None; the fields are unknown to a design without it."""
         if not self.store.design.comfort:
@@ -393,7 +363,7 @@ class StudySession:
             raise InputError(f"\u201c{COMFORT_ITEM}\u201d: the answer must be 1..7, got "
                              f"{answer[:20]!r}" if answer else
                              f"please answer \u201c{COMFORT_ITEM}\u201d (1-7)")
-        return int(answer), parse_presses(str(fields.get("too_close", "")))
+        return Said(int(answer), tuple(parse_presses(str(fields.get("too_close", "")))))
 
     def _observed(self, pid: str, source: str, fields: Mapping[str, str], tracker: str | None,
                   tasks: Sequence[str], played: Mapping[str, HumanExecution] | None,

@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from rapidds.errors import RapiddsError
+from rapidds.loop.observation import resample, sample_times
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, World, body_points
 from rapidds.worlds.bounds import mostly_implausible, plausible_mask, world_task_bound
 
@@ -49,7 +50,6 @@ __all__ = [
     "TrackerError",
     "group_teammate",
     "parse_tracker",
-    "resample",
     "tracker_csv",
     "typed_execution",
 ]
@@ -78,21 +78,6 @@ def group_teammate(world: World, group: str) -> SimulatedTeammate:
     return world.teammate(group)
 
 
-def _rows_of(world: World, duration: float) -> np.ndarray:
-    """Times of a path's rows: min(k dt, duration), k = 0..ceil(duration / dt)."""
-    n = math.ceil(duration / world.dt - 1e-9) + 1
-    return np.minimum(np.arange(n) * world.dt, duration)
-
-
-def resample(times: np.ndarray, path: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(len(rows), K, d) body points at ``rows`` from (T, K, d) samples at increasing
-    ``times``, linearly interpolated, held at the ends."""
-    p = body_points(path)
-    flat = p.reshape(len(p), -1)
-    out = np.stack([np.interp(rows, times, flat[:, j]) for j in range(flat.shape[1])], axis=-1)
-    return out.reshape(len(rows), *p.shape[1:])
-
-
 def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
                     duration: float) -> HumanExecution:
     """A typed-in duration with the teammate's nominal path of ``task`` stretched to it."""
@@ -107,7 +92,7 @@ def typed_execution(world: World, teammate: SimulatedTeammate, task: str,
         d0, raw = teammate.perform(task, np.random.default_rng(0))
         path = body_points(raw)
         phase = np.minimum(np.arange(len(path)) * world.dt, d0) / d0
-    rows = _rows_of(world, float(duration))
+    rows = sample_times(float(duration), world.dt)
     return HumanExecution(task, float(duration), resample(phase, path, rows / duration))
 
 
@@ -207,7 +192,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
     rest = np.asarray(world.human_rest(), dtype=float)
     k, dim = rest.shape
     table = _columns(table, k, _AXES[:dim], line0)
-    point, t, xyz = _samples(table, world, k, _AXES[:dim], line0)
+    samples = _samples(table, world, k, _AXES[:dim], line0)
     names = table["task"].to_numpy()
     wanted = list(dict.fromkeys(tasks))
     extra = sorted(set(names) - set(wanted))
@@ -216,7 +201,7 @@ def parse_tracker(data: bytes, world: World, tasks: Sequence[str],
                            f"{' ...' if len(extra) > 3 else ''} that the person "
                            f"does not do this round (their tasks: {', '.join(wanted)})")
     limit = world_task_bound(world) if at_most is None else at_most
-    return {task: _execution(world, task, names == task, point, t, xyz, k, limit, wanted)
+    return {task: _execution(world, task, names == task, samples, limit, wanted)
             for task in wanted}
 
 
@@ -268,10 +253,13 @@ def _samples(table: pd.DataFrame, world: World, k: int, axes: Sequence[str],
     return point, t, xyz
 
 
-def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: np.ndarray,
-               xyz: np.ndarray, k: int, limit: float, wanted: Sequence[str]) -> HumanExecution:
-    """One task's execution from its ``rows``: duration from first to last sample, every body
-    point resampled at the world's dt."""
+def _execution(world: World, task: str, rows: np.ndarray,
+               samples: tuple[np.ndarray, np.ndarray, np.ndarray], limit: float,
+               wanted: Sequence[str]) -> HumanExecution:
+    """One task's execution from its ``rows`` of the file's ``samples`` (body point, t, xyz per
+    row): duration from first to last sample, every body point resampled at the world's dt."""
+    point, t, xyz = samples
+    k = int(np.asarray(world.human_rest()).shape[0])
     if not rows.any():
         raise TrackerError(f"the tracker file has no rows for task {task} (the person's "
                            f"tasks this round: {', '.join(wanted)})")
@@ -283,7 +271,7 @@ def _execution(world: World, task: str, rows: np.ndarray, point: np.ndarray, t: 
         raise TrackerError(f"task {task}: its samples span {t1 - t0:g} s, longer than any "
                            f"task of this study ({limit:g} s): are t in seconds, one "
                            "round per file?")
-    grid = _rows_of(world, t1 - t0)
+    grid = sample_times(t1 - t0, world.dt)
     path = np.empty((len(grid), k, xyz.shape[1]))
     for j in range(k):
         sel = rows & (point == j)
