@@ -24,7 +24,7 @@ def main() -> None:
     from rapidds.execution import PlannedRobot, SimulatedHuman
     from rapidds.loop import AdaptiveRun, RunConfig
     from rapidds.loop.deploy import deploy
-    from rapidds.loop.execute import cycle_executor
+    from rapidds.loop.execute import CycleSetup, cycle_executor
     from rapidds.loop.run import load_policy
     from rapidds.worlds.registry import make_world
 
@@ -48,8 +48,9 @@ def main() -> None:
                     dep = deploy(run.world, run.problem, sched, motions, human, beta=beta)
                 else:
                     person = SimulatedHuman(run.world, human, None)
-                    ex = cycle_executor(run.world, run.problem, run.config, sched, motions,
-                                        person, beliefs, run.model.spatial, beta)
+                    ex = cycle_executor(CycleSetup(run.world, run.problem, run.config, 0,
+                                                   plan.gamma, sched, motions, beliefs,
+                                                   run.model.spatial, beta), person)
                     assert isinstance(ex.robot, PlannedRobot)
                     dep = ex.run()
             out[way] = {"cpu_ms": 1e3 * (time.process_time() - cpu) / args.repeats,

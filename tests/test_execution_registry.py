@@ -23,7 +23,7 @@ from rapidds.execution.registry import (
     register_execution,
 )
 from rapidds.loop import AdaptiveRun, RunConfig
-from rapidds.loop.execute import cycle_executor
+from rapidds.loop.execute import CycleSetup, cycle_executor
 from rapidds.worlds.reactions import cell_reactions
 from rapidds.worlds.registry import make_world
 
@@ -124,8 +124,9 @@ def test_the_executor_and_the_live_monitor_get_their_policy_from_the_entry(
     for name in BUILT_IN:
         cfg = run.config.replace(execution=name, slowdowns=None)
         person = SimulatedHuman(run.world, human, lambda t: (0.0, None), None, None)
-        ex = cycle_executor(run.world, run.problem, cfg, plan.best.schedule, plan.best.motions,
-                            person, beliefs, run.model.spatial, 1.0)
+        ex = cycle_executor(CycleSetup(run.world, run.problem, cfg, 0, plan.gamma,
+                                       plan.best.schedule, plan.best.motions, beliefs,
+                                       run.model.spatial, 1.0), person)
         assert isinstance(ex.robot, PlannedRobot)
         assert isinstance(ex.policy, SpeedSeparation if cfg.execution.monitor else OpenLoop)
         assert (ex.replanning is not None) == cfg.execution.replan
