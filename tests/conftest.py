@@ -22,6 +22,14 @@ SMALL_SEARCH = dict(population=12, generations=10, samples=16, patience=4, parti
 """GA and steering settings small enough for tests, large enough to plan well on fetch."""
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _one_prior_per_world() -> Iterator[None]:
+    """Each distinct population prior fitted once per session (``tests/prior_cache.py``)."""
+    from prior_cache import install
+
+    yield from install()
+
+
 @pytest.fixture(scope="session")
 def fetch_world() -> FetchWorld:
     world = make_world("fetch")
