@@ -11,8 +11,11 @@ from typing import Any
 
 
 def cli_cmd(*args: str) -> list[str]:
-    """The command line of ``rapidds ARGS`` in a new process, on this interpreter."""
-    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+    """The command line of ``rapidds ARGS`` in a new process, on this interpreter, reading the
+    session's fitted priors (``tests/prior_cache.py``)."""
+    from prior_cache import CLI
+
+    return [*CLI, *args]
 
 
 def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:
