@@ -26,7 +26,7 @@ from rapidds.execution import (
 )
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
-from rapidds.loop.model import workspace_cost
+from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
@@ -75,7 +75,8 @@ def _cycle_motion(world: World, problem: Problem, config: RunConfig, cycle: int,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
-                           duration=getattr(world, "robot_duration", None))
+                           duration=getattr(world, "robot_duration", None),
+                           device_terms=device_terms(world, spatial))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,

@@ -50,6 +50,7 @@ from rapidds.loop.execute import (
 from rapidds.loop.model import (
     HumanModel,
     check_teammate,
+    device_terms,
     gamma_prior,
     oracle_spatial,
     prior_model,
@@ -372,7 +373,8 @@ class AdaptiveRun:
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
             duration=getattr(self.world, "robot_duration", None),
-            hold=None if holds is None else holds.hold)
+            hold=None if holds is None else holds.hold,
+            device_terms=device_terms(self.world, spatial))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = self.slowdowns.wrap(carried, holds)
