@@ -87,7 +87,15 @@ class SteeringConfig(Settings):
 
 
 class DiffusionMotion:
-    """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories."""
+    """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories.
+
+    ``on_device``: score candidates with the world's tensor terms where the policy runs and
+    steer a cycle's requests in one batch (None: :attr:`default_on_device`, which None leaves
+    to the policy's device: on unless it is the CPU)."""
+
+    default_on_device: ClassVar[bool | None] = None
+    """Process-wide default of ``on_device`` (benchmarks set it to measure the device path on
+    the CPU: benchmarks/bench_batched_quality.py)."""
 
     def __init__(
         self,
@@ -116,7 +124,7 @@ class DiffusionMotion:
         # the value on the policy's device (no host copy per denoising step): by default where
         # the policy is not on the CPU, whose numpy value keeps the stored records' bits
         self.device_terms = device_terms
-        self.on_device = on_device
+        self.on_device = self.default_on_device if on_device is None else on_device
         self.calls = 0
         self.rows = 0
 
