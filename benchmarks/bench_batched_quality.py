@@ -44,13 +44,13 @@ def _painting(seed: int, policy, shown: dict) -> float:
         row = shown[f"{b.belief}: {b.name}"]
         row[0] += len(b.shown)
         row[1] += len(b.cycles)
-    return statistics.mean(r["realised"]["cost"] for r in recs[4:])
+    return statistics.mean(r.realised.cost for r in recs[4:])
 
 
 def _fetch(seed: int, policy) -> float:
     recs = AdaptiveRun(RunConfig(world="fetch", human="slow-middle", cycles=8, seed=seed),
                        policy).run()
-    return statistics.mean(r["realised"]["cost"] for r in recs[4:])
+    return statistics.mean(r.realised.cost for r in recs[4:])
 
 
 def main() -> None:

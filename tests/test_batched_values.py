@@ -91,11 +91,29 @@ def test_a_steering_batch_scores_on_the_device_as_on_the_host(world, paths, spat
             else 0.0)
 
 
-def test_worlds_without_tensor_terms_and_hold_terms_stay_on_the_host(world, spatial) -> None:
+def test_fetch_tensor_terms_equal_the_worlds_numpy_terms() -> None:
     from rapidds.worlds.fetch import FetchWorld
 
     fetch = FetchWorld()
-    assert device_terms(fetch, spatial) is None
+    rng = np.random.default_rng(2)
+    demos = np.asarray(fetch.robot_demonstrations(3, rng).trajectories)
+    xi = np.concatenate([demos, demos + rng.normal(0.0, 0.4, demos.shape),
+                         rng.uniform(-1.0, 11.0, (10, *demos.shape[1:]))])
+    xi[0, 5:7] = xi[0, 4]  # a resting row: segments parallel to both axes
+    terms = fetch.tensor_terms("cpu")
+    t = torch.from_numpy(xi)
+    assert torch.equal(terms.points(t)[:, :, 0], t)
+    hit = fetch.collides(xi)
+    assert 0 < hit.sum() < len(xi)
+    np.testing.assert_array_equal(terms.collides(t).numpy(), hit)
+    for task in fetch.task_ids:
+        if fetch.problem().task(task).can("robot"):
+            host = fetch.completion_time(task, xi)
+            assert (host < fetch.penalty).any()
+            np.testing.assert_array_equal(terms.completion_time(task, t).numpy(), host)
+
+
+def test_the_hold_term_keeps_the_value_on_the_host(world, spatial) -> None:
     policy = load_policy(world, device="cpu")
 
     def hold(task, near, xi):
@@ -104,3 +122,13 @@ def test_worlds_without_tensor_terms_and_hold_terms_stay_on_the_host(world, spat
     m = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 12.0,
                         device_terms=device_terms(world, spatial), hold=hold, on_device=True)
     assert not isinstance(m.value([("mix_l", frozenset())]), TensorValue)
+
+
+def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spatial) -> None:
+    """Off the CPU the grid interpolates every point (no nonzero to wait for); the row maxima
+    are those of the CPU's skipping evaluation, bit for bit."""
+    pts = torch.from_numpy(world.robot_points(paths[:20]).reshape(20, -1, 3))
+    model = spatial[spatial.tasks[0]]
+    base, weights = model._stencil(pts.reshape(-1, 3))
+    dense = model._interpolate(base, weights).view(20, -1).amax(dim=1)
+    assert torch.equal(dense, model._row_max(base, weights, rows=20))

@@ -396,12 +396,12 @@ class SpatialCostModel:
         value lies within its cell's corner range (up to rounding, which ``slack`` covers), so
         a point whose cell's greatest corner is below the greatest least corner of its row
         cannot be that row's maximum."""
+        if base.device.type != "cpu":  # nonzero would wait for the device: interpolate all
+            return self._interpolate(base, weights).view(rows, -1).amax(dim=1)
         _, least, greatest = self._corner_table(weights.device, weights.dtype)
         floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
         slack = 256 * torch.finfo(weights.dtype).eps * (1.0 + floor.abs())
         cand = torch.index_select(greatest, 0, base).view(rows, -1) >= (floor - slack)[:, None]
-        if base.device.type != "cpu":  # nonzero would wait for the device: interpolate all
-            return self._interpolate(base, weights).view(rows, -1).amax(dim=1)
         idx = cand.view(-1).nonzero().squeeze(1)
         values = torch.full((base.shape[0],), -torch.inf, dtype=weights.dtype,
                             device=weights.device)
@@ -427,7 +427,7 @@ class SpatialCostModel:
         return net(u).clamp(0.0, 1.0).to(x.dtype)
 
     def _eval_flat(self, x: torch.Tensor) -> torch.Tensor:
-        if not bool(torch.isfinite(x).all()):
+        if x.device.type == "cpu" and not bool(torch.isfinite(x).all()):  # no device wait
             raise ValueError("points contain NaN or infinite coordinates")
         if self.config.use_surrogate and self._stale:
             self.fit_surrogate()
