@@ -25,7 +25,7 @@ class FetchTensorValues:
                  dt: float, penalty: float, bounds: tuple[np.ndarray, np.ndarray],
                  walls: np.ndarray, device: torch.device):
         def t(a: object) -> Tensor:
-            return torch.as_tensor(np.asarray(a, dtype=np.float64), device=device)
+            return torch.as_tensor(np.array(a, dtype=np.float64), device=device)
 
         self.goals = {task: t(g) for task, g in goals.items()}
         self.home, self.radius, self.dt, self.penalty = t(home), float(radius), dt, penalty

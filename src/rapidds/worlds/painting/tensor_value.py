@@ -50,7 +50,7 @@ class _Arm:
 
     def __init__(self, kin: ArmKinematics, device: torch.device):
         def t(a: np.ndarray) -> Tensor:
-            return torch.as_tensor(np.asarray(a, dtype=np.float64), device=device)
+            return torch.as_tensor(np.array(a, dtype=np.float64), device=device)
 
         cross = [np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
                  for a in kin.axis]
@@ -92,7 +92,7 @@ class PaintingTensorValues:
 
     def __init__(self, cell: CellValues, device: torch.device):
         def t(a: Any) -> Tensor:
-            return torch.as_tensor(np.asarray(a, dtype=np.float64), device=device)
+            return torch.as_tensor(np.array(a, dtype=np.float64), device=device)
 
         self.device = device
         self.arm = _Arm(cell.kinematics, device)
