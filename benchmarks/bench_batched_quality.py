@@ -57,15 +57,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0-7")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--worlds", default="fetch,painting")
     args = ap.parse_args()
+    worlds = args.worlds.split(",")
     torch.set_num_threads(1)
     load0 = load_average()
-    policies = {w: load_policy(make_world(w), device="cpu") for w in ("fetch", "painting")}
+    policies = {w: load_policy(make_world(w), device="cpu") for w in worlds}
     cost: dict[str, dict[str, float]] = defaultdict(dict)
     cpu: dict[str, list[float]] = defaultdict(list)
     shown: dict[str, dict[str, list[int]]] = {a: defaultdict(lambda: [0, 0]) for a in ARMS}
     for seed in parse_seeds(args.seeds):
-        for world in ("fetch", "painting"):
+        for world in worlds:
             for arm, flag in (ARMS.items() if seed % 2 == 0 else reversed(ARMS.items())):
                 DiffusionMotion.default_on_device = flag
                 c0 = time.process_time()
@@ -78,7 +80,7 @@ def main() -> None:
     DiffusionMotion.default_on_device = None
     lines = [f"{cpu_model()}, one torch thread; 1-min load average {load0} at start, "
              f"{load_average()} at end"]
-    for world in ("fetch", "painting"):
+    for world in worlds:
         keys = sorted(k for k in cost["host"] if k.startswith(world))
         diffs = np.array([cost["device path"][k] - cost["host"][k] for k in keys])
         lo, hi = paired_bootstrap(diffs)
