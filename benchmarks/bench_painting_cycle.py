@@ -38,20 +38,29 @@ def _strip_timing(obj: object) -> object:
     return obj
 
 
-def run_seed(seed: int, cycles: int, device: str = "cpu") -> dict[str, object]:
+# the world's teammate and gamma of the measured run: the issue's painting config, and a
+# fetch run for "the fetch cycle no slower"
+WORLDS = {"painting": ("left-slow", 12.0), "fetch": ("slow-middle", None)}
+
+
+def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting"
+             ) -> dict[str, object]:
     """One run in this process on ``device`` (the CPU unless told: this benchmark is the CPU's
     even on a machine with a GPU; bench_device.py measures both): per-cycle wall and CPU
-    seconds, the wall parts, the records' digest."""
+    seconds, the wall parts, the records' digest. ``world``: painting (the issue's config)
+    or fetch (its default search, teammate slow-middle)."""
     import torch
 
     from rapidds.loop.config import RunConfig
     from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
-    from rapidds.worlds.painting import PaintingWorld
+    from rapidds.worlds.registry import make_world
 
     torch.set_num_threads(1)
-    policy = (load_policy(PaintingWorld()) if device == "cpu"  # checkouts before --device
-              else load_policy(PaintingWorld(), device=device))
-    cfg = RunConfig(world="painting", human="left-slow", gamma=12.0, cycles=cycles, seed=seed)
+    w = make_world(world)
+    policy = (load_policy(w) if device == "cpu"  # checkouts before --device
+              else load_policy(w, device=device))
+    human, gamma = WORLDS[world]
+    cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
     run = AdaptiveRun(cfg, policy)
     out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": []}
     digest = hashlib.sha256()
@@ -69,16 +78,17 @@ def run_seed(seed: int, cycles: int, device: str = "cpu") -> dict[str, object]:
     return {**out, "digest": digest.hexdigest()[:16]}
 
 
-def _child(src: Path, seed: int, cycles: int) -> dict[str, object]:
+def _child(src: Path, seed: int, cycles: int, world: str = "painting") -> dict[str, object]:
     env = {**os.environ, "PYTHONPATH": f"{src}{os.pathsep}{Path(__file__).parent}"}
     code = ("import json, bench_painting_cycle as b; "
-            f"print(json.dumps(b.run_seed({seed}, {cycles})))")
+            f"print(json.dumps(b.run_seed({seed}, {cycles}, world={world!r})))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                           text=True, check=True)
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def compare(base: Path, seeds: list[int], cycles: int, rounds: int) -> str:
+def compare(base: Path, seeds: list[int], cycles: int, rounds: int,
+            world: str = "painting") -> str:
     """Base and this tree alternating run by run; CPU and wall medians over all cycles."""
     load0 = load_average()
     trees = {"base": base.resolve() / "src", "this tree": ROOT / "src"}
@@ -86,7 +96,7 @@ def compare(base: Path, seeds: list[int], cycles: int, rounds: int) -> str:
     for r in range(rounds):
         for seed in seeds:
             for name, src in (trees.items() if r % 2 == 0 else reversed(trees.items())):
-                res = _child(src, seed, cycles)
+                res = _child(src, seed, cycles, world)
                 got[name].append({**res, "seed": seed})
                 print(f"round {r} seed {seed} {name}: CPU median "
                       f"{statistics.median(res['cpu']):.3f} s, digest {res['digest']}, "
@@ -102,11 +112,13 @@ def compare(base: Path, seeds: list[int], cycles: int, rounds: int) -> str:
         rows.append(f"| {name} | {statistics.median(cpu):.2f} | {max(cpu):.2f} | "
                     f"{statistics.median(wall):.2f} | {parts['plan']:.2f} / "
                     f"{parts['deploy']:.2f} / {parts['update']:.2f} |")
+    human, gamma = WORLDS[world]
+    run = f"rapidds run {world} --human {human}" + ("" if gamma is None else f" --gamma {gamma:g}")
     return (
         f"`benchmarks/bench_painting_cycle.py --base {base} --seeds "
-        f"{','.join(map(str, seeds))} --cycles {cycles} --rounds {rounds}`: "
-        f"{len(seeds) * rounds} runs per tree of `rapidds run painting --human left-slow "
-        f"--gamma 12 --cycles {cycles}`, each in a fresh process, base and this tree "
+        f"{','.join(map(str, seeds))} --cycles {cycles} --rounds {rounds} --world {world}`: "
+        f"{len(seeds) * rounds} runs per tree of `{run} --cycles {cycles}`, each in a fresh "
+        "process, base and this tree "
         f"alternating run by run; {cpu_model()}, one torch thread, 2 cores shared with other "
         f"jobs; 1-min load average {load0} at start, {load_average()} at end. Records "
         f"(timings aside) {'identical' if same else 'DIFFERENT'} run by run.\n\n"
@@ -122,9 +134,12 @@ def main() -> None:
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--base", type=Path, help="an older checkout to measure beside this one")
     ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--world", choices=sorted(WORLDS), default="painting",
+                    help="with --base: the run measured (default: the issue's painting run)")
     args = ap.parse_args()
     if args.base is not None:
-        print(compare(args.base, parse_seeds(args.seeds), args.cycles, args.rounds))
+        print(compare(args.base, parse_seeds(args.seeds), args.cycles, args.rounds,
+                      args.world))
         return
     load0 = load_average()
     runs = [run_seed(seed, args.cycles) for seed in parse_seeds(args.seeds)]

@@ -44,6 +44,32 @@ def test_unchanged_models_reuse_and_a_moved_model_steers_again(fetch_world, fetc
     assert replanned[1:] == plans[1:] and replanned[0] is not plans[0]
 
 
+def test_presteering_answers_every_moved_request_in_the_cycles_first_batch(
+        fetch_world, fetch_policy, belief):
+    """On a device the moved carried requests join the first request's steering batch, so a
+    later ask for one is answered from it: one steering call for the cycle."""
+    keys = [("t3", frozenset({"t2"})), ("t1", frozenset({"t2"})), ("t0", frozenset())]
+    carried: dict = {}
+    CarriedMotions(_motion(fetch_world, fetch_policy, belief), carried,
+                   spatial_stamps(belief)).plan(keys)
+    belief.observe("t2", fetch_world.teammate("fast-middle").perform("t2",
+                                                                    np.random.default_rng(0))[1])
+    old = dict(carried)
+    on_host = CarriedMotions(_motion(fetch_world, fetch_policy, belief), dict(carried),
+                             spatial_stamps(belief))
+    assert not on_host.presteer  # the CPU keeps the stored records' batches
+    first = CarriedMotions(_motion(fetch_world, fetch_policy, belief), carried,
+                           spatial_stamps(belief), presteer=True)
+    assert first.plan([keys[0]])[0] is carried[keys[0]][0]
+    assert first.inner.calls == 1 and first.inner.rows == 2 * 2 * 2  # both moved requests
+    assert carried[keys[1]][0] is not old[keys[1]][0]                  # steered again
+    assert first.plan(keys)[1] is carried[keys[1]][0] and first.inner.calls == 1
+    assert first.reused == 3  # the second ask: every plan is current
+    device = _motion(fetch_world, fetch_policy, belief)
+    device.on_device = True
+    assert CarriedMotions(device, {}, spatial_stamps(belief)).presteer
+
+
 def test_runs_without_spatial_learning_steer_only_new_requests_after_cycle_0(fetch_policy, small):
     run = AdaptiveRun(RunConfig(human="slow-middle", adapt="none", cycles=4, seed=2, **small),
                       fetch_policy)

@@ -66,11 +66,19 @@ class CarriedMotions:
     ``inner``. ``carried`` is updated in place with every plan steered here."""
 
     def __init__(self, inner: MotionModel, carried: dict[MotionKey, Stamped],
-                 stamps: Mapping[str, str]):
+                 stamps: Mapping[str, str], presteer: bool | None = None):
         self.inner = inner
         self.carried = carried
         self.stamps = dict(stamps)
         self.reused = 0
+        # The carried requests whose spatial models moved are steered again with the cycle's
+        # first request, one batch for the cycle (the search asks for them in later
+        # generations one or two at a time): by default when ``inner`` steers on a device,
+        # where a steering call costs its denoising steps however few its rows; on the CPU a
+        # call costs its rows, and the stored records keep their batches.
+        self.presteer = (bool(getattr(inner, "batches_cycle", False)) if presteer is None
+                         else presteer)
+        self._stale = [k for k in carried if not self._valid(k)] if self.presteer else []
 
     def _valid(self, key: MotionKey) -> bool:
         got = self.carried.get(key)
@@ -81,9 +89,12 @@ class CarriedMotions:
 
     def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
         fresh = [k for k in requests if not self._valid(k)]
+        self.reused += len(requests) - len(fresh)
+        if fresh and self._stale:
+            fresh += [k for k in self._stale if k not in fresh and not self._valid(k)]
+            self._stale = []
         for key, plan in zip(fresh, self.inner.plan(fresh) if fresh else [], strict=True):
             self.carried[key] = (plan, {t: self.stamps[t] for t in key[1]})
-        self.reused += len(requests) - len(fresh)
         return [self.carried[k][0] for k in requests]
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
 from rapidds.errors import RapiddsError, StateError
 from rapidds.human.gamma import DEFAULT_SPREAD, GammaBelief, parse_gamma_prior
@@ -18,9 +19,11 @@ from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
 from rapidds.loop.config import RunConfig
+from rapidds.motion.diffusion_motion import DeviceTermsFactory
 from rapidds.motion.interface import MotionKey
 from rapidds.scheduler import AllocationHistory
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
+from rapidds.worlds.capabilities import capability
 from rapidds.worlds.changes import changing_teammate
 
 
@@ -148,6 +151,34 @@ def workspace_cost(
         return spatial.cost(tasks, pts.reshape(pts.shape[0], -1, pts.shape[-1]))
 
     return cost
+
+
+class _WorkspaceTerms:
+    """:class:`~rapidds.motion.diffusion_motion.DeviceTerms` of a world with tensor terms
+    (points, completion time) and the spatial model's tensor evaluation."""
+
+    def __init__(self, terms: Any, spatial: SpatialModel):
+        self.terms, self.spatial = terms, spatial
+
+    def points(self, xi: torch.Tensor) -> torch.Tensor:
+        return self.terms.points(xi)
+
+    def completion_time(self, task: str, xi: torch.Tensor, points: torch.Tensor
+                        ) -> torch.Tensor:
+        return self.terms.completion_time(task, xi, points)
+
+    def spatial_cost(self, tasks: Iterable[str], points: torch.Tensor) -> torch.Tensor:
+        return self.spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
+
+
+def device_terms(world: World, spatial: SpatialModel) -> DeviceTermsFactory | None:
+    """The steering value's terms on a device, for a world that has them as tensor operations
+    (the ``tensor_values`` capability); None for the others, whose value stays on the host.
+    The same V as :func:`workspace_cost` with the world's completion time."""
+    tensors = capability(world, "tensor_values")
+    if tensors is None:
+        return None
+    return lambda device: _WorkspaceTerms(tensors.tensor_terms(device), spatial)
 
 
 def check_teammate(world: World, cfg: RunConfig, teammate: Teammate | None) -> Teammate:

@@ -57,7 +57,7 @@ from rapidds.loop.execute import (
     execute_cycle,
     replan_steering,
 )
-from rapidds.loop.model import HumanModel, oracle_spatial, workspace_cost
+from rapidds.loop.model import HumanModel, device_terms, oracle_spatial, workspace_cost
 from rapidds.loop.observation import Observation, Source
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
@@ -295,7 +295,8 @@ class AdaptiveRun:
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
             duration=robot_duration(self.world),
-            hold=None if holds is None else holds.hold)
+            hold=None if holds is None else holds.hold,
+            device_terms=device_terms(self.world, spatial))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)

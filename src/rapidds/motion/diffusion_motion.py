@@ -9,14 +9,15 @@ network sees requests x particles x candidates rows per pass.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from typing import Annotated, ClassVar
+from typing import Annotated, ClassVar, Protocol
 
 import numpy as np
+import torch
 from pydantic import Field
 
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import particle_temperatures, steer
+from rapidds.motion.steering import TensorValue, ValueFn, particle_temperatures, steer
 from rapidds.problem import Problem
 from rapidds.settings import Int, Real, Settings
 
@@ -26,6 +27,28 @@ CompletionTime = Callable[[str, np.ndarray], np.ndarray]
 """(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
 HoldTime = Callable[[str, Iterable[str], np.ndarray], np.ndarray]
 """(task, C_j, xi (N, H, d)) -> (N,) seconds the safety monitor is predicted to add."""
+
+
+class DeviceTerms(Protocol):
+    """The value's terms as tensor operations on one device, the forward kinematics shared by
+    both: what lets a whole steering batch be scored where the policy runs."""
+
+    def points(self, xi: torch.Tensor) -> torch.Tensor:
+        """(N, H, d) trajectories -> (N, H, P, w) workspace points."""
+        ...
+
+    def completion_time(self, task: str, xi: torch.Tensor, points: torch.Tensor
+                        ) -> torch.Tensor:
+        """(N,) seconds of (N, H, d) trajectories, given their points."""
+        ...
+
+    def spatial_cost(self, tasks: Iterable[str], points: torch.Tensor) -> torch.Tensor:
+        """(N,) max over ``tasks`` of S_i for the points (N, H, P, w) of N trajectories."""
+        ...
+
+
+DeviceTermsFactory = Callable[[torch.device], DeviceTerms]
+"""The :class:`DeviceTerms` on a device (None where a world has no tensor terms)."""
 
 
 class SteeringConfig(Settings):
@@ -64,7 +87,15 @@ class SteeringConfig(Settings):
 
 
 class DiffusionMotion:
-    """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories."""
+    """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories.
+
+    ``on_device``: score candidates with the world's tensor terms where the policy runs and
+    steer a cycle's requests in one batch (None: :attr:`default_on_device`, which None leaves
+    to the policy's device: on unless it is the CPU)."""
+
+    default_on_device: ClassVar[bool | None] = None
+    """Process-wide default of ``on_device`` (benchmarks set it to measure the device path on
+    the CPU: benchmarks/bench_batched_quality.py)."""
 
     def __init__(
         self,
@@ -76,6 +107,8 @@ class DiffusionMotion:
         nominal: Callable[[Problem], np.ndarray] | None = None,
         duration: Callable[[str, np.ndarray], float] | None = None,
         hold: HoldTime | None = None,
+        device_terms: DeviceTermsFactory | None = None,
+        on_device: bool | None = None,
     ):
         self.policy = policy
         self.completion_time = completion_time
@@ -88,6 +121,10 @@ class DiffusionMotion:
         self._duration = duration
         # planning for the safety monitor: V gains the time it would take (None: the paper's V)
         self.hold = hold
+        # the value on the policy's device (no host copy per denoising step): by default where
+        # the policy is not on the CPU, whose numpy value keeps the stored records' bits
+        self.device_terms = device_terms
+        self.on_device = self.default_on_device if on_device is None else on_device
         self.calls = 0
         self.rows = 0
 
@@ -112,6 +149,39 @@ class DiffusionMotion:
                 v[sl] += self.hold(task, concurrent, xi[sl])
         return v
 
+    def _tensor_values(self, terms: DeviceTerms, keys: Sequence[MotionKey], xi: torch.Tensor,
+                       b: int) -> torch.Tensor:
+        """:meth:`_values` as tensor operations on ``xi``'s device: the forward kinematics of
+        every request's rows in one pass, then each request's completion time and spatial
+        cost on its rows."""
+        pts = terms.points(xi)
+        per_key = xi.shape[0] // len(keys)
+        parts = []
+        for k, (task, concurrent) in enumerate(keys):
+            sl = slice(k * per_key, (k + 1) * per_key)
+            v = terms.completion_time(task, xi[sl], pts[sl])
+            if concurrent and self.gamma > 0:
+                v = v + self.gamma * terms.spatial_cost(concurrent, pts[sl])
+            parts.append(v)
+        return torch.cat(parts)
+
+    @property
+    def batches_cycle(self) -> bool:
+        """Whether steering runs on a device (``on_device``, by default: the policy is not on
+        the CPU), where one batch per cycle pays: see :class:`~rapidds.loop.carry.
+        CarriedMotions`."""
+        return self.on_device if self.on_device is not None else self.policy.device.type != "cpu"
+
+    def value(self, requests: Sequence[MotionKey]) -> ValueFn | TensorValue:
+        """V of a steering batch of ``requests``: on the policy's device when the world has
+        tensor terms and :attr:`batches_cycle` and no hold term (numpy) joins; else the numpy
+        value on the host."""
+        b = self.config.particles
+        if self.batches_cycle and self.device_terms is not None and self.hold is None:
+            terms = self.device_terms(self.policy.device)
+            return TensorValue(lambda xi: self._tensor_values(terms, requests, xi, b))
+        return lambda xi: self._values(requests, xi, b)
+
     def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
         if not requests:
             return []
@@ -122,7 +192,7 @@ class DiffusionMotion:
             self.policy,
             tasks,
             len(tasks),
-            lambda xi: self._values(requests, xi, b),
+            self.value(requests),
             num_candidates=cfg.candidates,
             alpha=np.tile(cfg.temperatures(), len(requests)),
             generator=cfg.seed + self.calls,

@@ -67,7 +67,8 @@ Horizon = Annotated[Int, Field(gt=0, multiple_of=8)]
 """Rows of a robot trajectory: the diffusion policy's U-Net halves it three times."""
 
 Capability = Literal["browser_play", "physics", "participants", "priming", "reactions",
-                     "robot_limits", "robot_timing", "end_effector_ik", "tracking_mapping"]
+                     "robot_limits", "robot_timing", "end_effector_ik", "tracking_mapping",
+                     "tensor_values"]
 """The optional capabilities a world may declare (:mod:`rapidds.worlds.capabilities` says what
 each one promises and who asks for it)."""
 

@@ -109,6 +109,13 @@ class TrackingMapping(World, Protocol):
     def tracking_mapping(self) -> Path: ...
 
 
+class TensorValues(World, Protocol):
+    """The steering value's terms (robot points, completion time) as tensor operations on a
+    device, so a cycle's candidates are scored there without the host (issue 36)."""
+
+    def tensor_terms(self, device: Any) -> Any: ...
+
+
 CAPABILITIES: dict[Capability, tuple[type, str]] = {
     "browser_play": (BrowserPlay, "a person plays it in the browser game"),
     "physics": (Physics, "a MuJoCo model for the reference robot, sim-robot"),
@@ -119,6 +126,7 @@ CAPABILITIES: dict[Capability, tuple[type, str]] = {
     "robot_timing": (RobotTiming, "times robot tasks by the parameterized trajectory"),
     "end_effector_ik": (EndEffectorIK, "inverse kinematics for end-effector demonstrations"),
     "tracking_mapping": (TrackingMapping, "ships a tracker mapping of its body points"),
+    "tensor_values": (TensorValues, "scores steering candidates as tensor operations on a device"),
 }
 """Capability -> (the protocol a declaring world fulfils, one line for ``rapidds worlds``)."""
 
@@ -156,6 +164,8 @@ def capability(world: Any, name: Literal["robot_timing"]) -> RobotTiming | None:
 def capability(world: Any, name: Literal["end_effector_ik"]) -> EndEffectorIK | None: ...
 @overload
 def capability(world: Any, name: Literal["tracking_mapping"]) -> TrackingMapping | None: ...
+@overload
+def capability(world: Any, name: Literal["tensor_values"]) -> TensorValues | None: ...
 def capability(world: Any, name: str) -> Any:
     """``world`` as the capability ``name`` promises, if it declares it; else None. The one
     place that asks what a world can do beyond the contract."""

@@ -162,7 +162,7 @@ class SpatialCostModel:
         self._strides = [math.prod(shape[k + 1:]) for k in range(len(shape))]
         self._net: Surrogate | None = None
         self._stale = True
-        self._grid_cache: dict[tuple[torch.device, torch.dtype], tuple[torch.Tensor, ...]] = {}
+        self._grid_cache: dict[tuple[Any, ...], tuple[torch.Tensor, ...]] = {}
         self._net_cache: dict[torch.device, Surrogate] = {}
 
     @classmethod
@@ -341,19 +341,29 @@ class SpatialCostModel:
             self._grid_cache[key] = (table, table.amin(dim=0), table.amax(dim=0))
         return self._grid_cache[key]  # type: ignore[return-value]
 
+    def _grid_constants(self, device: torch.device, dtype: torch.dtype
+                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Bounds, top grid index per axis and strides on ``device``, copied there once (a
+        copy per evaluation would make a GPU wait for the host)."""
+        key = ("constants", device, dtype)
+        if key not in self._grid_cache:
+            top = [n - 1 for n in self.config.shape]
+            self._grid_cache[key] = tuple(
+                torch.as_tensor(a, dtype=t, device=device) for a, t in
+                ((self._lo, dtype), (self._hi, dtype), (top, dtype),
+                 (self._strides, torch.long)))
+        return self._grid_cache[key]  # type: ignore[return-value]
+
     def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Multilinear interpolation weights of points x (n, d), clamped to bounds: the flat
         grid index (n,) of each point's lowest cell corner and the (2^d, n) weights of the
         cell's corners (corner c = (c_1..c_d) in itertools.product order). Depends on the
         grid alone, so every task of a model shares it."""
         shape = self.config.shape
-        lo = torch.as_tensor(self._lo, dtype=x.dtype, device=x.device)
-        hi = torch.as_tensor(self._hi, dtype=x.dtype, device=x.device)
-        top = torch.as_tensor([n - 1 for n in shape], dtype=x.dtype, device=x.device)
+        lo, hi, top, strides = self._grid_constants(x.device, x.dtype)
         u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
         i0 = torch.minimum(u.floor(), top - 1)
         frac = u - i0
-        strides = torch.as_tensor(self._strides, dtype=torch.long, device=x.device)
         base = (i0.long() * strides).sum(dim=1)
         # Per axis the weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight
         # is their product taken axis by axis, the same products as one corner at a time.
@@ -386,6 +396,8 @@ class SpatialCostModel:
         value lies within its cell's corner range (up to rounding, which ``slack`` covers), so
         a point whose cell's greatest corner is below the greatest least corner of its row
         cannot be that row's maximum."""
+        if base.device.type != "cpu":  # nonzero would wait for the device: interpolate all
+            return self._interpolate(base, weights).view(rows, -1).amax(dim=1)
         _, least, greatest = self._corner_table(weights.device, weights.dtype)
         floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
         slack = 256 * torch.finfo(weights.dtype).eps * (1.0 + floor.abs())
@@ -415,7 +427,7 @@ class SpatialCostModel:
         return net(u).clamp(0.0, 1.0).to(x.dtype)
 
     def _eval_flat(self, x: torch.Tensor) -> torch.Tensor:
-        if not bool(torch.isfinite(x).all()):
+        if x.device.type == "cpu" and not bool(torch.isfinite(x).all()):  # no device wait
             raise ValueError("points contain NaN or infinite coordinates")
         if self.config.use_surrogate and self._stale:
             self.fit_surrogate()
@@ -545,7 +557,9 @@ def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> lis
     if first.config.use_surrogate or any(m.config != first.config for m in models):
         raise ValueError("grid_trajectory_costs needs models of one config without surrogate")
     t = _as_points(first, xi, ndim=3)
-    if not bool(torch.isfinite(t).all()):
+    # a device's points are not checked: that would wait for the device (a non-finite point
+    # gives a NaN cost, which steering counts as +inf)
+    if t.device.type == "cpu" and not bool(torch.isfinite(t).all()):
         raise ValueError("points contain NaN or infinite coordinates")
     n, h, d = t.shape
     step = max(1, first.config.chunk // h)

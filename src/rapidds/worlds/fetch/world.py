@@ -44,9 +44,11 @@ from rapidds.worlds.geometry import Rect, reach_then_return_time, segments_hit_r
 from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 if TYPE_CHECKING:
+    import torch
     from matplotlib.axes import Axes
 
     from rapidds.motion.timing import JointLimits
+    from rapidds.worlds.fetch.tensor_value import FetchTensorValues
 
 
 __all__ = ["POLICY_DEFAULTS", "PRIOR_SEED", "FetchWorld", "default_world", "fetch_problem"]
@@ -109,7 +111,7 @@ class FetchWorld(WorldBase):
             policy_defaults=dict(POLICY_DEFAULTS), joint_names=("x", "y"),
             body_point_names=("body",), resources="rapidds.worlds.fetch",
             capabilities=("browser_play", "priming", "reactions", "robot_limits",
-                          "tracking_mapping"))
+                          "tracking_mapping", "tensor_values"))
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -212,6 +214,24 @@ class FetchWorld(WorldBase):
         p = np.asarray(traj, dtype=float)
         hit = self.collides(p.reshape(-1, *p.shape[-2:])).reshape(np.shape(t))
         return np.where(hit, self.penalty, t)
+
+    def tensor_terms(self, device: torch.device | str) -> FetchTensorValues:
+        """The steering value's terms as tensor operations on ``device``
+        (:mod:`rapidds.worlds.fetch.tensor_value`), built once per device."""
+        from rapidds.worlds.fetch.tensor_value import FetchTensorValues, tensor_terms
+
+        def build(dev: torch.device) -> FetchTensorValues:
+            goals = {task: np.array(pos, dtype=float) for task, pos in OBJECTS.items()}
+            walls = np.array([w.as_array() for w in WALLS]).reshape(-1, 4)
+            return FetchTensorValues(goals, np.array(HOMES["robot"], dtype=float),
+                                     self.reach_radius, self.dt, self.penalty, self.bounds,
+                                     walls, dev)
+
+        return tensor_terms(self._tensor_cache, device, build)
+
+    @cached_property
+    def _tensor_cache(self) -> dict[torch.device, FetchTensorValues]:
+        return {}
 
     def robot_demonstrations(self, n_per_mode: int, rng: np.random.Generator) -> RobotDemos:
         """Every robot task in every mode, ``n_per_mode`` each, in (task, mode) order.

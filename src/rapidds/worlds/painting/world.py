@@ -43,12 +43,14 @@ from rapidds.worlds.reactions import ReactionPopulation, SafetyLimits
 
 if TYPE_CHECKING:
     import mujoco
+    import torch
     from matplotlib.axes import Axes
 
     from rapidds.motion.timing import JointLimits
     from rapidds.worlds.painting.kinematics import ArmKinematics
     from rapidds.worlds.painting.motions import Motion
     from rapidds.worlds.painting.teammates import PaintingTeammate
+    from rapidds.worlds.painting.tensor_value import PaintingTensorValues
 
 __all__ = [
     "PRECEDENCE",
@@ -142,7 +144,8 @@ class PaintingWorld(WorldBase):
             joint_names=ARM_JOINTS, body_point_names=("l_wrist", "r_wrist", "l_elbow", "r_elbow"),
             resources="rapidds.worlds.painting",
             capabilities=("physics", "participants", "priming", "reactions", "robot_limits",
-                          "robot_timing", "end_effector_ik", "tracking_mapping"))
+                          "robot_timing", "end_effector_ik", "tracking_mapping",
+                          "tensor_values"))
 
     @property
     def priming_factors(self) -> dict[str, tuple[str, ...]]:
@@ -205,6 +208,20 @@ class PaintingWorld(WorldBase):
     def robot_points(self, traj: np.ndarray) -> np.ndarray:
         """(..., H, 7) joint trajectories -> (..., H, 12, 3) points along the arm."""
         return self.kinematics.points(traj)
+
+    def tensor_terms(self, device: torch.device | str) -> PaintingTensorValues:
+        """The steering value's terms as tensor operations on ``device`` (points, completion
+        time: :mod:`rapidds.worlds.painting.tensor_value`), built once per device."""
+        from rapidds.worlds.painting.tensor_value import CellValues, tensor_terms
+
+        cell = CellValues(self.kinematics, self.dt, self.horizon, self.penalty, _SPEED_MARGIN,
+                          SHORTFALL_RATE, float(self.rest_radius), self._rest_tool,
+                          self._goal_table, self._obstacle_arrays)
+        return tensor_terms(cell, device, self._tensor_cache)
+
+    @cached_property
+    def _tensor_cache(self) -> dict[torch.device, PaintingTensorValues]:
+        return {}
 
     def end_effector_ik(self, positions: np.ndarray) -> np.ndarray:
         """Joint path (T, 7) putting the tool tip at ``positions`` (T, 3), given in the arm's

@@ -1,0 +1,95 @@
+"""One painting cycle's steering batch (6 requests x 4 particles x 8 candidates, the policy's
+10 steps) with the value on the host (numpy, the CPU's path) and on the policy's device
+(tensor terms), on each device given: seconds per batch, and on CUDA the host synchronisations
+inside it (``torch.cuda.set_sync_debug_mode``).
+
+    .venv/bin/python benchmarks/bench_steer_device.py [--devices cpu,cuda] [--repeat 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from _common import cpu_model, load_average
+
+from rapidds.human.spatial import SpatialConfig, SpatialModel
+from rapidds.loop.model import device_terms, workspace_cost
+from rapidds.loop.run import load_policy
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.worlds.painting import PaintingWorld
+
+REQUESTS = [("mix_l", frozenset({"secure_piece"})), ("mix_r", frozenset({"secure_piece"})),
+            ("brush", frozenset({"prep_vise"})), ("mix_l", frozenset({"prep_vise"})),
+            ("mix_r", frozenset({"prep_vise", "secure_piece"})),
+            ("brush", frozenset({"secure_piece"}))]
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+def measure(device: str, repeat: int) -> dict[str, object]:
+    torch.set_num_threads(1)
+    world = PaintingWorld()
+    lo, hi = world.workspace_bounds
+    spatial = SpatialModel.from_population(
+        SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid),
+        world.prior().paths)
+    policy = load_policy(world, device=device)
+    out: dict[str, object] = {}
+    for label, on_device in (("host value", False), ("device value", True)):
+        def motion(seed: int, on: bool = on_device) -> DiffusionMotion:
+            return DiffusionMotion(policy, world.completion_time,
+                                   workspace_cost(world, spatial), 12.0,
+                                   SteeringConfig(seed=seed),
+                                   device_terms=device_terms(world, spatial), on_device=on)
+
+        motion(99).plan(REQUESTS)  # warm-up: kernels, caches, tensor terms
+        wall, cpu, syncs = [], [], 0
+        for k in range(repeat):
+            _sync(device)
+            w0, c0 = time.perf_counter(), time.process_time()
+            if device == "cuda" and on_device:
+                torch.cuda.set_sync_debug_mode("warn")
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                plans = motion(k).plan(REQUESTS)
+            if device == "cuda":
+                torch.cuda.set_sync_debug_mode(0)
+            _sync(device)
+            wall.append(time.perf_counter() - w0)
+            cpu.append(time.process_time() - c0)
+            syncs += sum("synchroniz" in str(w.message) for w in caught)
+        out[label] = {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu),
+                      "syncs_per_batch": syncs / repeat,
+                      "mean_duration": float(np.mean([p.duration for p in plans]))}
+        print(f"{device} {label}: {json.dumps(out[label])}", flush=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--devices", default=None, help="default: cpu, and cuda when available")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    devices = (args.devices.split(",") if args.devices
+               else ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
+    load0 = load_average()
+    res = {dev: measure(dev, args.repeat) for dev in devices}
+    print(f"{cpu_model()}, one torch thread; 1-min load average {load0} at start, "
+          f"{load_average()} at end")
+    if args.json is not None:
+        args.json.write_text(json.dumps(res, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""The painting value as tensor operations (issue 36, item 2): the terms a GPU scores the
+steering candidates with, checked on the CPU against the world's numpy terms, which stay the
+CPU's path and the stored records' reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from rapidds.human.spatial import SpatialConfig, SpatialModel
+from rapidds.loop.model import device_terms, workspace_cost
+from rapidds.loop.run import load_policy
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.steering import TensorValue
+from rapidds.worlds.painting import PaintingWorld
+
+
+@pytest.fixture(scope="module")
+def world() -> PaintingWorld:
+    return PaintingWorld(prior_people=8)
+
+
+@pytest.fixture(scope="module")
+def paths(world: PaintingWorld) -> np.ndarray:
+    """Demonstrations, noisy copies (many not executable or never completing) and wild ones."""
+    rng = np.random.default_rng(5)
+    demos = np.asarray(world.robot_demonstrations(2, rng).trajectories)
+    noisy = demos[rng.integers(0, len(demos), 40)] + rng.normal(0.0, 0.2, (40, 64, 7))
+    wild = rng.uniform(-3.0, 3.0, (8, 64, 7))
+    return np.concatenate([demos, noisy, wild])
+
+
+@pytest.fixture(scope="module")
+def spatial(world: PaintingWorld) -> SpatialModel:
+    lo, hi = world.workspace_bounds
+    cfg = SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid)
+    return SpatialModel.from_population(cfg, world.prior().paths)
+
+
+def test_tensor_terms_equal_the_worlds_numpy_terms(world: PaintingWorld, paths) -> None:
+    terms = world.tensor_terms("cpu")
+    assert world.tensor_terms(torch.device("cpu")) is terms  # built once per device
+    q = torch.from_numpy(paths)
+    pts = terms.points(q)
+    np.testing.assert_allclose(pts.numpy(), world.robot_points(paths), rtol=0, atol=1e-12)
+    executable = world.executable(paths)
+    assert 0 < executable.sum() < len(paths)  # both kinds present
+    np.testing.assert_array_equal(terms.executable(q, pts).numpy(), executable)
+    np.testing.assert_array_equal(terms.collides(pts).numpy(),
+                                  world.collides(world.robot_points(paths)))
+    for task in ("mix_l", "mix_r", "brush"):
+        host = world.completion_time(task, paths)
+        dev = terms.completion_time(task, q, pts).numpy()
+        done = host < world.penalty
+        assert done.any() and not done.all()
+        np.testing.assert_array_equal(dev[done], host[done])  # rows x dt, rounded alike
+        np.testing.assert_allclose(dev, host, rtol=1e-12)     # the graded penalty
+    with pytest.raises(ValueError, match="not a robot task"):
+        terms.completion_time("secure", q, pts)
+
+
+def test_a_steering_batch_scores_on_the_device_as_on_the_host(world, paths, spatial) -> None:
+    """V of several requests' rows, the forward kinematics done once for all of them, equals
+    the per-request numpy V; the host path stays the CPU's default (the stored records)."""
+    policy = load_policy(world, device="cpu")
+    requests = [("mix_l", frozenset({"secure_piece"})), ("brush", frozenset()),
+                ("mix_r", frozenset({"secure_piece", "prep_vise"}))]
+    assert all(near <= set(spatial.tasks) for _, near in requests)
+
+    def motion(on_device: bool | None) -> DiffusionMotion:
+        return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                               12.0, SteeringConfig(particles=2, candidates=3, steps=3),
+                               device_terms=device_terms(world, spatial), on_device=on_device)
+
+    rows = paths[: 3 * 2 * 3 * 2]  # 3 requests x 2 particles x 3 candidates, twice
+    host_value = motion(None).value(requests)
+    assert not isinstance(host_value, TensorValue)
+    dev_value = motion(True).value(requests)
+    assert isinstance(dev_value, TensorValue)
+    got = dev_value(torch.from_numpy(rows))
+    assert isinstance(got, torch.Tensor) and got.dtype == torch.float64
+    np.testing.assert_allclose(got.numpy(), host_value(rows), rtol=1e-12)
+
+    plans = motion(True).plan(requests)
+    for (task, near), plan in zip(requests, plans, strict=True):
+        assert plan.task == task and plan.concurrent == near
+        assert plan.trajectory is not None and np.isfinite(plan.trajectory).all()
+        assert plan.spatial_cost == pytest.approx(
+            float(workspace_cost(world, spatial)(near, plan.trajectory[None])[0]) if near
+            else 0.0)
+
+
+def test_fetch_tensor_terms_equal_the_worlds_numpy_terms() -> None:
+    from rapidds.worlds.fetch import FetchWorld
+
+    fetch = FetchWorld()
+    rng = np.random.default_rng(2)
+    demos = np.asarray(fetch.robot_demonstrations(3, rng).trajectories)
+    xi = np.concatenate([demos, demos + rng.normal(0.0, 0.4, demos.shape),
+                         rng.uniform(-1.0, 11.0, (10, *demos.shape[1:]))])
+    xi[0, 5:7] = xi[0, 4]  # a resting row: segments parallel to both axes
+    terms = fetch.tensor_terms("cpu")
+    t = torch.from_numpy(xi)
+    assert torch.equal(terms.points(t)[:, :, 0], t)
+    hit = fetch.collides(xi)
+    assert 0 < hit.sum() < len(xi)
+    np.testing.assert_array_equal(terms.collides(t).numpy(), hit)
+    for task in fetch.task_ids:
+        if fetch.problem().task(task).can("robot"):
+            host = fetch.completion_time(task, xi)
+            assert (host < fetch.penalty).any()
+            np.testing.assert_array_equal(terms.completion_time(task, t).numpy(), host)
+
+
+def test_the_hold_term_keeps_the_value_on_the_host(world, spatial) -> None:
+    policy = load_policy(world, device="cpu")
+
+    def hold(task, near, xi):
+        return np.zeros(len(xi))
+
+    m = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 12.0,
+                        device_terms=device_terms(world, spatial), hold=hold, on_device=True)
+    assert not isinstance(m.value([("mix_l", frozenset())]), TensorValue)
+
+
+def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spatial) -> None:
+    """Off the CPU the grid interpolates every point (no nonzero to wait for); the row maxima
+    are those of the CPU's skipping evaluation, bit for bit."""
+    pts = torch.from_numpy(world.robot_points(paths[:20]).reshape(20, -1, 3))
+    model = spatial[spatial.tasks[0]]
+    base, weights = model._stencil(pts.reshape(-1, 3))
+    dense = model._interpolate(base, weights).view(20, -1).amax(dim=1)
+    assert torch.equal(dense, model._row_max(base, weights, rows=20))
