@@ -202,6 +202,11 @@ def run_cmd(
     particles: int = typer.Option(_D["particles"].default, help="Steered samples per motion "
                                   "request."),
     candidates: int = typer.Option(_D["candidates"].default, help="SVDD candidates M per step."),
+    steps: int | None = typer.Option(None, help="Reverse diffusion steps per motion.",
+                                     show_default="the policy's"),
+    sampler: str | None = typer.Option(None, help="Reverse kernel: ddim, ddpm or dpm "
+                                       "(DPM-Solver++ 2M, for few steps: --sampler dpm --steps "
+                                       "5; docs/benchmarks.md).", show_default="the policy's"),
     surrogate: bool = typer.Option(False, help="Evaluate spatial costs with the MLP surrogate."),
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads (1 is fastest on "
                                 "small machines)."),

@@ -24,6 +24,7 @@ _Count = Annotated[int, Field(ge=1)]
 _Weight = Annotated[float, Field(ge=0)]
 
 Device = Literal["auto", "cpu", "cuda"]
+Sampler = Literal["ddim", "ddpm", "dpm"]
 DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
                "is available, else the CPU), cpu or cuda.")
 
@@ -45,6 +46,9 @@ class RunConfig(Settings):
     population, generations, samples, patience: genetic search (C, G, K, early stop).
     particles, candidates: steered samples per motion request (B) and SVDD candidates (M).
     steps: reverse diffusion steps per motion (None: the policy's own).
+    sampler: the reverse kernel of every steered motion, "ddim", "ddpm" or "dpm" (DPM-Solver++
+        2M, for few steps: ``--sampler dpm --steps 5``); None: the policy's own (the paper's
+        DDIM). Stored only when set, so records of runs without it are unchanged.
     beta, rho: spatial distance decay (1 / workspace unit; None: the world's) and observation
         noise variance. grid_points: spatial grid points per axis (None: the world's).
     surrogate: evaluate spatial costs with the MLP surrogate (the paper) instead of exact grid
@@ -114,6 +118,7 @@ class RunConfig(Settings):
     particles: Annotated[int, Field(ge=1, le=4096)] = 4
     candidates: Annotated[int, Field(ge=1, le=4096)] = 8
     steps: Annotated[int, Field(ge=1, le=1000)] | None = None
+    sampler: Sampler | None = Field(None, exclude_if=lambda v: v is None)
     beta: Annotated[float, Field(gt=0)] | None = None
     rho: Annotated[float, Field(gt=0)] = 0.05
     grid_points: Annotated[int, Field(ge=2, le=512)] | None = None

@@ -223,7 +223,8 @@ class AdaptiveRun:
         require_memory(8 * 8 * c.population * c.samples * n
                        + 4 * 256 * c.population * n * c.particles * c.candidates * h * d,
                        "this search (--population, --samples, --particles, --candidates)")
-        self.policy = policy or load_policy(self.world, device=c.device)
+        self.policy = (policy or load_policy(self.world, device=c.device)).with_sampler(
+            c.sampler)
         self.store = store
         self.problem: Problem = self.world.problem().with_objective(
             gamma=self.config.gamma, lam=self.config.lam)
@@ -261,7 +262,8 @@ class AdaptiveRun:
         # behaviour: every new setting's default is)
         stored = None if raw is None else {
             **{k: f.default for k, f in RunConfig.model_fields.items()
-               if k not in raw and not f.exclude}, **raw}
+               if k not in raw and not f.exclude
+               and not (f.exclude_if is not None and f.exclude_if(f.default))}, **raw}
         if stored is not None and stored != self.config.model_dump():
             mine = self.config.model_dump()
             diff = ", ".join(f"{k}={stored.get(k)!r} (asked {mine.get(k)!r})"
