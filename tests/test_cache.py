@@ -140,3 +140,25 @@ def test_population_priors_are_the_same_bits_from_the_cache(
         assert m.var.tobytes() == plain.var.tobytes()
     other = SpatialCostModel.from_population(config.replace(beta=9.0), paths)
     assert len(calls) == 2 * len(paths) and other.mean.tobytes() != plain.mean.tobytes()
+
+
+def test_a_run_records_the_same_with_the_cache_off_cold_or_warm(
+        cache: Path, monkeypatch: pytest.MonkeyPatch, fetch_policy) -> None:
+    """The loop's prior and the oracle's truth through the cache: the records are the same
+    bits whether built (cache off or empty) or read back."""
+    from record_helpers import stored
+
+    from rapidds.loop import AdaptiveRun, RunConfig
+
+    cfg = RunConfig(human="slow-middle", cycles=1, population=4, generations=2, samples=4,
+                    particles=1, candidates=2)
+
+    def records() -> list:
+        return [stored(r) for r in AdaptiveRun(cfg, fetch_policy).run()]
+
+    monkeypatch.setenv("RAPIDDS_CACHE", "off")
+    plain = records()
+    monkeypatch.setenv("RAPIDDS_CACHE", str(cache))
+    assert records() == plain  # cold: built and stored
+    assert len(list((cache / "population-costs").glob("*.npz"))) > 0
+    assert records() == plain  # warm: read back

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import check_optional_device
 from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
 
@@ -108,7 +109,7 @@ def train_policy_cmd(
     seed: Annotated[int | None, typer.Option(
         help="Seed for init, batches and noise.", show_default="the config's")] = None,
     device: Annotated[str | None, typer.Option(
-        help="auto, cpu or cuda.", show_default="auto")] = None,
+        help="auto, cpu or cuda.", show_default="auto", callback=check_optional_device)] = None,
     horizon: Annotated[int | None, typer.Option(
         help="Resample demonstrations to H points (a multiple of 8) first.")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Trajectories per step.")] = None,
@@ -331,7 +332,7 @@ def sample_cmd(
     dt: Annotated[float, typer.Option(
         help="Seconds per trajectory point (completion time).")] = 1.0,
     device: Annotated[str | None, typer.Option(
-        help="auto, cpu or cuda.", show_default="auto")] = None,
+        help="auto, cpu or cuda.", show_default="auto", callback=check_optional_device)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     out: Annotated[Path | None, typer.Option(
         "--out", help="Write a picture (PNG) of the samples.")] = None,
