@@ -1,7 +1,7 @@
 """The first painting cycle against the later ones (issue 36 item 5), before and after the cache.
 
     .venv/bin/python benchmarks/bench_first_cycle.py --base /tmp/old-checkout [--seeds 0,1]
-        [--cycles 3] [--docs]
+        [--cycles 3]
 
 Each run is ``rapidds run painting --human left-slow --gamma 12`` (full adaptation, default
 search, one torch thread) in a fresh process: process CPU and wall seconds of the run's
@@ -24,11 +24,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from _common import cpu_model, load_average, parse_seeds, update_docs_section
+from _common import cpu_model, load_average, parse_seeds
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-SECTION = "### The first cycle (issue 36 item 5)"
 
 CHILD = r"""
 import hashlib, json, sys, time
@@ -70,7 +69,6 @@ def main() -> None:
     ap.add_argument("--base", type=Path, required=True)
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--cycles", type=int, default=3)
-    ap.add_argument("--docs", action="store_true")
     args = ap.parse_args()
     load0 = load_average()
     got: dict[str, list[dict]] = {"base": [], "this tree, empty cache": [],
@@ -108,8 +106,6 @@ def main() -> None:
         "cycle 0 / later | wall s cycle 0 / later |\n|---|---:|---:|---:|---:|---|\n"
         + "\n".join(rows) + "\n")
     print(text)
-    if args.docs:
-        update_docs_section(SECTION, text)
 
 
 if __name__ == "__main__":

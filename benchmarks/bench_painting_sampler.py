@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_painting_sampler.py run --seeds 0-3 --out A.jsonl
     .venv/bin/python benchmarks/bench_painting_sampler.py run --seeds 4-7 --out B.jsonl
-    .venv/bin/python benchmarks/bench_painting_sampler.py report A.jsonl B.jsonl [--docs]
+    .venv/bin/python benchmarks/bench_painting_sampler.py report A.jsonl B.jsonl
 
 ``run``: for each seed, the paper's constrained and unconstrained gamma 12 settings (or those
 ``--settings`` names) with
@@ -25,10 +25,9 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from _common import cpu_model, load_average, parse_seeds, update_docs_section
+from _common import cpu_model, load_average, parse_seeds
 from bench_quality import paired_bootstrap
 
-SECTION = "### A cheaper sampler: DPM-Solver++ at 5 steps (issue 36 item 3)"
 HUMAN = "left-slow"
 SETTLED = 4
 DEFAULT = "ddim 10 (default)"
@@ -109,8 +108,6 @@ def report(args: argparse.Namespace) -> None:
         + "".join(f"| {b} | " + " | ".join(f"{shown[a, b][0]} / {shown[a, b][1]}" for a in arms)
                   + " |\n" for b in sorted({name for _, name in shown})))
     print(text)
-    if args.docs:
-        update_docs_section(SECTION, text)
 
 
 def main() -> None:
@@ -128,7 +125,6 @@ def main() -> None:
                    help="skip the default arm (its runs are the same by seed)")
     p = sub.add_parser("report")
     p.add_argument("files", nargs="+")
-    p.add_argument("--docs", action="store_true")
     args = ap.parse_args()
     (run if args.cmd == "run" else report)(args)
 
