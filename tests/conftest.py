@@ -4,6 +4,7 @@ name."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from typing import Any
 
@@ -16,6 +17,19 @@ from rapidds.worlds.fetch import FetchWorld
 from rapidds.worlds.registry import make_world
 
 torch.set_num_threads(1)  # the networks are small; threads only fight on 2 cores
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _own_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The tests' own artefact cache (rapidds.cache), shared by the session and its
+    subprocesses, so a test never reads or fills the user's ~/.cache."""
+    old = os.environ.get("RAPIDDS_CACHE")
+    os.environ["RAPIDDS_CACHE"] = str(tmp_path_factory.mktemp("rapidds-cache"))
+    yield
+    if old is None:
+        os.environ.pop("RAPIDDS_CACHE", None)
+    else:
+        os.environ["RAPIDDS_CACHE"] = old
 
 SMALL_SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2,
                     candidates=4)

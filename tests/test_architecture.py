@@ -16,7 +16,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: list[tuple[str, ...]] = [
     ("rapidds", "rapidds.errors", "rapidds.fileio", "rapidds.lazy", "rapidds.settings",
      "rapidds.problem", "rapidds.schedule", "rapidds.record", "rapidds.bundled", "rapidds.store",
-     "rapidds.codec"),
+     "rapidds.codec", "rapidds.cache"),
     ("rapidds.human",),
     ("rapidds.scheduler", "rapidds.motion"),  # scheduler <-> motion: one layer
     ("rapidds.plots", "rapidds.render"),

@@ -23,6 +23,9 @@ COMMANDS = [
     ["study", "simulate", "--out", "{tmp}/st"],
     ["deploy", "painting", "--out", "{tmp}/dp"],
     ["observe", "{tmp}/ob", "--bag", "{tmp}/bag"],
+    # the two whose default is the config's or checkpoint's own device: checked as early
+    ["train-policy", "--world", "painting", "--out", "{tmp}/tp", "--steps", "1"],
+    ["sample", "--policy", "{tmp}/none", "--task", "x"],
 ]
 
 

@@ -25,5 +25,11 @@ def check_device(value: str) -> str:
     return value
 
 
+def check_optional_device(value: str | None) -> str | None:
+    """:func:`check_device` for the commands whose default is the checkpoint's or config's own
+    device (train-policy, sample): None passes."""
+    return None if value is None else check_device(value)
+
+
 DeviceOption = Annotated[str, typer.Option("--device", help=DEVICE_HELP, callback=check_device)]
 """``device: DeviceOption = "auto"`` in a command's signature."""

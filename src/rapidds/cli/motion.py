@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from rapidds.cli import app, fail
+from rapidds.cli._device import check_optional_device
 from rapidds.cli._options import AS_JSON, describe
 from rapidds.cli._progress import progress
 from rapidds.errors import RapiddsError
@@ -111,7 +112,7 @@ def train_policy_cmd(
         help="Seed for init, batches and noise.", show_default="the config's")] = None,
     device: Annotated[str | None, typer.Option(
         help="Where the network trains: auto (a CUDA GPU when one is available, else the CPU), "
-        "cpu or cuda.", show_default="auto")] = None,
+        "cpu or cuda.", show_default="auto", callback=check_optional_device)] = None,
     horizon: Annotated[int | None, typer.Option(
         help="Resample demonstrations to H points (a multiple of 8) first.")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Trajectories per step.")] = None,
@@ -333,7 +334,8 @@ def sample_cmd(
         show_default="10% of the workspace extent")] = None,
     dt: Annotated[float, typer.Option(
         help="Seconds per trajectory point (completion time).")] = 1.0,
-    device: Annotated[str | None, typer.Option(help=DEVICE_HELP, show_default="auto")] = None,
+    device: Annotated[str | None, typer.Option(
+        help=DEVICE_HELP, show_default="auto", callback=check_optional_device)] = None,
     as_json: bool = AS_JSON,
     out: Annotated[Path | None, typer.Option(
         "--out", help="Write a picture (PNG) of the samples.")] = None,

@@ -40,11 +40,12 @@ if TYPE_CHECKING:  # a type only: `rapidds --help` must not pay for numpy
     from rapidds.worlds.base import World
 
 __all__ = ["ADAPT_LEVELS", "DEVICE_HELP", "Adapt", "ChangeSettings", "Device", "Execution",
-           "ExecutionField", "GammaLearning", "ObjectiveSettings", "RunConfig", "SearchSettings",
-           "Slowdowns", "SpatialSettings", "TeammateSettings"]
+           "ExecutionField", "GammaLearning", "ObjectiveSettings", "RunConfig", "Sampler",
+           "SearchSettings", "Slowdowns", "SpatialSettings", "TeammateSettings"]
 
 Adapt = Literal["full", "spatial", "temporal", "none", "oracle", "exact"]
 Slowdowns = Literal["learned", "predicted", "off"]
+Sampler = Literal["ddim", "ddpm", "dpm"]
 ADAPT_LEVELS: tuple[str, ...] = ("full", "spatial", "temporal", "none", "oracle", "exact")
 
 _Weight = Annotated[float, Field(ge=0)]
@@ -65,6 +66,7 @@ ExecutionField = Annotated[ExecutionSetting, BeforeValidator(parse_execution),
 parameters, where they are not the entry's defaults)."""
 
 Device = Literal["auto", "cpu", "cuda"]
+Sampler = Literal["ddim", "ddpm", "dpm"]
 DEVICE_HELP = ("Where the policy, the steering and the re-plans run: auto (a CUDA GPU when one "
                "is available, else the CPU), cpu or cuda.")
 
@@ -98,6 +100,10 @@ class SearchSettings(SettingsGroup):
         8, "SVDD-PM candidates M per particle and diffusion step.")
     steps: Annotated[int, Field(ge=1, le=1000)] | None = cli_field(
         None, "Reverse diffusion steps per motion.", show="the policy's own")
+    sampler: Sampler | None = cli_field(
+        None, "Reverse kernel of every steered motion: ddim, ddpm or dpm (DPM-Solver++ 2M, for "
+        "few steps: --sampler dpm --steps 5; stored only when set).", show="the policy's own",
+        exclude_if=lambda v: v is None)
     reuse_motions: bool = cli_field(
         True, "Answer a motion request from the plan steered for it in an earlier cycle while "
         "the spatial models it was steered against are unchanged (off: every cycle steers "
@@ -207,11 +213,11 @@ _GROUP_OF: dict[str, str] = {name: group for group, model in _GROUPS.items()
 # the order of a stored run's flat settings, as they were stored before the groups
 _STORE_ORDER: tuple[str, ...] = (
     "world", "variant", "human", "adapt", "cycles", "gamma", "lam", "seed", "population",
-    "generations", "samples", "patience", "particles", "candidates", "steps", "beta", "rho",
-    "grid_points", "surrogate", "reuse_motions", "change", "drift", "drift_from", "forgetting",
-    "detect", "hazard", "detect_threshold", "ask", "whole_person", "reexplore", "gamma_learn",
-    "gamma_prior", "gamma_plan", "comfort", "gamma_reactions", "execution", "reacts", "deviate",
-    "device", "slowdowns", "slowdown_mean", "slowdown_sd")
+    "generations", "samples", "patience", "particles", "candidates", "steps", "sampler", "beta",
+    "rho", "grid_points", "surrogate", "reuse_motions", "change", "drift", "drift_from",
+    "forgetting", "detect", "hazard", "detect_threshold", "ask", "whole_person", "reexplore",
+    "gamma_learn", "gamma_prior", "gamma_plan", "comfort", "gamma_reactions", "execution",
+    "reacts", "deviate", "device", "slowdowns", "slowdown_mean", "slowdown_sd")
 
 
 class RunConfig(Settings):

@@ -78,7 +78,7 @@ class RunContext:
         require_memory(8 * 8 * c.population * c.samples * n
                        + 4 * 256 * c.population * n * c.particles * c.candidates * h * d,
                        "this search (--population, --samples, --particles, --candidates)")
-        policy = policy or load_policy(world, device=c.device)
+        policy = (policy or load_policy(world, device=c.device)).with_sampler(c.sampler)
         problem = world.problem().with_objective(gamma=c.gamma, lam=c.lam)
         # a given prior (e.g. one population prior shared by a study's runs, computed once) is
         # copied: the run learns into its own model

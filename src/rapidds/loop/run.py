@@ -177,7 +177,8 @@ class AdaptiveRun:
         # behaviour: every new setting's default is)
         stored = None if raw is None else {
             **{k: f.default for k, f in RunConfig.flat_fields().items()
-               if k not in raw and not f.exclude}, **raw}
+               if k not in raw and not f.exclude
+               and not (f.exclude_if is not None and f.exclude_if(f.default))}, **raw}
         if stored is not None and stored != self.config.model_dump():
             mine = self.config.model_dump()
             diff = ", ".join(f"{k}={stored.get(k)!r} (asked {mine.get(k)!r})"

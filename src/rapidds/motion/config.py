@@ -17,7 +17,7 @@ from rapidds.errors import ConfigError
 from rapidds.settings import Flag, Int, Real, Settings
 
 BETA_SCHEDULES = ("linear", "scaled_linear", "squaredcos_cap_v2")
-SAMPLERS = ("ddim", "ddpm")
+SAMPLERS = ("ddim", "ddpm", "dpm")
 DEVICES = ("auto", "cpu", "cuda")
 
 
@@ -43,7 +43,11 @@ class DiffusionConfig(Settings):
         beta_schedule: one of "linear", "scaled_linear", "squaredcos_cap_v2".
         beta_start, beta_end: first and last beta of the linear schedules (ignored by the cosine
             schedule); 0 < beta_start < beta_end < 1.
-        sampler: "ddim" or "ddpm" reverse kernel used by sampling and by steering.
+        sampler: the reverse kernel of sampling and steering: "ddim", "ddpm", or "dpm"
+            (DPM-Solver++ 2M, SDE form: second order from the previous step's prediction,
+            stochastic as steering needs; meant for few steps, e.g. 5). The same forward
+            process trains all three, so a policy trained with one samples with any other
+            (:meth:`~rapidds.motion.policy.DiffusionPolicy.with_sampler`).
         num_inference_steps: reverse steps at sampling time, 1..num_train_timesteps.
         ddim_eta: DDIM stochasticity in [0, 1]; 0 is deterministic DDIM, which plain sampling
             accepts but SVDD steering refuses (all candidates would be identical).
@@ -82,7 +86,7 @@ class DiffusionConfig(Settings):
     beta_schedule: Literal["linear", "scaled_linear", "squaredcos_cap_v2"] = "squaredcos_cap_v2"
     beta_start: Annotated[Real, Field(gt=0, lt=1)] = 1e-4
     beta_end: Annotated[Real, Field(gt=0, lt=1)] = 0.02
-    sampler: Literal["ddim", "ddpm"] = "ddim"
+    sampler: Literal["ddim", "ddpm", "dpm"] = "ddim"
     num_inference_steps: Annotated[Int, Field(ge=1)] = 20
     ddim_eta: Annotated[Real, Field(ge=0, le=1)] = 1.0
     clip_sample: Flag = True

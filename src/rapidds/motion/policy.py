@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from diffusers import DDIMScheduler, DDPMScheduler
+from diffusers import DDIMScheduler, DDPMScheduler, DPMSolverMultistepScheduler
 from safetensors.torch import load_file, save
 from torch import Tensor, nn
 
@@ -38,7 +38,7 @@ FORMAT_VERSION = 1
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 
-NoiseScheduler = DDPMScheduler | DDIMScheduler
+NoiseScheduler = DDPMScheduler | DDIMScheduler | DPMSolverMultistepScheduler
 GeneratorLike = torch.Generator | int | None
 Denoiser = Callable[[Tensor, Tensor, Tensor], Tensor]
 
@@ -62,6 +62,16 @@ def make_noise_scheduler(config: DiffusionConfig) -> NoiseScheduler:
     )
     if config.sampler == "ddim":
         return DDIMScheduler(set_alpha_to_one=True, steps_offset=0, **kwargs)
+    if config.sampler == "dpm":
+        # DPM-Solver++(2M) in its SDE form: stochastic, so SVDD's candidates differ. Its one
+        # step of memory (the previous prediction) stays right under steering, which keeps
+        # each particle in its row. Thresholding with a maximum of 1 is clip_sample's clip of
+        # the predicted clean sample to [-1, 1].
+        clip = kwargs.pop("clip_sample")
+        del kwargs["clip_sample_range"]
+        return DPMSolverMultistepScheduler(
+            algorithm_type="sde-dpmsolver++", solver_order=2, thresholding=clip,
+            dynamic_thresholding_ratio=1.0, sample_max_value=1.0, **kwargs)
     return DDPMScheduler(variance_type="fixed_small", **kwargs)
 
 
@@ -92,7 +102,8 @@ class DiffusionPolicy:
 
     config: the settings the components were built with (checked against them).
     model: noise predictor, forward(x (B, H, d), t (B,), cond (B, cond_dim)) -> (B, H, d).
-    noise_scheduler: ``diffusers`` DDPMScheduler or DDIMScheduler (epsilon prediction).
+    noise_scheduler: ``diffusers`` DDPMScheduler, DDIMScheduler or DPMSolverMultistepScheduler
+    (epsilon prediction).
     normalizer: maps world units to the model's [-1, 1] and back.
 
     Sampling runs the network through :meth:`denoiser`: for a :class:`TemporalUnet1d` an
@@ -103,9 +114,10 @@ class DiffusionPolicy:
 
     def __init__(self, config: DiffusionConfig, model: nn.Module,
                  noise_scheduler: NoiseScheduler, normalizer: MinMaxNormalizer):
-        if not isinstance(noise_scheduler, DDPMScheduler | DDIMScheduler):
-            raise TypeError(f"noise_scheduler must be a diffusers DDPMScheduler or "
-                            f"DDIMScheduler, got {type(noise_scheduler).__name__}")
+        if not isinstance(noise_scheduler, NoiseScheduler):
+            raise TypeError(f"noise_scheduler must be a diffusers DDPMScheduler, "
+                            f"DDIMScheduler or DPMSolverMultistepScheduler, got "
+                            f"{type(noise_scheduler).__name__}")
         sc = noise_scheduler.config
         if sc.num_train_timesteps != config.num_train_timesteps:
             raise ValueError(f"scheduler has {sc.num_train_timesteps} training steps, config "
@@ -134,6 +146,25 @@ class DiffusionPolicy:
             model = TemporalUnet1d(config)
         policy = cls(config, model, make_noise_scheduler(config), normalizer)
         return policy.to(resolve_device(device, default=config.device))
+
+    def with_sampler(self, sampler: str | None = None, steps: int | None = None
+                     ) -> DiffusionPolicy:
+        """This policy (the same network and weights, shared) sampling with another reverse
+        kernel (``sampler``: "ddim", "ddpm" or "dpm"; None keeps its own) and, when given,
+        ``steps`` reverse steps by default. The forward process is the one it was trained
+        with, so any sampler applies; ``self`` when nothing changes."""
+        if sampler is None and steps is None:
+            return self
+        changes: dict[str, Any] = {"sampler": sampler or self.config.sampler}
+        if steps is not None:
+            changes["num_inference_steps"] = steps
+        try:
+            config = DiffusionConfig.from_dict({**self.config.to_dict(), **changes})
+        except (ConfigError, ValueError) as exc:
+            raise ConfigError(f"sampler: {exc}") from None
+        if config == self.config:
+            return self
+        return DiffusionPolicy(config, self.model, make_noise_scheduler(config), self.normalizer)
 
     # -- plumbing ----------------------------------------------------------------------------
     @property
@@ -268,6 +299,10 @@ class DiffusionPolicy:
         if isinstance(self.noise_scheduler, DDIMScheduler):
             out = self.noise_scheduler.step(eps, t, x_t, eta=self.config.ddim_eta,
                                             generator=generator)
+        elif isinstance(self.noise_scheduler, DPMSolverMultistepScheduler):
+            # its one step of memory is the batch's previous prediction: one call per step,
+            # the same rows in the same order (as steering and sample call it)
+            out = self.noise_scheduler.step(eps, t, x_t, generator=generator)
         else:
             out = self.noise_scheduler.step(eps, t, x_t, generator=generator)
         return out.prev_sample

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike
 
+from rapidds.cache import cached_arrays, code_version, content_key
 from rapidds.codec import decode_array, encode_array
 from rapidds.errors import StateError
 from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
@@ -178,14 +179,22 @@ class SpatialCostModel:
         if len(trajectories) == 0:
             raise ValueError("from_population needs at least one population trajectory")
         grid = config.grid()
-        costs = np.stack([
-            point_cost(grid, _check_path(t, f"population trajectory {m}", config.dim),
-                       config.beta, polyline=config.polyline)
-            for m, t in enumerate(trajectories)
-        ])
-        mean = costs.mean(axis=0)
+        paths = [_check_path(t, f"population trajectory {m}", config.dim)
+                 for m, t in enumerate(trajectories)]
+
+        def build() -> dict[str, np.ndarray]:
+            costs = np.stack([point_cost(grid, p, config.beta, polyline=config.polyline)
+                              for p in paths])
+            return {"mean": costs.mean(axis=0), "var": costs.var(axis=0)}
+
+        # seconds of point costs, the same in every run with these paths (the population
+        # prior, a simulated person's truth): built once, then read back bit for bit
+        key = content_key(code_version(__file__), grid, float(config.beta), config.polyline,
+                          *paths)
+        stats = cached_arrays("population-costs", key, ("mean", "var"), build)
+        mean = stats["mean"]
         if config.prior_var is None:
-            var = np.maximum(costs.var(axis=0), config.min_prior_var)
+            var = np.maximum(stats["var"], config.min_prior_var)
         else:
             var = np.full(config.n_points, config.prior_var)
         return cls(config, mean, var)
