@@ -115,23 +115,21 @@ def error_line(exc: ValidationError, *, prefix: str = "", option: bool = False,
 
 def cli_field(default: Any, description: str, *, show: str | None = None,
               option: str | None = None, aliases: tuple[str, ...] = (), argument: bool = False,
-              cli: bool = True, text: bool = False, **field: Any) -> Any:
+              cli: bool = True, text: bool = False) -> Any:
     """A setting's field with its one description, the help its CLI option shows.
 
     show: what ``--help`` says the default is, where the value itself (None) says nothing;
     option: the option's name where it is not the field's (``--teammate-gamma``); aliases: old
     spellings still accepted, hidden, with a deprecation line; argument: the command's
     positional argument; cli: False for a setting no option sets directly; text: the option
-    takes text that the command parses (``--gamma 2`` or ``--gamma learn``); field: further
-    pydantic ``Field`` arguments (``exclude_if``: a value not stored).
+    takes text that the command parses (``--gamma 2`` or ``--gamma learn``).
     """
     default_extra: dict[str, Any] = {"show": None, "option": None, "aliases": (),
                                      "argument": False, "cli": True, "text": False}
     extra: dict[str, Any] = {"show": show, "option": option, "aliases": aliases,
                              "argument": argument, "cli": cli, "text": text}
     return Field(default, description=description,
-                 json_schema_extra={k: v for k, v in extra.items() if v != default_extra[k]},
-                 **field)
+                 json_schema_extra={k: v for k, v in extra.items() if v != default_extra[k]})
 
 
 def option_name(name: str, field: Any = None) -> str:

@@ -100,10 +100,10 @@ class SearchSettings(SettingsGroup):
         8, "SVDD-PM candidates M per particle and diffusion step.")
     steps: Annotated[int, Field(ge=1, le=1000)] | None = cli_field(
         None, "Reverse diffusion steps per motion.", show="the policy's own")
-    sampler: Sampler | None = cli_field(
+    # stored only when set: the stored settings of every run before it stay as they were
+    sampler: Annotated[Sampler | None, Field(exclude_if=lambda v: v is None)] = cli_field(
         None, "Reverse kernel of every steered motion: ddim, ddpm or dpm (DPM-Solver++ 2M, for "
-        "few steps: --sampler dpm --steps 5; stored only when set).", show="the policy's own",
-        exclude_if=lambda v: v is None)
+        "few steps: --sampler dpm --steps 5).", show="the policy's own")
     reuse_motions: bool = cli_field(
         True, "Answer a motion request from the plan steered for it in an earlier cycle while "
         "the spatial models it was steered against are unchanged (off: every cycle steers "
