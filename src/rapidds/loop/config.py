@@ -146,6 +146,15 @@ class TeammateSettings(SettingsGroup):
         0.0, "Probability per cycle that the simulated person deviates from the plan (another "
         "order, a pause, a robot task taken).")
 
+    @field_validator("change")
+    @classmethod
+    def _check_change(cls, v: str | None) -> str | None:
+        if v is not None:
+            from rapidds.worlds.changes import parse_changes  # numpy: not at `--help`
+
+            parse_changes(v)
+        return v
+
 
 class ChangeSettings(SettingsGroup):
     """Noticing a teammate who changes: forgetting, change-point detection, asking."""
