@@ -246,7 +246,7 @@ def test_tracking_topics_follow_the_contract() -> None:
     (["deploy", "painting", "--listen", "7447", "--out", "x"], "bad endpoint"),
     (["deploy", "painting", "--time-scale", "0", "--out", "x"], "--time-scale"),
     (["sim-human", "painting", "--human", "nobody"], "unknown human"),
-    (["sim-robot", "fetch", "--connect", "tcp/127.0.0.1:1"], "no physics model"),
+    (["sim-robot", "fetch", "--connect", "tcp/127.0.0.1:1"], "does not declare the physics"),
 ])
 def test_bad_input_is_one_line_and_exit_2(capsys, args, says) -> None:
     code, _, err = run_main(capsys, *args)
