@@ -233,7 +233,6 @@ PARAMETER_EXCEPTIONS: dict[str, str] = {
     "scheduler/evaluate.py:evaluate_population": "not yet done: the GA's hot path",
     "scheduler/evaluate.py:_overlap_round": "not yet done: the GA's hot path",
     "scheduler/evaluator.py:Evaluator.__init__": "not yet done: the GA's hot path",
-    "settings.py:error_line": "not yet done: keyword-only formatting options",
 }
 
 
