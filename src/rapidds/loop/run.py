@@ -59,7 +59,7 @@ from rapidds.loop.execute import (
 )
 from rapidds.loop.model import HumanModel, device_terms, oracle_spatial, workspace_cost
 from rapidds.loop.observation import Observation, Source
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
@@ -294,9 +294,9 @@ class AdaptiveRun:
             0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
-            duration=robot_duration(self.world),
-            hold=None if holds is None else holds.hold,
-            device_terms=device_terms(self.world, spatial))
+            terms=ValueTerms(duration=robot_duration(self.world),
+                             hold=None if holds is None else holds.hold,
+                             device_terms=device_terms(self.world, spatial)))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)
