@@ -228,9 +228,6 @@ PARAMETER_EXCEPTIONS: dict[str, str] = {
     "execution/replan.py:_score": "changed elsewhere this cycle (r32-exec)",
     "execution/replan.py:replan_remainder": "changed elsewhere this cycle (r32-exec)",
     "motion/steering.py:steer": "not yet done: ~35 call sites, most of them its own tests",
-    "scheduler/evaluate.py:evaluate_population": "not yet done: the GA's hot path",
-    "scheduler/evaluate.py:_overlap_round": "not yet done: the GA's hot path",
-    "scheduler/evaluator.py:Evaluator.__init__": "not yet done: the GA's hot path",
 }
 
 

@@ -67,6 +67,7 @@ from rapidds.record import CycleRecord, Execution, InCycle, PlanCost, PlanPart, 
 from rapidds.schedule import Schedule, Timeline
 from rapidds.scheduler import (
     Evaluation,
+    EvaluationContext,
     GAConfig,
     GeneticScheduler,
     evaluate_population,
@@ -257,9 +258,10 @@ class AdaptiveRun:
         samples, mean = self._true_durations(PLAN_COST_SAMPLES, rng)
         motion = _PlannedMotions(best.motions, workspace_cost(self.world, self._true_spatial()))
         gamma = self._gamma(plan)
-        ev = evaluate_population(self.problem, [best.schedule], samples, mean,
-                                 TrajectoryCache(motion), motion.nominal_durations(self.problem),
-                                 gamma, 0.0)[0]
+        ev = evaluate_population(
+            EvaluationContext(self.problem, samples, mean, TrajectoryCache(motion),
+                              motion.nominal_durations(self.problem), gamma, 0.0),
+            [best.schedule])[0]
         return {"cost": ev.makespan_mean + gamma * ev.spatial, "makespan": ev.makespan_mean,
                 "spatial": ev.spatial}
 
@@ -268,9 +270,11 @@ class AdaptiveRun:
         """CP-SAT on the prior mean durations, scored like every other plan."""
         exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
         cache = TrajectoryCache(motion)
-        ev = evaluate_population(self.problem, [exact.schedule], samples, mean, cache,
-                                 motion.nominal_durations(self.problem), gamma, 0.0,
-                                 self.model.history)[0]
+        ev = evaluate_population(
+            EvaluationContext(self.problem, samples, mean, cache,
+                              motion.nominal_durations(self.problem), gamma, 0.0,
+                              self.model.history),
+            [exact.schedule])[0]
         return ev, {"solver": "cp-sat", "optimal": exact.optimal,
                     "motion_requests": cache.misses}
 
