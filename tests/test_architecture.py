@@ -224,9 +224,6 @@ def test_every_size_exception_is_still_needed() -> None:
 # shrinks (issue 32 wants it empty).
 MAX_PARAMETERS = 8
 PARAMETER_EXCEPTIONS: dict[str, str] = {
-    "execution/executor.py:CycleExecutor.__init__": "changed elsewhere this cycle (r32-exec)",
-    "execution/replan.py:_score": "changed elsewhere this cycle (r32-exec)",
-    "execution/replan.py:replan_remainder": "changed elsewhere this cycle (r32-exec)",
     "motion/steering.py:steer": "not yet done: ~35 call sites, most of them its own tests",
 }
 

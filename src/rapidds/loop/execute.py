@@ -19,6 +19,7 @@ import numpy as np
 from rapidds.errors import RapiddsError
 from rapidds.execution import (
     CycleExecutor,
+    CycleRules,
     Deployment,
     HumanSource,
     PlannedRobot,
@@ -208,7 +209,7 @@ def cycle_executor(setup: CycleSetup, person: HumanSource,
     return CycleExecutor(
         s.world, s.problem.with_objective(gamma=s.gamma), s.schedule, person,
         PlannedRobot(s.world, s.motions), s.config.execution.policy(limits),
-        beta=s.beta, replanning=replanning, limits=limits, max_time=max_time)
+        beta=s.beta, rules=CycleRules(replanning=replanning, limits=limits, max_time=max_time))
 
 
 def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, MotionPlan],
