@@ -18,7 +18,13 @@ from pydantic import Field
 
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import TensorValue, ValueFn, particle_temperatures, steer
+from rapidds.motion.steering import (
+    SteerRequest,
+    TensorValue,
+    ValueFn,
+    particle_temperatures,
+    steer,
+)
 from rapidds.problem import Problem
 from rapidds.settings import Int, Real, Settings
 
@@ -204,8 +210,7 @@ class DiffusionMotion:
         tasks = [task for task, _ in requests for _ in range(b)]
         result = steer(
             self.policy,
-            tasks,
-            len(tasks),
+            SteerRequest(tasks, len(tasks)),
             self.value(requests),
             num_candidates=cfg.candidates,
             alpha=np.tile(cfg.temperatures(), len(requests)),
