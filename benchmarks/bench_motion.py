@@ -24,7 +24,7 @@ from _common import cpu_model, load_average, update_docs_section
 from rapidds.loop import AdaptiveRun, RunConfig, load_policy, prior_model
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import steer
+from rapidds.motion.steering import SteerRequest, steer
 from rapidds.worlds.fetch import POLICY_DEFAULTS, FetchWorld
 
 SECTION = "## Motion (diffusion policy and SVDD-PM steering)"
@@ -48,7 +48,8 @@ def speed_table(policy: DiffusionPolicy, value, reps: int
              ) -> tuple[float, float, float]:
         policy.fast_inference = fast
         t0, c0 = time.perf_counter(), time.process_time()
-        res = steer(policy, "t3", p, value, num_candidates=m, generator=seed, num_steps=steps)
+        res = steer(policy, SteerRequest("t3", p), value, num_candidates=m, generator=seed,
+                    num_steps=steps)
         return time.perf_counter() - t0, time.process_time() - c0, float(np.mean(res.values))
 
     rows = ["| M | particles | rows per pass | steps | reference samples/s | fast samples/s "
@@ -100,7 +101,7 @@ def time_split(policy: DiffusionPolicy, value, reps: int) -> str:
     try:
         for rep in range(reps):
             t0 = time.perf_counter()
-            steer(policy, "t3", 32, timed_value, num_candidates=8, generator=rep)
+            steer(policy, SteerRequest("t3", 32), timed_value, num_candidates=8, generator=rep)
             spent["total"] += time.perf_counter() - t0
     finally:
         del policy.denoiser

@@ -89,12 +89,13 @@ def library_makespan(problem: Problem, schedule: Schedule, human: np.ndarray) ->
     """Expected makespan of ``schedule`` as the GA's own evaluation computes it (Algorithm 2,
     waits included), checked against :func:`expected_makespans`, the enumeration's."""
     from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
-    from rapidds.scheduler import evaluate_population
+    from rapidds.scheduler import EvaluationContext, evaluate_population
 
     motion = FixedDurationMotion(problem)
     mean = human.mean(axis=0)
-    got = evaluate_population(problem, [schedule], human, mean, TrajectoryCache(motion),
-                              motion.nominal_durations(problem), 0.0, 0.0)[0].makespan_mean
+    got = evaluate_population(EvaluationContext(problem, human, mean, TrajectoryCache(motion),
+                                                motion.nominal_durations(problem), 0.0, 0.0),
+                              [schedule])[0].makespan_mean
     mine = float(expected_makespans(problem, [schedule], human)[0])
     assert abs(got - mine) <= 1e-9 * max(1.0, mine), (got, mine)
     return float(got)

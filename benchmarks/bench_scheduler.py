@@ -29,7 +29,13 @@ import numpy as np
 from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
 from rapidds.problem import Problem, Task
 from rapidds.schedule import Schedule
-from rapidds.scheduler import GAConfig, GeneticScheduler, evaluate_population, solve_exact
+from rapidds.scheduler import (
+    EvaluationContext,
+    GAConfig,
+    GeneticScheduler,
+    evaluate_population,
+    solve_exact,
+)
 
 BOTH = frozenset({"human", "robot"})
 DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
@@ -93,8 +99,9 @@ def bench_throughput(sizes: list[int], seconds: float, seed: int) -> list[dict[s
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < seconds:
             batch = schedules[(done % len(schedules)) : (done % len(schedules)) + 48]
-            evals = evaluate_population(p, batch, samples, mean, TrajectoryCache(motion),
-                                        d_init, 1.75, 0.0)
+            evals = evaluate_population(
+                EvaluationContext(p, samples, mean, TrajectoryCache(motion), d_init, 1.75, 0.0),
+                batch)
             done += len(batch)
             feasible += sum(e.feasible for e in evals)
         elapsed = time.perf_counter() - t0

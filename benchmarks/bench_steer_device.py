@@ -22,7 +22,7 @@ from _common import cpu_model, load_average
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.loop.run import load_policy
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.worlds.painting import PaintingWorld
 
 REQUESTS = [("mix_l", frozenset({"secure_piece"})), ("mix_r", frozenset({"secure_piece"})),
@@ -50,7 +50,8 @@ def measure(device: str, repeat: int) -> dict[str, object]:
             return DiffusionMotion(policy, world.completion_time,
                                    workspace_cost(world, spatial), 12.0,
                                    SteeringConfig(seed=seed),
-                                   device_terms=device_terms(world, spatial), on_device=on)
+                                   terms=ValueTerms(device_terms=device_terms(world, spatial),
+                                                    on_device=on))
 
         motion(99).plan(REQUESTS)  # warm-up: kernels, caches, tensor terms
         wall, cpu, syncs = [], [], 0

@@ -223,18 +223,7 @@ def test_every_size_exception_is_still_needed() -> None:
 # their parameters are their declared options. Each exception says why it stands; the list only
 # shrinks (issue 32 wants it empty).
 MAX_PARAMETERS = 8
-PARAMETER_EXCEPTIONS: dict[str, str] = {
-    "execution/executor.py:CycleExecutor.__init__": "changed elsewhere this cycle (r32-exec)",
-    "execution/replan.py:_score": "changed elsewhere this cycle (r32-exec)",
-    "execution/replan.py:replan_remainder": "changed elsewhere this cycle (r32-exec)",
-    "motion/steering.py:steer": "not yet done: ~35 call sites, most of them its own tests",
-    "motion/diffusion_motion.py:DiffusionMotion.__init__": "not yet done: the device value "
-    "(device_terms, on_device) joined the hold and the duration this cycle; one value object",
-    "scheduler/evaluate.py:evaluate_population": "not yet done: the GA's hot path",
-    "scheduler/evaluate.py:_overlap_round": "not yet done: the GA's hot path",
-    "scheduler/evaluator.py:Evaluator.__init__": "not yet done: the GA's hot path",
-    "settings.py:error_line": "not yet done: keyword-only formatting options",
-}
+PARAMETER_EXCEPTIONS: dict[str, str] = {}
 
 
 def _parameters(tree: ast.AST, prefix: str = "") -> list[tuple[str, int]]:

@@ -11,7 +11,7 @@ import torch
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.loop.run import load_policy
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.steering import TensorValue
 from rapidds.worlds.painting import PaintingWorld
 
@@ -71,7 +71,8 @@ def test_a_steering_batch_scores_on_the_device_as_on_the_host(world, paths, spat
     def motion(on_device: bool | None) -> DiffusionMotion:
         return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
                                12.0, SteeringConfig(particles=2, candidates=3, steps=3),
-                               device_terms=device_terms(world, spatial), on_device=on_device)
+                               terms=ValueTerms(device_terms=device_terms(world, spatial),
+                                                on_device=on_device))
 
     rows = paths[: 3 * 2 * 3 * 2]  # 3 requests x 2 particles x 3 candidates, twice
     host_value = motion(None).value(requests)
@@ -120,7 +121,8 @@ def test_the_hold_term_keeps_the_value_on_the_host(world, spatial) -> None:
         return np.zeros(len(xi))
 
     m = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 12.0,
-                        device_terms=device_terms(world, spatial), hold=hold, on_device=True)
+                        terms=ValueTerms(device_terms=device_terms(world, spatial), hold=hold,
+                                         on_device=True))
     assert not isinstance(m.value([("mix_l", frozenset())]), TensorValue)
 
 

@@ -19,7 +19,7 @@ from rapidds.errors import CheckpointError
 from rapidds.motion.config import DiffusionConfig
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import steer
+from rapidds.motion.steering import SteerRequest, steer
 
 RAPIDDS = [sys.executable, "-c", "from rapidds.cli import main; main()"]
 
@@ -141,7 +141,7 @@ def _policy(nan: bool) -> DiffusionPolicy:
 def test_nan_policy_is_an_error_not_a_result(tmp_path, capsys):
     torch.set_num_threads(1)
     with pytest.raises(CheckpointError, match="non-finite trajectories"):
-        steer(_policy(nan=True), "a", 4, lambda x: np.zeros(len(x)), num_candidates=2,
+        steer(_policy(nan=True), SteerRequest("a", 4), lambda x: np.zeros(len(x)), num_candidates=2,
               generator=0)
     good, bad = tmp_path / "good", tmp_path / "bad"
     _policy(nan=False).save(good)

@@ -105,7 +105,13 @@ def toy() -> tuple:
 def test_steering_on_the_device_chooses_as_on_the_host(toy):
     """The paper's V as a tensor value (computed where the policy is, no host copy inside the
     loop) steers to the same trajectories as the same V on numpy arrays, on the same seed."""
-    from rapidds.motion.steering import TensorValue, proximity_cost, steer, value_function
+    from rapidds.motion.steering import (
+        SteerRequest,
+        TensorValue,
+        proximity_cost,
+        steer,
+        value_function,
+    )
 
     (policy, _), _ = toy
     person = np.stack([np.full(7, 0.5), np.linspace(-0.3, 0.0, 7)], axis=-1)
@@ -116,10 +122,10 @@ def test_steering_on_the_device_chooses_as_on_the_host(toy):
         assert isinstance(xi, np.ndarray)
         return on_device(xi)
 
-    a = steer(policy, "right", 16, on_device, num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8,
-              generator=3)
-    b = steer(policy, "right", 16, on_host, num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8,
-              generator=3)
+    a = steer(policy, SteerRequest("right", 16), on_device,
+              num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8, generator=3)
+    b = steer(policy, SteerRequest("right", 16), on_host,
+              num_candidates=4, alpha=[0.0] * 8 + [0.7] * 8, generator=3)
     assert np.array_equal(a.trajectories, b.trajectories)
     np.testing.assert_allclose(a.values, b.values, rtol=1e-12)
     assert a.stats.kept_value == pytest.approx(b.stats.kept_value, rel=1e-12)
@@ -128,12 +134,12 @@ def test_steering_on_the_device_chooses_as_on_the_host(toy):
 
 
 def test_a_tensor_value_of_the_wrong_shape_is_refused(toy):
-    from rapidds.motion.steering import steer, tensor_value
+    from rapidds.motion.steering import SteerRequest, steer, tensor_value
 
     (policy, _), _ = toy
     with pytest.raises(ValueError, match="shape"):
-        steer(policy, "right", 4, tensor_value(lambda xi: xi.sum(dim=1)), num_candidates=2,
-              generator=0)
+        steer(policy, SteerRequest("right", 4), tensor_value(lambda xi: xi.sum(dim=1)),
+              num_candidates=2, generator=0)
 
 
 def test_mixed_precision_training_keeps_the_checkpoint_and_the_loss(toy, tmp_path):
@@ -159,7 +165,7 @@ def test_a_tensor_value_sees_tensors_and_a_diverged_policy_still_stops(toy):
     import copy
 
     from rapidds.errors import CheckpointError
-    from rapidds.motion.steering import steer, tensor_value
+    from rapidds.motion.steering import SteerRequest, steer, tensor_value
 
     (policy, _), _ = toy
     seen: list[type] = []
@@ -168,10 +174,10 @@ def test_a_tensor_value_sees_tensors_and_a_diverged_policy_still_stops(toy):
         seen.append(type(xi))
         return xi[:, -1, 0]
 
-    steer(policy, "right", 4, tensor_value(value), num_candidates=2, generator=0)
+    steer(policy, SteerRequest("right", 4), tensor_value(value), num_candidates=2, generator=0)
     assert seen and all(t is torch.Tensor for t in seen)
     broken = copy.deepcopy(policy)
     with torch.no_grad():
         next(iter(broken.model.parameters())).fill_(float("nan"))
     with pytest.raises(CheckpointError, match="non-finite"):
-        steer(broken, "right", 4, tensor_value(value), num_candidates=2, generator=0)
+        steer(broken, SteerRequest("right", 4), tensor_value(value), num_candidates=2, generator=0)

@@ -14,6 +14,7 @@ from conftest import SMALL_SEARCH as SMALL
 from rapidds.errors import RapiddsError
 from rapidds.execution import (
     CycleExecutor,
+    CycleRules,
     Deployment,
     PlannedRobot,
     Replanning,
@@ -46,7 +47,8 @@ def _executor(run, plan, reactive: bool, deviation: Deviation | None = None) -> 
                          PlannedRobot(run.world, plan.best.motions),
                          SpeedSeparation(limits) if reactive else None,
                          beta=run.model.spatial.config.beta,
-                         replanning=replanning if reactive else None, limits=limits)
+                         rules=CycleRules(replanning=replanning if reactive else None,
+                                          limits=limits))
 
 
 def _same(a: Deployment, b: Deployment) -> None:

@@ -14,7 +14,13 @@ from test_scheduler import random_problem
 from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule
-from rapidds.scheduler import AllocationHistory, GAConfig, GeneticScheduler, evaluate_population
+from rapidds.scheduler import (
+    AllocationHistory,
+    EvaluationContext,
+    GAConfig,
+    GeneticScheduler,
+    evaluate_population,
+)
 from rapidds.scheduler import polish as polishing
 from rapidds.scheduler.evaluator import Evaluator
 from rapidds.scheduler.operators import Operators
@@ -32,8 +38,9 @@ def _job(seed: int, n: int) -> tuple[Problem, np.ndarray, np.ndarray]:
 def _evaluator(p: Problem, samples: np.ndarray, mean: np.ndarray, config: GAConfig,
                lam: float = 0.0, history: AllocationHistory | None = None) -> Evaluator:
     motion = FixedDurationMotion(p)
-    return Evaluator(p, config, samples, mean, motion.nominal_durations(p),
-                     TrajectoryCache(motion), 0.0, lam, history, time.perf_counter())
+    context = EvaluationContext(p, samples, mean, TrajectoryCache(motion),
+                                motion.nominal_durations(p), 0.0, lam, history)
+    return Evaluator(context, config, time.perf_counter())
 
 
 def test_lower_bound_is_below_every_objective() -> None:
@@ -80,8 +87,9 @@ def _stochastic_optimum(p: Problem, samples: np.ndarray, mean: np.ndarray) -> fl
         schedules += [Schedule(a, b) for a in itertools.permutations(h)
                       for b in itertools.permutations(r)]
     motion = FixedDurationMotion(p)
-    out = evaluate_population(p, schedules, samples, mean, TrajectoryCache(motion),
-                              motion.nominal_durations(p), 0.0, 0.0)
+    out = evaluate_population(EvaluationContext(p, samples, mean, TrajectoryCache(motion),
+                                                motion.nominal_durations(p), 0.0, 0.0),
+                              schedules)
     return min(e.objective for e in out)
 
 

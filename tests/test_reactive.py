@@ -14,6 +14,7 @@ from record_helpers import stored
 
 from rapidds.execution import (
     CycleExecutor,
+    CycleRules,
     PlannedRobot,
     Replanning,
     SimulatedHuman,
@@ -48,7 +49,8 @@ def _person(run, plan, seed, reaction=None, deviation=None):
 def _execute(run, plan, person, policy=None, replanning=None):
     ex = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
                        PlannedRobot(run.world, plan.best.motions), policy,
-                       beta=run.model.spatial.config.beta, replanning=replanning)
+                       beta=run.model.spatial.config.beta,
+                       rules=CycleRules(replanning=replanning))
     return ex, ex.run()
 
 
@@ -266,7 +268,8 @@ def test_a_replan_can_hand_the_robot_a_task_of_the_person(plans):
         rp = Replanning(rp.mean, rp.std, {j: m.duration for j, m in motions.items()},
                         rp.spatial, rp.gamma)
         ex = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
-                           PlannedRobot(run.world, motions), beta=1.0, replanning=rp)
+                           PlannedRobot(run.world, motions), beta=1.0,
+                           rules=CycleRules(replanning=rp))
         dep = ex.run()
         mine = set(plan.best.schedule.tasks("human"))
         robot_did = set(dep.timeline.schedule.tasks("robot"))
@@ -332,7 +335,8 @@ def _steering_cycle(run, plan, deviation, steer_max):
                     motions=supply, steer_max=steer_max)
     _, person = _person(run, plan, 0, deviation=deviation)
     dep = CycleExecutor(run.world, run.problem, plan.best.schedule, person,
-                        PlannedRobot(run.world, motions), beta=1.0, replanning=rp).run()
+                        PlannedRobot(run.world, motions), beta=1.0,
+                        rules=CycleRules(replanning=rp)).run()
     return motions, supply, dep
 
 

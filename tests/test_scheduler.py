@@ -25,6 +25,7 @@ from rapidds.problem import Problem, Task
 from rapidds.schedule import CompiledSchedule, Schedule, Wait, repair, validate
 from rapidds.scheduler import (
     AllocationHistory,
+    EvaluationContext,
     GAConfig,
     GeneticScheduler,
     diversity,
@@ -87,10 +88,10 @@ def _evaluate(problem: Problem, schedules: list[Schedule], motion, *, gamma: flo
               max_overlap_iters: int = 8, samples: np.ndarray | None = None):
     mean = means(problem)
     samples = np.nan_to_num(mean)[None] if samples is None else samples
-    return evaluate_population(
-        problem, schedules, samples, np.nan_to_num(mean), TrajectoryCache(motion),
+    return evaluate_population(EvaluationContext(
+        problem, samples, np.nan_to_num(mean), TrajectoryCache(motion),
         motion.nominal_durations(problem), gamma, lam, history, max_overlap_iters,
-    )
+    ), schedules)
 
 
 # ---------------------------------------------------------------------------- diversity
@@ -486,8 +487,9 @@ def test_polish_window_keeps_short_sequences_whole_and_bounds_long_ones() -> Non
     motion = FixedDurationMotion(p)
     ga = GeneticScheduler(p, motion)
     s = ga.list_schedule(random.Random(0), mean, motion.nominal_durations(p))
-    start = evaluate_population(p, [s], mean[None], mean, TrajectoryCache(motion),
-                                motion.nominal_durations(p), 0.0, 0.0)[0].expected_start
+    start = evaluate_population(EvaluationContext(p, mean[None], mean, TrajectoryCache(motion),
+                                                  motion.nominal_durations(p), 0.0, 0.0),
+                                [s])[0].expected_start
     whole = ga.neighbours(s)
     assert ga.neighbours(s, start, window=len(p.tasks)) == whole  # same schedules, same order
     near = ga.neighbours(s, start, window=2)

@@ -28,7 +28,7 @@ from rapidds.motion.interface import FixedDurationMotion, MotionPlan, Trajectory
 from rapidds.problem import problem_from_dict
 from rapidds.record import CycleRecord
 from rapidds.schedule import Schedule
-from rapidds.scheduler import evaluate_population
+from rapidds.scheduler import EvaluationContext, evaluate_population
 from rapidds.worlds.reactions import SafetyLimits, cell_reactions
 from rapidds.worlds.registry import make_world
 
@@ -147,11 +147,13 @@ def test_the_makespan_adds_the_predicted_hold_to_the_robots_motion():
 
     sched = Schedule(("a",), ("b", "c"))
     n = len(problem.tasks)
-    args = (problem, [sched], np.full((4, n), 3.0), np.full(n, 3.0))
-    base = evaluate_population(*args, TrajectoryCache(FixedDurationMotion(problem)),
-                               FixedDurationMotion(problem).nominal_durations(problem), 0, 0)[0]
-    held = evaluate_population(*args, TrajectoryCache(Held(problem)),
-                               Held(problem).nominal_durations(problem), 0, 0)[0]
+    args = (problem, np.full((4, n), 3.0), np.full(n, 3.0))
+    base = evaluate_population(EvaluationContext(
+        *args, TrajectoryCache(FixedDurationMotion(problem)),
+        FixedDurationMotion(problem).nominal_durations(problem), 0, 0), [sched])[0]
+    held = evaluate_population(EvaluationContext(
+        *args, TrajectoryCache(Held(problem)), Held(problem).nominal_durations(problem), 0, 0),
+        [sched])[0]
     assert base.makespan_mean == pytest.approx(4.0)
     # b runs beside a and is held 1.5 s; c starts after a ended (3.5 s > 3 s): nothing to hold
     assert held.makespan_mean == pytest.approx(2.0 + 1.5 + 2.0)

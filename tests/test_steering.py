@@ -20,6 +20,7 @@ from rapidds.motion.config import DiffusionConfig
 from rapidds.motion.demos import two_route_demos
 from rapidds.motion.policy import DiffusionPolicy, make_noise_scheduler
 from rapidds.motion.steering import (
+    SteerRequest,
     completion_index,
     proximity_cost,
     steer,
@@ -66,7 +67,7 @@ def blocked_short_route() -> Callable[[np.ndarray], np.ndarray]:
 def test_steering_lowers_the_value(policy):
     value = blocked_short_route()
     plain = policy.sample("right", B, generator=1)
-    steered = steer(policy, "right", B, value, num_candidates=M, generator=1)
+    steered = steer(policy, SteerRequest("right", B), value, num_candidates=M, generator=1)
     assert steered.trajectories.shape == (B, 16, 2) and steered.values.shape == (B,)
     assert np.allclose(steered.values, value(steered.trajectories))
     assert steered.values.mean() < 0.85 * value(plain).mean()
@@ -74,7 +75,8 @@ def test_steering_lowers_the_value(policy):
 
 def test_cost_over_one_route_switches_samples_to_the_other(policy):
     plain = policy.sample("right", B, generator=2)
-    steered = steer(policy, "right", B, blocked_short_route(), num_candidates=M, generator=2)
+    steered = steer(policy, SteerRequest("right", B), blocked_short_route(),
+                    num_candidates=M, generator=2)
     # plain sampling keeps both routes; steered samples leave the blocked one for the other
     assert long_route(plain).mean() >= 0.2 and short_route(plain).mean() >= 0.2
     assert long_route(steered.trajectories).mean() >= 0.85
@@ -84,7 +86,8 @@ def test_cost_over_one_route_switches_samples_to_the_other(policy):
 def test_gamma_zero_prefers_the_quickest_completion(policy):
     completion_only = value_function([proximity_cost(PERSON, BETA)], gamma=0.0, tol=TOL)
     plain = policy.sample("right", B, generator=3)
-    steered = steer(policy, "right", B, completion_only, num_candidates=M, generator=3)
+    steered = steer(policy, SteerRequest("right", B), completion_only,
+                    num_candidates=M, generator=3)
     plain_done = completion_index(plain, TOL)
     assert np.array_equal(steered.values, completion_index(steered.trajectories, TOL))
     assert steered.values.mean() <= plain_done.mean() - 1.0
@@ -109,7 +112,7 @@ def test_a_step_costs_m_network_passes_in_one_batch(policy, monkeypatch):
         calls["rows"] += len(trajs)
         return trajs[:, :, 1].sum(axis=1)
 
-    result = steer(policy, "right", 5, value, num_candidates=4, generator=0)
+    result = steer(policy, SteerRequest("right", 5), value, num_candidates=4, generator=0)
     steps = policy.config.num_inference_steps
     assert rows == [5] + [5 * 4] * (steps - 1)  # x_T once, then B*M rows per step
     assert result.stats.rows_per_call == rows
@@ -120,30 +123,32 @@ def test_a_step_costs_m_network_passes_in_one_batch(policy, monkeypatch):
 
 def test_fewer_steps_cost_proportionally_fewer_passes(policy):
     value = blocked_short_route()
-    result = steer(policy, "right", 5, value, num_candidates=4, generator=0, num_steps=4)
+    result = steer(policy, SteerRequest("right", 5), value,
+                   num_candidates=4, generator=0, num_steps=4)
     assert result.stats.rows_per_call == [5] + [5 * 4] * 3
     assert result.stats.num_steps == 4 and result.stats.value_calls == 4
     with pytest.raises(ValueError, match="num_steps"):
-        steer(policy, "right", 5, value, num_candidates=4, num_steps=0)
+        steer(policy, SteerRequest("right", 5), value, num_candidates=4, num_steps=0)
 
 
 def test_fast_network_steers_like_the_reference_network(policy):
     value = blocked_short_route()
-    fast = steer(policy, "right", 16, value, num_candidates=M, generator=11)
+    fast = steer(policy, SteerRequest("right", 16), value, num_candidates=M, generator=11)
     policy.fast_inference = False
     try:
-        ref = steer(policy, "right", 16, value, num_candidates=M, generator=11)
+        ref = steer(policy, SteerRequest("right", 16), value, num_candidates=M, generator=11)
     finally:
         policy.fast_inference = True
     # float32 rounding apart, the same candidates win: the same paths and values
     assert np.allclose(fast.trajectories, ref.trajectories, atol=1e-4)
     assert np.allclose(fast.values, ref.values, atol=1e-4)
-    again = steer(policy, "right", 16, value, num_candidates=M, generator=11)
+    again = steer(policy, SteerRequest("right", 16), value, num_candidates=M, generator=11)
     assert np.array_equal(fast.trajectories, again.trajectories)
 
 
 def test_one_candidate_is_plain_sampling(policy):
-    steered = steer(policy, "up", 6, lambda t: np.zeros(len(t)), num_candidates=1, generator=9)
+    steered = steer(policy, SteerRequest("up", 6), lambda t: np.zeros(len(t)),
+                    num_candidates=1, generator=9)
     assert np.array_equal(steered.trajectories, policy.sample("up", 6, generator=9))
 
 
@@ -152,8 +157,10 @@ def test_steering_is_seeded_and_any_callable_works(policy):
     def prefer_right(t):
         return -t[:, -1, 0]
 
-    a = steer(policy, "up", 8, prefer_right, num_candidates=4, alpha=0.05, generator=5)
-    b = steer(policy, "up", 8, prefer_right, num_candidates=4, alpha=0.05, generator=5)
+    a = steer(policy, SteerRequest("up", 8), prefer_right,
+              num_candidates=4, alpha=0.05, generator=5)
+    b = steer(policy, SteerRequest("up", 8), prefer_right,
+              num_candidates=4, alpha=0.05, generator=5)
     assert np.array_equal(a.trajectories, b.trajectories)
     plain = policy.sample("up", 8, generator=5)
     assert a.values.mean() < prefer_right(plain).mean()
@@ -164,28 +171,29 @@ def test_nan_values_are_never_preferred(policy):
         v = t[:, :, 1].sum(axis=1)
         return np.where(t[:, :, 1].min(axis=1) < -0.1, np.nan, 0.0 * v)
 
-    result = steer(policy, "right", 16, nan_below, num_candidates=M, generator=4)
+    result = steer(policy, SteerRequest("right", 16), nan_below, num_candidates=M, generator=4)
     assert np.isfinite(result.values).mean() >= 0.9
 
 
 def test_bad_steering_requests(policy):
     value = blocked_short_route()
     with pytest.raises(ValueError, match="shape"):
-        steer(policy, "right", 4, lambda t: np.zeros((len(t), 2)), num_candidates=2)
+        steer(policy, SteerRequest("right", 4), lambda t: np.zeros((len(t), 2)), num_candidates=2)
     with pytest.raises(ValueError, match="num_candidates"):
-        steer(policy, "right", 4, value, num_candidates=0)
+        steer(policy, SteerRequest("right", 4), value, num_candidates=0)
     with pytest.raises(ValueError, match="alpha"):
-        steer(policy, "right", 4, value, alpha=-1.0)
+        steer(policy, SteerRequest("right", 4), value, alpha=-1.0)
     deterministic = DiffusionPolicy(policy.config.replace(ddim_eta=0.0), policy.model,
                                     make_noise_scheduler(policy.config), policy.normalizer)
     with pytest.raises(ValueError, match="eta"):
-        steer(deterministic, "right", 4, value, num_candidates=2)
+        steer(deterministic, SteerRequest("right", 4), value, num_candidates=2)
 
 
 def test_ddpm_kernel_steers_too(policy):
     cfg = policy.config.replace(sampler="ddpm")
     ddpm = DiffusionPolicy(cfg, policy.model, make_noise_scheduler(cfg), policy.normalizer)
-    steered = steer(ddpm, "right", 32, blocked_short_route(), num_candidates=M, generator=6)
+    steered = steer(ddpm, SteerRequest("right", 32), blocked_short_route(),
+                    num_candidates=M, generator=6)
     assert long_route(steered.trajectories).mean() >= 0.85
 
 
@@ -214,7 +222,8 @@ def test_cli_sample_steered(tmp_path, policy):
     report = json.loads(result.stdout)
     trajs = np.array(report["trajectories"])
     assert report["steered"] and report["network_passes"] == 1 + M * 9
-    same = steer(policy, "right", 16, blocked_short_route(), num_candidates=M, generator=2)
+    same = steer(policy, SteerRequest("right", 16), blocked_short_route(),
+                 num_candidates=M, generator=2)
     assert np.array_equal(trajs, same.trajectories)  # the CLI runs exactly the library's SVDD
     assert np.allclose(report["values"], same.values)
     assert (tmp_path / "steered.png").stat().st_size > 1000
@@ -222,16 +231,18 @@ def test_cli_sample_steered(tmp_path, policy):
 
 def test_a_temperature_per_particle_matches_the_uniform_ones(policy):
     value = value_function([proximity_cost(np.array([[0.5, 0.5]]), BETA)], GAMMA, tol=0.1)
-    greedy = steer(policy, "up", 4, value, num_candidates=4, alpha=0.0, generator=3)
-    same = steer(policy, "up", 4, value, num_candidates=4, alpha=[0.0] * 4, generator=3)
+    greedy = steer(policy, SteerRequest("up", 4), value, num_candidates=4, alpha=0.0, generator=3)
+    same = steer(policy, SteerRequest("up", 4), value,
+                 num_candidates=4, alpha=[0.0] * 4, generator=3)
     np.testing.assert_array_equal(greedy.trajectories, same.trajectories)
-    soft = steer(policy, "up", 4, value, num_candidates=4, alpha=0.7, generator=3)
-    same = steer(policy, "up", 4, value, num_candidates=4, alpha=np.full(4, 0.7), generator=3)
+    soft = steer(policy, SteerRequest("up", 4), value, num_candidates=4, alpha=0.7, generator=3)
+    same = steer(policy, SteerRequest("up", 4), value,
+                 num_candidates=4, alpha=np.full(4, 0.7), generator=3)
     np.testing.assert_array_equal(soft.trajectories, same.trajectories)
     with pytest.raises(ValueError, match="one per particle"):
-        steer(policy, "up", 4, value, alpha=[0.0, 1.0], generator=3)
+        steer(policy, SteerRequest("up", 4), value, alpha=[0.0, 1.0], generator=3)
     with pytest.raises(ValueError, match="alpha"):
-        steer(policy, "up", 2, value, alpha=[0.0, -1.0], generator=3)
+        steer(policy, SteerRequest("up", 2), value, alpha=[0.0, -1.0], generator=3)
 
 
 def test_particle_temperatures_keep_greedy_particles_first():

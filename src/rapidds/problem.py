@@ -16,7 +16,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from rapidds.errors import ProblemError
-from rapidds.settings import error_line, read_yaml
+from rapidds.settings import Place, error_line, read_yaml
 
 Agent = Literal["human", "robot"]
 AGENTS: tuple[Agent, Agent] = ("human", "robot")
@@ -264,7 +264,7 @@ def problem_from_dict(raw: Any, source: str = "problem") -> Problem:
     try:
         spec = _ProblemSpec.model_validate(raw)
     except ValidationError as exc:
-        line = error_line(exc, locate=lambda loc: _location(loc, raw))
+        line = error_line(exc, place=Place(locate=lambda loc: _location(loc, raw)))
         raise ProblemError(f"{source}: {line}") from None
     tasks = tuple(
         Task(

@@ -77,36 +77,48 @@ def _loc_text(loc: tuple[Any, ...]) -> str:
     return text
 
 
-def error_line(exc: ValidationError, *, prefix: str = "", option: bool = False,
-               skip: int = 0, quote: bool = False, with_input: bool = False,
-               empty: str = "", names: Mapping[str, str] | None = None, unknown: str = "",
-               locate: Callable[[tuple[Any, ...]], str] | None = None) -> str:
-    """One line for the first error of a pydantic validation: ``where: what (got value)``.
+@dataclasses.dataclass(frozen=True)
+class Place:
+    """How :func:`error_line` words the place of an error, where the default dotted path
+    (``search.grid_points``) is not what its reader knows.
 
-    prefix: put before the place (e.g. ``GAConfig.``); option: name the place as a CLI option
-    (``--grid-points``); skip: leading parts of the place to drop (a wrapper's field); quote:
-    quote the place ('name'); with_input: append the offending value; empty: the place named
-    when the error is about the whole input; names: another name for a field (the CLI's option
-    where it differs from the field's); unknown: what an unknown field is called instead of
-    pydantic's words; locate: turns the place into words itself (a
+    option: name it as a CLI option (``--grid-points``); skip: leading parts to drop (a
+    wrapper's field); quote: quote it ('name'); names: another name for a field (the CLI's
+    option where it differs from the field's); locate: turns the place into words itself (a
     problem file names a task by its id, not its index).
     """
+
+    option: bool = False
+    skip: int = 0
+    quote: bool = False
+    names: Mapping[str, str] | None = None
+    locate: Callable[[tuple[Any, ...]], str] | None = None
+
+
+def error_line(exc: ValidationError, *, prefix: str = "", with_input: bool = False,
+               empty: str = "", unknown: str = "", place: Place = Place()) -> str:
+    """One line for the first error of a pydantic validation: ``where: what (got value)``.
+
+    prefix: put before the place (e.g. ``GAConfig.``); with_input: append the offending value;
+    empty: the place named when the error is about the whole input; unknown: what an unknown
+    field is called instead of pydantic's words; place: how the place is worded.
+    """
     err = exc.errors()[0]
-    loc = tuple(err["loc"])[skip:]
-    if names and loc and loc[0] in names:
-        loc = (names[loc[0]], *loc[1:])
+    loc = tuple(err["loc"])[place.skip:]
+    if place.names and loc and loc[0] in place.names:
+        loc = (place.names[loc[0]], *loc[1:])
     msg = str(err["msg"])
     for tag in ("Value error, ", "Assertion failed, "):
         msg = msg.removeprefix(tag)
     if err["type"] == "extra_forbidden" and unknown:
         msg = unknown
-    if locate is not None:
-        where = locate(loc)
-    elif option and loc:
+    if place.locate is not None:
+        where = place.locate(loc)
+    elif place.option and loc:
         where = "--" + _loc_text(loc).replace("_", "-")
     else:
         where = _loc_text(loc)
-    if where and quote:
+    if where and place.quote:
         where = f"'{where}'"
     where = prefix + where if where else prefix.rstrip(". ") or empty
     got = f" (got {err['input']!r})" if with_input and loc and "input" in err else ""
@@ -162,8 +174,8 @@ class Settings(BaseModel):
     def error(cls, exc: ValidationError) -> str:
         """The one line this model's validation error reads as."""
         if cls.label is None:
-            return error_line(exc, option=True, with_input=True, empty="settings",
-                              names=cls.options, unknown="unknown setting")
+            return error_line(exc, with_input=True, empty="settings", unknown="unknown setting",
+                              place=Place(option=True, names=cls.options))
         return error_line(exc, prefix=f"{cls.label}.", with_input=True, unknown="unknown field")
 
     def replace(self, **changes: Any) -> Any:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rapidds.execution.executor import Replanning
-from rapidds.execution.replan import replan_remainder
+from rapidds.execution.replan import Progress, replan_remainder
 from rapidds.problem import Problem
 
 __all__ = ["LiveReplanner"]
@@ -95,7 +95,7 @@ class LiveReplanner:
         was = [t for t in self.order["robot"] if t not in self.taken]
         mean = {f"human:{t}": m for t, m in rp.mean.items()}
         mean.update({f"robot:{t}": d for t, d in rp.robot.items()})
-        rem = replan_remainder(self.problem, now, current, fixed, free, mean,
+        rem = replan_remainder(self.problem, Progress(now, current, fixed, free, mean),
                                frozenset(current["robot"]), rp.spatial, rp.gamma,
                                claimed=frozenset(current["human"]))
         robot = list(rem.robot) if list(rem.human) == current["human"] else current["robot"]

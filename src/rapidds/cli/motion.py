@@ -247,7 +247,7 @@ def _sample_in_world(
     from rapidds.loop.config import RunConfig
     from rapidds.loop.model import prior_model, workspace_cost
     from rapidds.loop.run import load_policy
-    from rapidds.motion.steering import steer
+    from rapidds.motion.steering import SteerRequest, steer
     from rapidds.plots.maps import save_cost_maps
     from rapidds.worlds.registry import make_world
 
@@ -268,8 +268,8 @@ def _sample_in_world(
         v = world.completion_time(task, xi)
         return v + gamma * cost(concurrent, xi) if concurrent else v
 
-    result = steer(policy, task, n, value, num_candidates=candidates if concurrent else 1,
-                   alpha=alpha, generator=seed)
+    result = steer(policy, SteerRequest(task, n), value,
+                   num_candidates=candidates if concurrent else 1, alpha=alpha, generator=seed)
     trajs = result.trajectories
     durations = world.completion_time(task, trajs)
     costs = cost(concurrent, trajs)
@@ -427,7 +427,7 @@ def _draw_samples(policy: DiffusionPolicy, task: str, n: int, value_fn: Any, ste
     """``n`` trajectories (steered by ``value_fn`` or plain), their values V and the network
     passes one sample took."""
     from rapidds.motion.config import ConfigError, cpu_threads
-    from rapidds.motion.steering import require_finite, steer
+    from rapidds.motion.steering import SteerRequest, require_finite, steer
 
     cfg = policy.config
     threads = cpu_threads(cfg.cpu_threads if policy.device.type == "cpu" else 0)
@@ -439,8 +439,8 @@ def _draw_samples(policy: DiffusionPolicy, task: str, n: int, value_fn: Any, ste
         raise ConfigError("this policy samples with deterministic DDIM (ddim_eta = 0); "
                           "SVDD steering needs a stochastic sampler")
     with threads:
-        result = steer(policy, task, n, value_fn, num_candidates=candidates, alpha=alpha,
-                       start=start, generator=seed)
+        result = steer(policy, SteerRequest(task, n, start), value_fn,
+                       num_candidates=candidates, alpha=alpha, generator=seed)
     return result.trajectories, result.values, result.stats.network_passes
 
 

@@ -246,7 +246,7 @@ def _solve_exact(prob: Problem, motion: FixedDurationMotion, time_limit: float,
                  ) -> tuple[Evaluation, dict[str, Any]]:
     """CP-SAT on mean durations, then scored on the same samples as the genetic search."""
     from rapidds.motion.interface import TrajectoryCache
-    from rapidds.scheduler import evaluate_population
+    from rapidds.scheduler import EvaluationContext, evaluate_population
     from rapidds.scheduler.exact import solve_exact
 
     t0 = time.perf_counter()
@@ -256,10 +256,10 @@ def _solve_exact(prob: Problem, motion: FixedDurationMotion, time_limit: float,
         fail(str(exc))
         raise  # not reached: fail exits
     seconds = time.perf_counter() - t0
-    evaluation = evaluate_population(
-        prob, [result.schedule], human_samples, human_mean, TrajectoryCache(motion),
+    evaluation = evaluate_population(EvaluationContext(
+        prob, human_samples, human_mean, TrajectoryCache(motion),
         motion.nominal_durations(prob), prob.objective.gamma, prob.objective.lam,
-    )[0]
+    ), [result.schedule])[0]
     return evaluation, {
         "solver": "cp-sat", "optimal": bool(result.optimal), "status": str(result.status),
         "makespan_at_mean": float(result.makespan), "bound": float(result.bound),

@@ -21,7 +21,7 @@ from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
     from rapidds.execution.deployment import Deployment, realise
-    from rapidds.execution.executor import CycleExecutor, Replanning
+    from rapidds.execution.executor import CycleExecutor, CycleRules, Replanning
     from rapidds.execution.policies import (
         OpenLoop,
         RobotPolicy,
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 
 _WHERE = {
     "Deployment": "deployment", "realise": "deployment",
-    "CycleExecutor": "executor", "Replanning": "executor",
+    "CycleExecutor": "executor", "CycleRules": "executor", "Replanning": "executor",
     "OpenLoop": "policies", "RobotPolicy": "policies", "Scene": "policies",
     "SpeedSeparation": "policies", "directed_speeds": "policies",
     "protective_distance": "policies",
@@ -59,10 +59,11 @@ _WHERE = {
     "RobotView": "sources", "SimulatedHuman": "sources", "SteerableRobot": "sources",
 }
 __all__ = [
-    "CycleExecutor", "Deployment", "ExecutionSetting", "HumanSource", "MotionSupply", "OpenLoop",
-    "PlannedRobot", "Replanning", "RobotPolicy", "RobotSource", "RobotView", "Scene",
-    "SimulatedHuman", "SpeedSeparation", "SteerableRobot", "directed_speeds", "execution_names",
-    "execution_setting", "protective_distance", "realise", "register_execution",
+    "CycleExecutor", "CycleRules", "Deployment", "ExecutionSetting", "HumanSource",
+    "MotionSupply", "OpenLoop", "PlannedRobot", "Replanning", "RobotPolicy", "RobotSource",
+    "RobotView", "Scene", "SimulatedHuman", "SpeedSeparation", "SteerableRobot",
+    "directed_speeds", "execution_names", "execution_setting", "protective_distance", "realise",
+    "register_execution",
 ]
 
 __getattr__ = submodule_attributes(__name__, _WHERE)

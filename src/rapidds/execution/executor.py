@@ -34,7 +34,13 @@ from rapidds.execution.policies import (
     directed_speeds,
     protective_check,
 )
-from rapidds.execution.replan import MotionSupply, Remainder, replan_remainder, robot_concurrency
+from rapidds.execution.replan import (
+    MotionSupply,
+    Progress,
+    Remainder,
+    replan_remainder,
+    robot_concurrency,
+)
 from rapidds.execution.sources import (
     HumanSource,
     PlannedRobot,
@@ -77,21 +83,34 @@ class Replanning:
     steer_max: int = 1
 
 
+@dataclass(frozen=True)
+class CycleRules:
+    """What watches and adjusts a cycle while it runs, beside the robot's policy.
+
+    replanning: re-plans the rest when the person deviates (None: never); limits: the robot's
+    safety numbers, against which every watched instant is checked (the result's
+    ``protective``), whichever policy runs; max_time: the cycle's simulated time limit;
+    yielding: when a held robot gives way to a person who waits for it (:mod:`.yielding`; only
+    a policy that holds the robot needs it; None: :class:`YieldRule`'s defaults).
+    """
+
+    replanning: Replanning | None = None
+    limits: SafetyLimits | None = None
+    max_time: float = 600.0
+    yielding: YieldRule | None = None
+
+
 class CycleExecutor:
-    """One cycle of ``schedule`` fed by a human and a robot source under a robot policy;
-    ``replanning`` (None: never) re-plans the rest when the person deviates; ``limits``: the
-    robot's safety numbers, against which every watched instant is checked (the result's
-    ``protective``), whichever policy runs; ``yielding``: when a held robot gives way to a
-    person who waits for it (:mod:`.yielding`; only a policy that holds the robot needs it)."""
+    """One cycle of ``schedule`` fed by a human and a robot source under a robot policy and
+    the :class:`CycleRules` ``rules``."""
 
     def __init__(self, world: World, problem: Problem, schedule: Schedule, human: HumanSource,
                  robot: RobotSource, policy: RobotPolicy | None = None, *, beta: float,
-                 replanning: Replanning | None = None, limits: SafetyLimits | None = None,
-                 max_time: float = 600.0, yielding: YieldRule | None = None):
+                 rules: CycleRules = CycleRules()):
         self.world, self.problem, self.human, self.robot = world, problem, human, robot
         self.policy = policy or OpenLoop()
-        self.beta, self.replanning, self.max_time = beta, replanning, max_time
-        self.limits = limits  # the protective distance measured against, whatever the policy
+        self.beta, self.replanning, self.max_time = beta, rules.replanning, rules.max_time
+        self.limits = rules.limits  # the protective distance measured against, whatever the policy
         self.queue: dict[str, list[Item]] = {a: list(schedule.sequence(a)) for a in AGENTS}
         self.start: dict[str, float] = {}
         self.finish: dict[str, float] = {}
@@ -115,7 +134,7 @@ class CycleExecutor:
         self._stalled = 0  # instants in a row at which time did not move: a bug, not a cycle
         reacts = getattr(human, "reaction", None) is not None
         self.watching = reacts or not isinstance(self.policy, OpenLoop)
-        self.guard = YieldGuard(yielding or YieldRule(), world.dt)
+        self.guard = YieldGuard(rules.yielding or YieldRule(), world.dt)
 
     # -- starting what may start ----------------------------------------------------------------
     def _gated(self, task: str) -> bool:
@@ -266,7 +285,7 @@ class CycleExecutor:
         mean = {f"human:{t}": m for t, m in rp.mean.items()}
         mean.update({f"robot:{t}": d for t, d in rp.robot.items()})
         mean.update({f"robot:{t}": m.duration for t, m in self._steered.items()})
-        rem = replan_remainder(self.problem, now, current, fixed, free, mean,
+        rem = replan_remainder(self.problem, Progress(now, current, fixed, free, mean),
                                frozenset(rp.robot), self._spatial, rp.gamma, self._claimed)
         changed = (list(rem.human), list(rem.robot)) != (current["human"], current["robot"])
         if changed:

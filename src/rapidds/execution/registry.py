@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 from pydantic import Field, TypeAdapter, ValidationError
 
 from rapidds.errors import ConfigError
-from rapidds.settings import Settings, error_line
+from rapidds.settings import Place, Settings, error_line
 
 if TYPE_CHECKING:
     from rapidds.execution.executor import Replanning
@@ -137,8 +137,8 @@ def parse_execution(value: str | Mapping[str, Any] | ExecutionSetting) -> Execut
         inner = exc.errors()[0].get("ctx", {}).get("error")
         if isinstance(inner, ConfigError):
             raise inner from None
-        raise ConfigError(error_line(exc, prefix="execution.", with_input=True, skip=1,
-                                     unknown="unknown field")) from None
+        raise ConfigError(error_line(exc, prefix="execution.", with_input=True,
+                                     unknown="unknown field", place=Place(skip=1))) from None
 
 
 def execution_setting(value: str | Mapping[str, Any] | ExecutionSetting) -> ExecutionSetting:

@@ -30,7 +30,7 @@ import numpy as np
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.problem import Problem
 
-__all__ = ["MotionSupply", "Remainder", "replan_remainder", "robot_concurrency"]
+__all__ = ["MotionSupply", "Progress", "Remainder", "replan_remainder", "robot_concurrency"]
 
 
 @runtime_checkable
@@ -108,18 +108,6 @@ def _near(times: Times) -> dict[str, frozenset[str]]:
             for j, a in agent.items() if a == "robot"}
 
 
-def _score(problem: Problem, human: Sequence[str], robot: Sequence[str], now: float,
-           fixed: Mapping[str, tuple[str, float, float]], free: Mapping[str, float],
-           mean: Mapping[str, float], spatial: Callable[[str, frozenset[str]], float],
-           gamma: float) -> float:
-    """Expected makespan + gamma x spatial of one remainder; inf when it deadlocks."""
-    times = _timeline(problem, human, robot, now, fixed, free, mean)
-    if times is None:
-        return float("inf")
-    total = sum(spatial(j, near) for j, near in _near(times).items() if near)
-    return max(times[1].values(), default=now) + gamma * total
-
-
 def robot_concurrency(problem: Problem, now: float, human: Sequence[str],
                       robot: Sequence[str], fixed: Mapping[str, tuple[str, float, float]],
                       free: Mapping[str, float],
@@ -135,23 +123,38 @@ def robot_concurrency(problem: Problem, now: float, human: Sequence[str],
     return {j: near[j] for j in robot}
 
 
-def replan_remainder(
-    problem: Problem, now: float, current: Mapping[str, Sequence[str]],
-    fixed: Mapping[str, tuple[str, float, float]], free: Mapping[str, float],
-    mean: Mapping[str, float], robot_can: frozenset[str],
-    spatial: Callable[[str, frozenset[str]], float], gamma: float,
-    claimed: frozenset[str] = frozenset(), max_candidates: int = 20_000,
-) -> Remainder:
-    """The best remainder of the cycle from ``now``.
+@dataclass(frozen=True)
+class Progress:
+    """Where a running cycle stands at ``now``, what a re-plan starts from.
 
     current: agent -> its tasks still to start, in the current plan's order. fixed: task ->
     (agent, start, (expected) finish) of every finished or running task. free: agent -> when
     it is expected to be free. mean: expected duration of every task still to start, for
-    either agent that may do it (the person's learned mean, the robot's motion duration).
+    either agent that may do it, keyed ``agent:task`` (the person's learned mean, the robot's
+    motion duration).
+    """
+
+    now: float
+    current: Mapping[str, Sequence[str]]
+    fixed: Mapping[str, tuple[str, float, float]]
+    free: Mapping[str, float]
+    mean: Mapping[str, float]
+
+
+def replan_remainder(
+    problem: Problem, progress: Progress, robot_can: frozenset[str],
+    spatial: Callable[[str, frozenset[str]], float], gamma: float,
+    claimed: frozenset[str] = frozenset(), max_candidates: int = 20_000,
+) -> Remainder:
+    """The best remainder of the cycle from ``progress.now``, scored by expected makespan +
+    gamma x spatial (inf where it deadlocks).
+
     robot_can: tasks the robot may take (a trajectory of its own exists). spatial(j, C): the
     spatial cost of robot task j beside the person's tasks C. claimed: tasks the person took
     from the robot; they stay the person's.
     """
+    now, current, fixed, free, mean = (progress.now, progress.current, progress.fixed,
+                                       progress.free, progress.mean)
     cache: dict[tuple[str, frozenset[str]], float] = {}
 
     def cost(j: str, near: frozenset[str]) -> float:
@@ -161,7 +164,11 @@ def replan_remainder(
 
     def score(h: Sequence[str], r: Sequence[str]) -> float:
         dur = {t: mean[f"{a}:{t}"] for a, seq in (("human", h), ("robot", r)) for t in seq}
-        return _score(problem, h, r, now, fixed, free, dur, cost, gamma)
+        times = _timeline(problem, h, r, now, fixed, free, dur)
+        if times is None:
+            return float("inf")
+        total = sum(cost(j, near) for j, near in _near(times).items() if near)
+        return max(times[1].values(), default=now) + gamma * total
 
     h0, r0 = tuple(current["human"]), tuple(current["robot"])
     first = score(h0, r0)

@@ -326,7 +326,7 @@ class RunConfig(Settings):
     @classmethod
     def error(cls, exc: Any) -> str:
         """One line naming the CLI option, a grouped setting by its own option (no group)."""
-        from rapidds.settings import error_line
+        from rapidds.settings import Place, error_line
 
         def locate(loc: tuple[Any, ...]) -> str:
             if len(loc) > 1 and loc[0] in _GROUPS:
@@ -335,7 +335,8 @@ class RunConfig(Settings):
                 return "settings"
             return option_name(str(loc[0]), cls.flat_fields().get(str(loc[0])))
 
-        return error_line(exc, with_input=True, locate=locate, unknown="unknown setting")
+        return error_line(exc, with_input=True, unknown="unknown setting",
+                          place=Place(locate=locate))
 
     @field_validator("slowdowns")
     @classmethod

@@ -19,6 +19,7 @@ import numpy as np
 from rapidds.errors import RapiddsError
 from rapidds.execution import (
     CycleExecutor,
+    CycleRules,
     Deployment,
     HumanSource,
     PlannedRobot,
@@ -29,7 +30,7 @@ from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import deploy
 from rapidds.loop.model import device_terms, workspace_cost
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
@@ -78,8 +79,8 @@ def _cycle_motion(world: World, config: RunConfig, cycle: int, gamma: float,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
-                           duration=robot_duration(world),
-                           device_terms=device_terms(world, spatial))
+                           terms=ValueTerms(duration=robot_duration(world),
+                                            device_terms=device_terms(world, spatial)))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,
@@ -208,7 +209,7 @@ def cycle_executor(setup: CycleSetup, person: HumanSource,
     return CycleExecutor(
         s.world, s.problem.with_objective(gamma=s.gamma), s.schedule, person,
         PlannedRobot(s.world, s.motions), s.config.execution.policy(limits),
-        beta=s.beta, replanning=replanning, limits=limits, max_time=max_time)
+        beta=s.beta, rules=CycleRules(replanning=replanning, limits=limits, max_time=max_time))
 
 
 def cycle_replanning(world: World, problem: Problem, motions: Mapping[str, MotionPlan],

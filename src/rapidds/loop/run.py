@@ -59,7 +59,7 @@ from rapidds.loop.execute import (
 )
 from rapidds.loop.model import HumanModel, device_terms, oracle_spatial, workspace_cost
 from rapidds.loop.observation import Observation, Source
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
@@ -67,6 +67,7 @@ from rapidds.record import CycleRecord, Execution, InCycle, PlanCost, PlanPart, 
 from rapidds.schedule import Schedule, Timeline
 from rapidds.scheduler import (
     Evaluation,
+    EvaluationContext,
     GAConfig,
     GeneticScheduler,
     evaluate_population,
@@ -258,9 +259,10 @@ class AdaptiveRun:
         samples, mean = self._true_durations(PLAN_COST_SAMPLES, rng)
         motion = _PlannedMotions(best.motions, workspace_cost(self.world, self._true_spatial()))
         gamma = self._gamma(plan)
-        ev = evaluate_population(self.problem, [best.schedule], samples, mean,
-                                 TrajectoryCache(motion), motion.nominal_durations(self.problem),
-                                 gamma, 0.0)[0]
+        ev = evaluate_population(
+            EvaluationContext(self.problem, samples, mean, TrajectoryCache(motion),
+                              motion.nominal_durations(self.problem), gamma, 0.0),
+            [best.schedule])[0]
         return {"cost": ev.makespan_mean + gamma * ev.spatial, "makespan": ev.makespan_mean,
                 "spatial": ev.spatial}
 
@@ -269,9 +271,11 @@ class AdaptiveRun:
         """CP-SAT on the prior mean durations, scored like every other plan."""
         exact = solve_exact(self.problem, time_limit_s=5.0, human_mean=mean)
         cache = TrajectoryCache(motion)
-        ev = evaluate_population(self.problem, [exact.schedule], samples, mean, cache,
-                                 motion.nominal_durations(self.problem), gamma, 0.0,
-                                 self.model.history)[0]
+        ev = evaluate_population(
+            EvaluationContext(self.problem, samples, mean, cache,
+                              motion.nominal_durations(self.problem), gamma, 0.0,
+                              self.model.history),
+            [exact.schedule])[0]
         return ev, {"solver": "cp-sat", "optimal": exact.optimal,
                     "motion_requests": cache.misses}
 
@@ -295,9 +299,9 @@ class AdaptiveRun:
             0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
-            duration=robot_duration(self.world),
-            hold=None if holds is None else holds.hold,
-            device_terms=device_terms(self.world, spatial))
+            terms=ValueTerms(duration=robot_duration(self.world),
+                             hold=None if holds is None else holds.hold,
+                             device_terms=device_terms(self.world, spatial)))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)

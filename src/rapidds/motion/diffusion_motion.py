@@ -9,6 +9,7 @@ network sees requests x particles x candidates rows per pass.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from typing import Annotated, ClassVar, Protocol
 
 import numpy as np
@@ -17,7 +18,13 @@ from pydantic import Field
 
 from rapidds.motion.interface import MotionKey, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
-from rapidds.motion.steering import TensorValue, ValueFn, particle_temperatures, steer
+from rapidds.motion.steering import (
+    SteerRequest,
+    TensorValue,
+    ValueFn,
+    particle_temperatures,
+    steer,
+)
 from rapidds.problem import Problem
 from rapidds.settings import Int, Real, Settings
 
@@ -86,6 +93,22 @@ class SteeringConfig(Settings):
         return particle_temperatures(self.particles, self.soft_share)
 
 
+@dataclass(frozen=True)
+class ValueTerms:
+    """What a world adds to :class:`DiffusionMotion`'s value beyond the paper's terms.
+
+    duration: the chosen trajectory's d_j^r (the arm's time-parameterized time; None: the
+    completion time of its path); hold: the time the safety monitor would hold it (None: the
+    paper's V); device_terms: the world's value as tensor operations on the policy's device;
+    on_device: score there (None: :attr:`DiffusionMotion.default_on_device`).
+    """
+
+    duration: Callable[[str, np.ndarray], float] | None = None
+    hold: HoldTime | None = None
+    device_terms: DeviceTermsFactory | None = None
+    on_device: bool | None = None
+
+
 class DiffusionMotion:
     """:class:`~rapidds.motion.interface.MotionModel` sampling steered trajectories.
 
@@ -105,10 +128,7 @@ class DiffusionMotion:
         gamma: float,
         config: SteeringConfig | None = None,
         nominal: Callable[[Problem], np.ndarray] | None = None,
-        duration: Callable[[str, np.ndarray], float] | None = None,
-        hold: HoldTime | None = None,
-        device_terms: DeviceTermsFactory | None = None,
-        on_device: bool | None = None,
+        terms: ValueTerms = ValueTerms(),
     ):
         self.policy = policy
         self.completion_time = completion_time
@@ -118,13 +138,13 @@ class DiffusionMotion:
         self._nominal = nominal
         # the chosen trajectory's d_j^r: the arm's time-parameterized time (the world's
         # robot_duration) where it has one; steering scores the path with completion_time
-        self._duration = duration
+        self._duration = terms.duration
         # planning for the safety monitor: V gains the time it would take (None: the paper's V)
-        self.hold = hold
+        self.hold = terms.hold
         # the value on the policy's device (no host copy per denoising step): by default where
         # the policy is not on the CPU, whose numpy value keeps the stored records' bits
-        self.device_terms = device_terms
-        self.on_device = self.default_on_device if on_device is None else on_device
+        self.device_terms = terms.device_terms
+        self.on_device = self.default_on_device if terms.on_device is None else terms.on_device
         self.calls = 0
         self.rows = 0
 
@@ -190,8 +210,7 @@ class DiffusionMotion:
         tasks = [task for task, _ in requests for _ in range(b)]
         result = steer(
             self.policy,
-            tasks,
-            len(tasks),
+            SteerRequest(tasks, len(tasks)),
             self.value(requests),
             num_candidates=cfg.candidates,
             alpha=np.tile(cfg.temperatures(), len(requests)),

@@ -201,17 +201,24 @@ def _check_steer_args(policy: DiffusionPolicy, b: int, m: int,
     return alphas
 
 
-@torch.inference_mode()
-def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
-          value_fn: ValueFn | TensorValue, *, num_candidates: int = 8,
-          alpha: float | Sequence[float] | np.ndarray = 0.0,
-          start: np.ndarray | None = None, generator: GeneratorLike = None,
-          num_steps: int | None = None) -> SteerResult:
-    """Sample ``n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
+@dataclass(frozen=True)
+class SteerRequest:
+    """What :func:`steer` samples: ``n_particles`` trajectories of ``task`` (one task name or
+    one per particle), from ``start`` ((d,) or (B, d)) for start-conditioned policies."""
 
-    task: one task name or one per particle; start: (d,) or (B, d) for start-conditioned
-    policies. value_fn: (N, H, d) world-unit trajectories -> (N,) values, lower is better: a
-    numpy function, or a :class:`TensorValue` computed on the policy's device.
+    task: str | Sequence[str]
+    n_particles: int
+    start: np.ndarray | None = None
+
+
+@torch.inference_mode()
+def steer(policy: DiffusionPolicy, request: SteerRequest, value_fn: ValueFn | TensorValue, *,
+          num_candidates: int = 8, alpha: float | Sequence[float] | np.ndarray = 0.0,
+          generator: GeneratorLike = None, num_steps: int | None = None) -> SteerResult:
+    """Sample ``request.n_particles`` trajectories steered toward low ``value_fn`` with SVDD-PM.
+
+    value_fn: (N, H, d) world-unit trajectories -> (N,) values, lower is better: a numpy
+    function, or a :class:`TensorValue` computed on the policy's device.
     num_candidates: M >= 1 draws from the reverse kernel per particle and step (M = 1 is plain
     sampling: same seed, same trajectories as :meth:`DiffusionPolicy.sample`).
     alpha: 0 keeps the best candidate (the SVDD authors' choice); alpha > 0 draws from
@@ -224,7 +231,7 @@ def steer(policy: DiffusionPolicy, task: str | Sequence[str], n_particles: int,
     keeps values, selection and indices on the policy's device: with a :class:`TensorValue`
     nothing returns to the host until the end.
     """
-    b, m = n_particles, num_candidates
+    task, b, m, start = request.task, request.n_particles, num_candidates, request.start
     alphas = _check_steer_args(policy, b, m, alpha)
     t0 = time.perf_counter()
     dev = policy.device

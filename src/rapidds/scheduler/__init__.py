@@ -20,17 +20,19 @@ from rapidds.scheduler.config import MUTATIONS, GAConfig
 from rapidds.scheduler.diversity import AllocationHistory, diversity, diversity_term
 
 if TYPE_CHECKING:
-    from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+    from rapidds.scheduler.evaluate import Evaluation, EvaluationContext, evaluate_population
     from rapidds.scheduler.exact import ExactResult, solve_exact
     from rapidds.scheduler.ga import GeneticScheduler, PlanResult
 
-_LAZY = {"Evaluation": "evaluate", "evaluate_population": "evaluate", "ExactResult": "exact",
+_LAZY = {"Evaluation": "evaluate", "EvaluationContext": "evaluate",
+         "evaluate_population": "evaluate", "ExactResult": "exact",
          "solve_exact": "exact", "GeneticScheduler": "ga", "PlanResult": "ga"}
 
 __all__ = [
     "MUTATIONS",
     "AllocationHistory",
     "Evaluation",
+    "EvaluationContext",
     "ExactResult",
     "GAConfig",
     "GeneticScheduler",

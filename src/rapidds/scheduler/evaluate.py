@@ -181,24 +181,14 @@ def _infeasible(schedule: Schedule, z_d: float) -> Evaluation:
     )
 
 
-def evaluate_population(
-    problem: Problem,
-    schedules: Sequence[Schedule],
-    human_samples: np.ndarray,
-    human_mean: np.ndarray,
-    cache: TrajectoryCache,
-    d_init: np.ndarray,
-    gamma: float,
-    lam: float,
-    history: AllocationHistory | None = None,
-    max_overlap_iters: int = 8,
-) -> list[Evaluation]:
-    """Evaluate every schedule (Algorithm 2), one :class:`Evaluation` per schedule, in order.
+@dataclass(frozen=True, eq=False)
+class EvaluationContext:
+    """What every schedule of one evaluation is scored against: the job, the human durations,
+    the memory M and the objective's weights (one value, so the GA's evaluator, the CLI and
+    the benchmarks pass the same thing).
 
-    Args:
+    Attributes:
         problem: the job.
-        schedules: candidates; each must hold every task once on an allowed agent
-            (ValueError otherwise). Deadlocking candidates are fine: they get inf.
         human_samples: (K, n) human durations in problem task order, shared by all candidates.
         human_mean: (n,) expected human durations, for the expected timeline that defines C_j.
         cache: memory M; new (j, C_j) are planned in one batch per round.
@@ -208,14 +198,37 @@ def evaluate_population(
         history: past allocations for z_d (None = no history).
         max_overlap_iters: cap on the overlap loop's rounds (>= 1).
     """
-    rows = _rows(problem, human_samples, human_mean, d_init, max_overlap_iters)
+
+    problem: Problem
+    human_samples: np.ndarray
+    human_mean: np.ndarray
+    cache: TrajectoryCache
+    d_init: np.ndarray
+    gamma: float
+    lam: float
+    history: AllocationHistory | None = None
+    max_overlap_iters: int = 8
+
+
+def evaluate_population(context: EvaluationContext, schedules: Sequence[Schedule]
+                        ) -> list[Evaluation]:
+    """Evaluate every schedule (Algorithm 2) against ``context``, one :class:`Evaluation` per
+    schedule, in order.
+
+    ``schedules``: candidates; each must hold every task once on an allowed agent (ValueError
+    otherwise). Deadlocking candidates are fine: they get inf.
+    """
+    problem, history, max_overlap_iters = (context.problem, context.history,
+                                           context.max_overlap_iters)
+    d_init = context.d_init
+    rows = _rows(problem, context.human_samples, context.human_mean, d_init, max_overlap_iters)
     d0 = np.asarray(d_init, dtype=float)
     results: list[Evaluation | None] = [None] * len(schedules)
     active = _first_pass(problem, schedules, rows, d0, diversity_term(problem, history), results)
     rounds = 0
     while active:
         rounds += 1
-        active = _overlap_round(problem, active, rows, d0, cache, gamma, lam, results,
+        active = _overlap_round(context, active, rows, d0, results,
                                 final=rounds >= max_overlap_iters, rounds=rounds)
     return [r for r in results if r is not None]
 
@@ -284,13 +297,10 @@ def _first_pass(
 
 
 def _overlap_round(
-    problem: Problem,
+    context: EvaluationContext,
     active: list[tuple[int, _Candidate]],
     rows: np.ndarray,
     d0: np.ndarray,
-    cache: TrajectoryCache,
-    gamma: float,
-    lam: float,
     results: list[Evaluation | None],
     *,
     final: bool,
@@ -300,6 +310,7 @@ def _overlap_round(
     its (j, C_j) in one batch, a new timeline where its robot durations changed, and then its
     result (converged, cycling or ``final``) or its next overlap state. Returns those still
     unconverged."""
+    problem, cache, gamma, lam = context.problem, context.cache, context.gamma, context.lam
     n = len(problem.tasks)
     keys: list[MotionKey] = [
         (j, cj) for _, c in active for j, cj in zip(c.robot_tasks, c.state, strict=True)

@@ -11,13 +11,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rapidds.motion.interface import FixedDurationMotion, TrajectoryCache
+from rapidds.motion.interface import FixedDurationMotion
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule, ScheduleBatch
 from rapidds.scheduler.active import AllocationOrders
 from rapidds.scheduler.config import GAConfig
-from rapidds.scheduler.diversity import AllocationHistory, diversity_term
-from rapidds.scheduler.evaluate import Evaluation, evaluate_population
+from rapidds.scheduler.diversity import diversity_term
+from rapidds.scheduler.evaluate import Evaluation, EvaluationContext, evaluate_population
 
 _NONE = np.empty(0)
 
@@ -55,20 +55,20 @@ class Evaluator:
     remembers them.
 
     Args:
-        problem, config: the job and the search settings.
-        samples, mean: (K, n) sampled and (n,) expected human durations.
-        d_init: (n,) nominal robot durations.
-        cache: the memory M of this solve.
-        gamma, lam, history: the objective's weights and past allocations.
+        context: the job, the (K, n) sampled and (n,) expected human durations, the (n,)
+            nominal robot durations, the memory M of this solve and the objective's weights;
+            its cap on the overlap loop is replaced by ``config.max_overlap_iters``.
+        config: the search settings.
         t0: ``time.perf_counter()`` at the start of the solve.
     """
 
-    def __init__(self, problem: Problem, config: GAConfig, samples: np.ndarray,
-                 mean: np.ndarray, d_init: np.ndarray, cache: TrajectoryCache, gamma: float,
-                 lam: float, history: AllocationHistory | None, t0: float):
-        self.problem, self.config = problem, config
-        self.samples, self.mean, self.d_init = samples, mean, d_init
-        self.cache, self.gamma, self.lam, self.history = cache, gamma, lam, history
+    def __init__(self, context: EvaluationContext, config: GAConfig, t0: float):
+        self.context = dataclasses.replace(context, max_overlap_iters=config.max_overlap_iters)
+        self.problem, self.config = context.problem, config
+        samples = context.human_samples
+        self.samples, self.mean, self.d_init = samples, context.human_mean, context.d_init
+        self.cache, self.gamma, self.lam = context.cache, context.gamma, context.lam
+        self.history = context.history
         self.t0 = t0
         self.deadline = math.inf if config.time_limit_s is None else t0 + config.time_limit_s
         self.evaluated: dict[Schedule, Evaluation] = {}
@@ -135,10 +135,7 @@ class Evaluator:
         return [again.get(e.schedule, e) for e in evaluations]
 
     def _run(self, schedules: list[Schedule]) -> list[Evaluation]:
-        return evaluate_population(
-            self.problem, schedules, self.samples, self.mean, self.cache, self.d_init,
-            self.gamma, self.lam, self.history, self.config.max_overlap_iters,
-        )
+        return evaluate_population(self.context, schedules)
 
     def shortest_orders(self, schedules: Sequence[Schedule]) -> list[Schedule]:
         """The shortest order found by :meth:`AllocationOrders.search` for each allocation of

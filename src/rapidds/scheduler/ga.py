@@ -46,7 +46,7 @@ from rapidds.scheduler import seeding
 from rapidds.scheduler.active import AllocationOrders
 from rapidds.scheduler.config import GAConfig
 from rapidds.scheduler.diversity import AllocationHistory
-from rapidds.scheduler.evaluate import Evaluation
+from rapidds.scheduler.evaluate import Evaluation, EvaluationContext
 from rapidds.scheduler.evaluator import Evaluator, allocation, expected_orders, rank
 from rapidds.scheduler.operators import Operators
 
@@ -147,15 +147,14 @@ class GeneticScheduler:
         """
         t0 = time.perf_counter()
         problem = self.problem
-        ev = Evaluator(
-            problem, self.config, np.atleast_2d(np.asarray(human_samples, dtype=float)),
-            np.asarray(human_mean, dtype=float),
+        ev = Evaluator(EvaluationContext(
+            problem, np.atleast_2d(np.asarray(human_samples, dtype=float)),
+            np.asarray(human_mean, dtype=float), TrajectoryCache(self.motion),
             np.asarray(self.motion.nominal_durations(problem), dtype=float),
-            TrajectoryCache(self.motion),
             problem.objective.gamma if gamma is None else float(gamma),
             problem.objective.lam if lam is None else float(lam),
-            history, t0,
-        )
+            history,
+        ), self.config, t0)
         with _without_cyclic_gc():
             return self._search(ev, progress, initial)
 

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from rapidds.errors import StudyDataError, StudyDesignError
 from rapidds.experiments.study.design import MAX_TASK_S_LIMIT
-from rapidds.settings import error_line, parse_yaml, read_yaml
+from rapidds.settings import Place, error_line, parse_yaml, read_yaml
 
 __all__ = [
     "LIKERT",
@@ -117,7 +117,8 @@ def _validated(model: type[BaseModel], what: str, **data: Any) -> Any:
     try:
         return model(**data)
     except ValidationError as exc:
-        line = error_line(exc, prefix=f"{what} ", skip=1, quote=True, with_input=True)
+        line = error_line(exc, prefix=f"{what} ", with_input=True,
+                          place=Place(skip=1, quote=True))
         raise StudyDataError(line) from None
 
 

@@ -33,7 +33,7 @@ from rapidds.human.temporal import TemporalModel
 from rapidds.motion.interface import MotionKey, MotionPlan, TrajectoryCache
 from rapidds.problem import Problem
 from rapidds.schedule import Item, Schedule, Wait
-from rapidds.scheduler import Evaluation, evaluate_population
+from rapidds.scheduler import Evaluation, EvaluationContext, evaluate_population
 from rapidds.worlds.painting.world import PaintingWorld
 
 __all__ = [
@@ -221,9 +221,10 @@ def calibrate(world: PaintingWorld | None = None, *, cycles: int = 6, seed: int 
         world, gamma = worlds[spec.variant], spec.gamma
         prob = world.problem().with_objective(gamma=gamma, lam=0.0)
         motion = NominalMotion(world, beliefs[spec.belief], gamma)
-        evs = evaluate_population(prob, enumerate_schedules(prob), draws, mean,
-                                  TrajectoryCache(motion), motion.nominal_durations(prob),
-                                  gamma, 0.0)
+        evs = evaluate_population(
+            EvaluationContext(prob, draws, mean, TrajectoryCache(motion),
+                              motion.nominal_durations(prob), gamma, 0.0),
+            enumerate_schedules(prob))
         ranked = sorted((e for e in evs if e.feasible), key=lambda e: e.objective)
         summaries = [summarize(prob, e, lambda t, p, m=motion: m.choose(t, p.concurrent)[0])
                      for e in ranked]
