@@ -132,12 +132,15 @@ def _run_setting(setting: Setting, world: str, human: str, seed: int, cycles: in
                   title=f"{setting.name}{f', {cfg.execution}' * cfg.execution.in_cycle}, "
                         f"teammate {human}, seed {seed}")
     assert run.store is not None
-    records = run.store.cycle_records(rid)
+    # closed here, not when the run is collected: its folder lock must go before a rerun in
+    # this process (the cycle objects' callbacks keep the run alive until a collection)
+    with run.store as store:
+        records = store.cycle_records(rid)
+        last = records[-1]
+        arrays = store.arrays(rid, last.cycle)
     behaviours = [{"behaviour": b.name, "belief": b.belief, "tested": list(b.cycles),
                    "shown": list(b.shown), "holds": b.holds}
                   for b in setting_behaviours(run.world, setting, human, records)]
-    last = records[-1]
-    arrays = run.store.arrays(rid, last.cycle)
     save_frames(run.world, last, arrays, sub / rid)
     if gif:
         save_cycle_gif(run.world, last, arrays, sub / f"{rid}-cycle-{last.cycle:02d}.gif")
