@@ -11,11 +11,9 @@ from typing import Any
 
 
 def cli_cmd(*args: str) -> list[str]:
-    """The command line of ``rapidds ARGS`` in a new process, on this interpreter, reading the
-    session's fitted priors (``tests/prior_cache.py``)."""
-    from prior_cache import CLI
-
-    return [*CLI, *args]
+    """The command line of ``rapidds ARGS`` in a new process, on this interpreter (it reads the
+    session's artefact cache, ``$RAPIDDS_CACHE``, conftest.py)."""
+    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
 
 
 def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:

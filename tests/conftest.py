@@ -36,15 +36,6 @@ SMALL_SEARCH = dict(population=12, generations=10, samples=16, patience=4, parti
 """GA and steering settings small enough for tests, large enough to plan well on fetch."""
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _one_prior_per_world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    """Each distinct population prior fitted once per session, its CLI processes included
-    (``tests/prior_cache.py``)."""
-    from prior_cache import install
-
-    yield from install(tmp_path_factory.mktemp("priors"))
-
-
 @pytest.fixture(scope="session")
 def fetch_world() -> FetchWorld:
     world = make_world("fetch")

@@ -12,6 +12,7 @@ import os
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -20,14 +21,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
-from prior_cache import CLI as PRIORS_CLI
 
 from rapidds.loop.config import RunConfig
 from rapidds.store import RunStore
 
 SEARCH = ["--population", "8", "--generations", "4", "--samples", "8", "--particles", "2",
           "--candidates", "4"]
-CLI = PRIORS_CLI  # rapidds in a new process, reading the session's priors
+CLI = [sys.executable, "-c", "from rapidds.cli import main; main()"]
 
 
 def _endpoint() -> str:
