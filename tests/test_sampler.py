@@ -13,7 +13,7 @@ from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.loop.run import load_policy
 from rapidds.motion.config import ConfigError, DiffusionConfig
 from rapidds.motion.demos import two_route_demos
-from rapidds.motion.steering import steer
+from rapidds.motion.steering import SteerRequest, steer
 from rapidds.motion.train import train_policy
 from rapidds.store import RunStore
 from rapidds.worlds.registry import make_world
@@ -62,9 +62,9 @@ def test_dpm_steering_keeps_each_particle_in_its_row(policy):
     def height(xi: np.ndarray) -> np.ndarray:
         return xi[:, :, 1].mean(axis=1)  # lower is better: the 'right' route, low
 
-    plain = steer(dpm, "right", 8, height, num_candidates=1, generator=4)
+    plain = steer(dpm, SteerRequest("right", 8), height, num_candidates=1, generator=4)
     assert np.array_equal(plain.trajectories, dpm.sample("right", 8, generator=4))
-    steered = steer(dpm, "right", 8, height, num_candidates=8, generator=4)
+    steered = steer(dpm, SteerRequest("right", 8), height, num_candidates=8, generator=4)
     assert steered.values.mean() < plain.values.mean() - 0.01
 
 
