@@ -18,6 +18,7 @@ from rapidds.loop import AdaptiveRun, RunConfig
 from rapidds.motion.config import DiffusionConfig
 from rapidds.motion.demos import Demonstrations
 from rapidds.motion.interface import MotionPlan
+from rapidds.motion.policy import DiffusionPolicy
 from rapidds.motion.train import train_policy
 from rapidds.schedule import Schedule
 from rapidds.settings import ConfigError
@@ -35,15 +36,21 @@ def test_the_example_world_is_under_100_lines() -> None:
     assert len((HERE / "tinyworld.py").read_text().splitlines()) < 100
 
 
-def test_a_world_from_outside_runs_a_cycle() -> None:
-    register("tiny-ext", TinyWorld)
-    world = make_world("tiny-ext")
+def tiny_policy(world: TinyWorld) -> DiffusionPolicy:
+    """A toy policy for ``world``, trained in a second from its own demonstrations."""
     d = world.robot_demonstrations(8, np.random.default_rng(0))
     demos = Demonstrations(d.trajectories.astype(np.float32), d.task_index, d.task_names)
     policy, _ = train_policy(demos, DiffusionConfig(
         horizon=world.horizon, state_dim=world.state_dim, task_names=d.task_names,
         down_dims=(8, 16), step_embed_dim=16, num_train_timesteps=50, num_inference_steps=4,
         batch_size=32, lr=3e-3, lr_warmup_steps=5, steps=60, device="cpu"))
+    return policy
+
+
+def test_a_world_from_outside_runs_a_cycle() -> None:
+    register("tiny-ext", TinyWorld)
+    world = make_world("tiny-ext")
+    policy = tiny_policy(world)
     run = AdaptiveRun(RunConfig(world="tiny-ext", human="quick", cycles=1, population=4,
                                 generations=2, samples=8, particles=2, candidates=2),
                       policy=policy)
