@@ -94,14 +94,15 @@ def serve_cmd(
                 app, log_level="warning", lifespan="on", timeout_graceful_shutdown=3,
                 access_log=False))
 
-            _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
-                      host, hosts)
             # Ctrl-C or SIGTERM (a service manager's stop): the normal stop, exit 0 with the
             # summary. uvicorn shuts down gracefully on either, then raises the signal again
-            # to the handler that was there before it: this one.
+            # to the handler that was there before it: this one. It is in place before the
+            # announcement, so a stop sent as soon as the address is read is a normal stop too.
             before = signal.signal(signal.SIGTERM, _interrupt)
             try:
                 with contextlib.suppress(KeyboardInterrupt):
+                    _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
+                              host, hosts)
                     server.run(sockets=[sock])
             finally:
                 signal.signal(signal.SIGTERM, before)
