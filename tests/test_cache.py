@@ -4,6 +4,7 @@ two processes filling one entry leave a whole one; the spatial priors read throu
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import subprocess
@@ -162,3 +163,34 @@ def test_a_run_records_the_same_with_the_cache_off_cold_or_warm(
     assert records() == plain  # cold: built and stored
     assert len(list((cache / "population-costs").glob("*.npz"))) > 0
     assert records() == plain  # warm: read back
+
+
+def test_approach_speeds_are_the_same_bits_from_the_cache(
+        cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The monitor's approach speeds (seconds at a monitored run's start) through the cache: a
+    hit builds nothing and gives the bits a build gives; other reactions are another entry."""
+    from rapidds.execution import slowdowns
+    from rapidds.loop.config import RunConfig
+    from rapidds.loop.model import prior_model
+    from rapidds.worlds.reactions import cell_reactions
+    from rapidds.worlds.registry import make_world
+
+    world = make_world("fetch")
+    spatial = prior_model(world, RunConfig().resolved(world)).spatial
+    limits = cell_reactions(world)[1]
+    monkeypatch.setenv("RAPIDDS_CACHE", "off")
+    plain = slowdowns.approach_speeds(world, spatial, limits)
+    monkeypatch.setenv("RAPIDDS_CACHE", str(cache))
+    calls = []
+    real = slowdowns._towards_point
+    monkeypatch.setattr(slowdowns, "_towards_point",
+                        lambda *a: calls.append(1) or real(*a))
+    built = slowdowns.approach_speeds(world, spatial, limits)
+    n = len(calls)
+    read = slowdowns.approach_speeds(world, spatial, limits)
+    assert n > 0 and len(calls) == n  # the second one built nothing
+    for got in (built, read):
+        assert list(got) == list(plain)
+        assert all(got[t].tobytes() == plain[t].tobytes() for t in plain)
+    slower = dataclasses.replace(limits, reaction_time=limits.reaction_time * 2)
+    assert slowdowns.approach_speeds(world, spatial, slower) is not None and len(calls) > n

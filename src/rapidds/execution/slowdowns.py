@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
+from rapidds.cache import cached_arrays, code_version, content_key
 from rapidds.execution.policies import directed_arrays, monitor_rates
 from rapidds.human.slowdowns import SlowdownBelief
 from rapidds.human.spatial import SpatialModel
@@ -98,20 +99,32 @@ def approach_speeds(world: World, spatial: SpatialModel, limits: SafetyLimits,
     where they never close in."""
     grid = spatial.config.grid()
     react = limits.reaction_time + limits.stopping_time
-    out = {}
+    chosen = {}
     for task, every in world.prior().paths.items():
         pick = np.unique(np.linspace(0, len(every) - 1, min(len(every), paths_max)).round())
-        paths = [every[int(k)] for k in pick]
-        total = np.zeros(len(grid))
-        for p in paths:
-            arr = np.asarray(p, dtype=float)
-            arr = arr[:, None] if arr.ndim == 2 else arr  # (T, K, d)
-            vel = np.concatenate([np.diff(arr, axis=0), np.zeros_like(arr[:1])]) / world.dt
-            for lo in range(0, len(grid), chunk):
-                sep, v_h = _towards_point(arr, vel, grid[lo:lo + chunk])
-                total[lo:lo + chunk] += sep.min(axis=-1) - (sep - v_h * react).min(axis=-1)
-        out[task] = total / max(len(paths), 1) / react if react > 0 else total
-    return out
+        chosen[task] = [np.asarray(every[int(k)], dtype=float) for k in pick]
+    tasks = list(chosen)
+
+    def build() -> dict[str, np.ndarray]:
+        out = {}
+        for n, paths in enumerate(chosen.values()):
+            total = np.zeros(len(grid))
+            for arr in paths:
+                arr = arr[:, None] if arr.ndim == 2 else arr  # (T, K, d)
+                vel = np.concatenate([np.diff(arr, axis=0), np.zeros_like(arr[:1])]) / world.dt
+                for lo in range(0, len(grid), chunk):
+                    sep, v_h = _towards_point(arr, vel, grid[lo:lo + chunk])
+                    total[lo:lo + chunk] += sep.min(axis=-1) - (sep - v_h * react).min(axis=-1)
+            out[f"t{n}"] = total / max(len(paths), 1) / react if react > 0 else total
+        return out
+
+    # seconds at every run's start under a monitor, the same for the same paths, grid and
+    # reactions: built once per machine, then read back bit for bit (rapidds.cache)
+    key = content_key(code_version(__file__), grid, float(react), float(world.dt), tasks,
+                      *(a for paths in chosen.values() for a in (len(paths), *paths)))
+    arrays = cached_arrays("approach-speeds", key, tuple(f"t{n}" for n in range(len(tasks))),
+                           build)
+    return {task: arrays[f"t{n}"] for n, task in enumerate(tasks)}
 
 
 def _towards_point(points: np.ndarray, velocity: np.ndarray,
