@@ -9,7 +9,6 @@ import queue
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -17,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_helpers import cli_cmd
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,7 +64,7 @@ class CliServer:
                                                           env.get("PYTHONPATH")]))
         self.name = "rapidds " + " ".join(args[:2])
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", "from rapidds.cli import main; main()", *args],
+            cli_cmd(*args),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         self.lines: queue.Queue[str] = queue.Queue()
         self.err: list[str] = []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import signal
 import subprocess
 import sys
@@ -9,11 +10,28 @@ import time
 from pathlib import Path
 from typing import Any
 
+HERE = Path(__file__).resolve().parent
+PLAIN = [sys.executable, "-c", "from rapidds.cli import main; main()"]
+FORK_SERVERS: list[tuple[str, subprocess.Popen[bytes], Path]] = []
+"""The session's fork servers (socket, process, log), started by conftest.py; none with
+``RAPIDDS_TEST_FORK=off``."""
+_turn = itertools.count()
+
 
 def cli_cmd(*args: str) -> list[str]:
     """The command line of ``rapidds ARGS`` in a new process, on this interpreter (it reads the
-    session's artefact cache, ``$RAPIDDS_CACHE``, conftest.py)."""
-    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+    session's artefact cache, ``$RAPIDDS_CACHE``, conftest.py). The process is a child of one of
+    the session's fork servers (tests/forkserver.py: the CLI's imports done once), in turn, so
+    that two runs a test compares come from two interpreters with different hash seeds."""
+    if not FORK_SERVERS:
+        return [*PLAIN, *args]
+    sock, proc, log = FORK_SERVERS[next(_turn) % len(FORK_SERVERS)]
+    deadline = time.monotonic() + 180
+    while not Path(sock).exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f"the fork server did not start: {log.read_text()[-2000:]}")
+        time.sleep(0.05)
+    return [sys.executable, "-S", str(HERE / "fork_client.py"), sock, *args]
 
 
 def run_main(capsys: Any, *args: str) -> tuple[int, str, str]:

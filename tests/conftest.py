@@ -31,6 +31,40 @@ def _own_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     else:
         os.environ["RAPIDDS_CACHE"] = old
 
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _fork_servers(_own_cache: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Two fork servers for the CLI processes the tests start (tests/forkserver.py, used by
+    ``cli_helpers.cli_cmd``); ``RAPIDDS_TEST_FORK=off`` starts plain interpreters instead."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from cli_helpers import FORK_SERVERS, HERE
+
+    if os.environ.get("RAPIDDS_TEST_FORK", "").strip().lower() in ("off", "0", "no", "false"):
+        yield
+        return
+    folder = tmp_path_factory.mktemp("fork")
+    src = str(HERE.parent / "src")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [
+        src, os.environ.get("PYTHONPATH")]))}
+    env.pop("PYTHONHASHSEED", None)  # each server its own hash seed
+    for name in ("a", "b"):
+        log = folder / f"{name}.log"
+        with open(log, "wb") as out:
+            proc = subprocess.Popen([sys.executable, str(HERE / "forkserver.py"),
+                                     str(folder / f"{name}.sock")], stdout=out,
+                                    stderr=subprocess.STDOUT, env=env, cwd=folder)
+        FORK_SERVERS.append((str(folder / f"{name}.sock"), proc, Path(log)))
+    yield
+    for _, proc, _ in FORK_SERVERS:
+        proc.terminate()
+        proc.wait(30)
+    FORK_SERVERS.clear()
+
+
 SMALL_SEARCH = dict(population=12, generations=10, samples=16, patience=4, particles=2,
                     candidates=4)
 """GA and steering settings small enough for tests, large enough to plan well on fetch."""

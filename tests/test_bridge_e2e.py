@@ -12,7 +12,6 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -21,13 +20,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 
 from rapidds.loop.config import RunConfig
 from rapidds.store import RunStore
 
 SEARCH = ["--population", "8", "--generations", "4", "--samples", "8", "--particles", "2",
           "--candidates", "4"]
-CLI = [sys.executable, "-c", "from rapidds.cli import main; main()"]
 
 
 def _endpoint() -> str:
@@ -39,7 +38,7 @@ def _endpoint() -> str:
 def _start(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     env = {**os.environ, "RAPIDDS_LOG": "info"}
     with open(log, "wb") as f:
-        return subprocess.Popen([*CLI, *args], stdout=f, stderr=subprocess.STDOUT, env=env)
+        return subprocess.Popen(cli_cmd(*args), stdout=f, stderr=subprocess.STDOUT, env=env)
 
 
 def _wait_text(path: Path, text: str, proc: subprocess.Popen[bytes], timeout: float) -> None:
@@ -105,9 +104,9 @@ def reactive_painting_cycle(tmp_path: Path, person: Callable[[Any], Any],
     hub_out, hub_err = tmp_path / "hub.out", tmp_path / "hub.err"
     with open(hub_out, "wb") as o, open(hub_err, "wb") as e:  # a node connects to a hub
         hub = subprocess.Popen(
-            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
+            cli_cmd("deploy", "painting", "--listen", ep, "--cycles", "1", "--out", str(out),
              "--json", "--time-scale", "2", "--execution", "reactive",
-             "--startup-timeout", "90", *SEARCH, *extra], stdout=o, stderr=e,
+             "--startup-timeout", "90", *SEARCH, *extra), stdout=o, stderr=e,
             env={**os.environ, "RAPIDDS_LOG": "info"})
     try:
         with Link(SimHuman.topics(), connect=ep) as plink, Link(watch, connect=ep) as wlink:
@@ -147,7 +146,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
     try:
         hub_out, hub_err = tmp_path / "hub1.out", tmp_path / "hub1.err"
         with open(hub_out, "wb") as o, open(hub_err, "wb") as e:
-            hub = subprocess.Popen([*CLI, *deploy], stdout=o, stderr=e,
+            hub = subprocess.Popen(cli_cmd(*deploy), stdout=o, stderr=e,
                                    env={**os.environ, "RAPIDDS_LOG": "info"})
         # a faulty peer mid-cycle 0: bytes that are no message, an event of no task in the
         # plan, a tracked point from the past; each is dropped with one line
@@ -174,7 +173,7 @@ def test_two_live_painting_cycles_survive_a_dead_robot_and_resume(tmp_path: Path
         _wait_text(tmp_path / "human.log", "sim-human: stop", human, timeout=30)
 
         robot2 = _start(["sim-robot", "painting", "--connect", ep], tmp_path / "robot2.log")
-        again = subprocess.run([*CLI, *deploy, "--resume"], capture_output=True, text=True,
+        again = subprocess.run(cli_cmd(*deploy, "--resume"), capture_output=True, text=True,
                                timeout=300, env={**os.environ})
         assert again.returncode == 0, again.stderr[-3000:]
         second = [json.loads(x) for x in again.stdout.splitlines()]

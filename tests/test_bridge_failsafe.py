@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 from contract_nodes import Driver, Hub, Tracker, float64, joint_trajectory, string
-from test_bridge_e2e import CLI, _endpoint, _start, _stop
+from test_bridge_e2e import _endpoint, _start, _stop
 
 from rapidds.bridge.failsafe import (
     BLIND_LIMIT,
@@ -45,9 +46,9 @@ def _deploy(tmp_path: Path, ep: str, execution: str) -> tuple[subprocess.Popen[b
     err = tmp_path / "hub.err"
     with open(tmp_path / "hub.out", "wb") as o, open(err, "wb") as e:
         hub = subprocess.Popen(
-            [*CLI, "deploy", "painting", "--listen", ep, "--cycles", "1", "--out",
-             str(tmp_path / "run"), "--json", "--time-scale", str(SCALE), "--execution",
-             execution, "--startup-timeout", "90", *SEARCH], stdout=o, stderr=e,
+            cli_cmd("deploy", "painting", "--listen", ep, "--cycles", "1", "--out",
+                    str(tmp_path / "run"), "--json", "--time-scale", str(SCALE), "--execution",
+                    execution, "--startup-timeout", "90", *SEARCH), stdout=o, stderr=e,
             env={k: v for k, v in os.environ.items() if k != "RAPIDDS_LOG"})
     return hub, err
 

@@ -4,10 +4,10 @@ questions, and runs that store and resume all of it."""
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 from conftest import SMALL_SEARCH as SMALL
 from record_helpers import stored
 from scipy.stats import t as t_dist
@@ -156,8 +156,7 @@ def test_bad_change_settings_are_one_line_and_exit_2(fetch_world, tmp_path):
     with pytest.raises(RapiddsError, match="nobody"):
         check_teammate(fetch_world, RunConfig(change="nobody@3").resolved(fetch_world), None)
     proc = subprocess.run(
-        [sys.executable, "-c", "from rapidds.cli import main; main()", "run", "--change",
-         "slow-outside", "--cycles", "1", "--out", str(tmp_path)],
+        cli_cmd("run", "--change", "slow-outside", "--cycles", "1", "--out", str(tmp_path)),
         capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--change" in proc.stderr and "Traceback" not in proc.stderr
     assert not any(tmp_path.iterdir())  # nothing written

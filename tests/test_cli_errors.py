@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 import torch
+from cli_helpers import cli_cmd
 from cli_helpers import run_main as _main
 
 from rapidds.errors import CheckpointError
@@ -166,9 +167,9 @@ def test_loop_with_a_nan_policy_stops_with_one_line(tmp_path, fetch_world):
         next(iter(policy.model.parameters())).fill_(float("nan"))
     policy.save(bad)
     out = tmp_path / "run"
-    res = subprocess.run([*RAPIDDS, "run", "--cycles", "1", "--policy", str(bad), "--out",
+    res = subprocess.run(cli_cmd("run", "--cycles", "1", "--policy", str(bad), "--out",
                           str(out), "--json", "--population", "4", "--generations", "1",
-                          "--samples", "2", "--particles", "1", "--candidates", "2"],
+                          "--samples", "2", "--particles", "1", "--candidates", "2"),
                          capture_output=True, text=True, timeout=300,
                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
     _one_line_error(res.returncode, res.stderr, "non-finite trajectories")

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
@@ -97,13 +98,11 @@ def test_steering_steps_reach_the_policy(world, motion, monkeypatch):
 def test_sample_in_world_cli_steers_and_draws(tmp_path):
     import json
     import subprocess
-    import sys
 
     import matplotlib.image as mpimg
 
     def cli(*args):
-        return subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()",
-                               "sample", "--world", "fetch", "--task", "t3", *args],
+        return subprocess.run(cli_cmd("sample", "--world", "fetch", "--task", "t3", *args),
                               capture_output=True, text=True, timeout=120)
 
     r = cli("--concurrent", "t2", "--gamma", "5", "-n", "6", "--json",

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 from tinyworld import GOALS, HOME, H, TinyWorld, _walk
 
 from rapidds.loop import AdaptiveRun, RunConfig
@@ -99,8 +99,7 @@ def test_a_bad_spec_is_one_line(change: dict, message: str) -> None:
 
 
 def test_rapidds_worlds_lists_capabilities() -> None:
-    out = subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()",
-                          "worlds", "--json"], capture_output=True, text=True, timeout=120)
+    out = subprocess.run(cli_cmd("worlds", "--json"), capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     info = json.loads(out.stdout)
     assert "browser_play" in info["fetch"]["capabilities"]

@@ -8,12 +8,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import cli_cmd
 
 HEAVY = ("torch", "fastapi", "uvicorn", "starlette", "websockets", "matplotlib")
 
 
 def _rapidds(*argv: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()", *argv],
+    return subprocess.run(cli_cmd(*argv),
                           capture_output=True, text=True, timeout=180)
 
 

@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 from browser_helpers import CliServer
+from cli_helpers import cli_cmd
 from fastapi.testclient import TestClient
 from study_helpers import SEARCH, make_study
 
@@ -422,9 +422,8 @@ def test_serve_refuses_a_folder_without_a_study_in_one_line(tmp_path: Path) -> N
     for folder, message in ((tmp_path / "none", "holds no study"),
                             (tmp_path / "plain", "not a rapidds study store")):
         out = subprocess.run(
-            [sys.executable, "-c", "from rapidds.cli import main; main()", "study", "serve",
-             str(folder), "--port", "0"], capture_output=True, text=True, timeout=300,
-            env={**os.environ, "PYTHONPATH": env_path})
+            cli_cmd("study", "serve", str(folder), "--port", "0"), capture_output=True,
+            text=True, timeout=300, env={**os.environ, "PYTHONPATH": env_path})
         assert out.returncode == 2, out.stderr
         assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import cli_cmd
 
 from rapidds.errors import RapiddsError
 from rapidds.loop import AdaptiveRun, RunConfig
@@ -93,7 +93,7 @@ def test_unknown_worlds_and_variants_are_one_line_errors() -> None:
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "RAPIDDS_WORLDS": "tiny=tinyworld:TinyWorld",
            "PYTHONPATH": os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-c", "from rapidds.cli import main; main()", *args],
+    return subprocess.run(cli_cmd(*args),
                           capture_output=True, text=True, env=env, timeout=300)
 
 
