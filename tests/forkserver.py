@@ -154,14 +154,31 @@ def serve(path: str) -> None:
         raise SystemExit(f"forkserver: {_threads() - pools} threads started by the imports; "
                          "forking would not be safe")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C of the test run is the tests'
+    signal.signal(signal.SIGTERM, _stop)
     parent = os.getppid()
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     listener.bind(path + ".tmp")
     listener.listen(64)
     os.rename(path + ".tmp", path)  # ready: the socket appears once it accepts
+    try:
+        _loop(listener, parent)
+    finally:  # the test run is gone or stops the server: nothing it started outlives it
+        for pid in _children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
+def _stop(signum: int, frame: object) -> None:
+    raise SystemExit(0)
+
+
+_children: dict[int, socket.socket | None] = {}
+
+
+def _loop(listener: socket.socket, parent: int) -> None:
     sel = selectors.DefaultSelector()
     sel.register(listener, selectors.EVENT_READ)
-    children: dict[int, socket.socket | None] = {}
+    children = _children
     conns: dict[int, socket.socket] = {}
     while os.getppid() == parent:
         for key, _ in sel.select(timeout=0.02):
@@ -206,8 +223,6 @@ def serve(path: str) -> None:
                 with contextlib.suppress(OSError):
                     conn.sendall(f"{said}\n".encode())
                 conn.close()
-    for pid in children:  # the test run is gone
-        os.kill(pid, signal.SIGKILL)
 
 
 if __name__ == "__main__":
