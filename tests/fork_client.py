@@ -17,6 +17,21 @@ import sys
 
 def main() -> None:
     path, args = sys.argv[1], sys.argv[2:]
+    pid: list[int] = []  # the child's, once the server has said it
+    pending: list[int] = []  # signals that came before it
+
+    def forward(signum: int, frame: object) -> None:
+        if not pid:
+            pending.append(signum)
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid[0], signum)
+
+    # before connecting: a signal sent as soon as the child has printed must not find this
+    # process with Python's own handlers (a KeyboardInterrupt here, exit 1)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
+                signal.SIGUSR2):
+        signal.signal(sig, forward)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     sock.connect(path)
     request = json.dumps({"argv": args, "env": dict(os.environ), "cwd": os.getcwd()}).encode()
@@ -24,15 +39,9 @@ def main() -> None:
     sock.sendmsg([struct.pack("!I", len(request)), request],
                  [(socket.SOL_SOCKET, socket.SCM_RIGHTS, fds)])
     reader = sock.makefile("r", encoding="ascii")
-    pid = int(reader.readline().split()[1])
-
-    def forward(signum: int, frame: object) -> None:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signum)
-
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
-                signal.SIGUSR2):
-        signal.signal(sig, forward)
+    pid.append(int(reader.readline().split()[1]))
+    for signum in pending:
+        forward(signum, None)
     line = ""
     while not line:
         try:
