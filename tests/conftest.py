@@ -65,6 +65,7 @@ def _fork_servers(_own_cache: None, tmp_path_factory: pytest.TempPathFactory) ->
     yield
     for _, proc, _ in FORK_SERVERS:
         proc.terminate()
+    for _, proc, _ in FORK_SERVERS:
         proc.wait(30)
     FORK_SERVERS.clear()
 
