@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from test_bridge_e2e import reactive_painting_cycle
+from test_bridge_e2e import LiveCycle, reactive_painting_cycle
 
 from rapidds.bridge import ros2
 from rapidds.bridge.live import LivePlan
@@ -80,13 +80,20 @@ class _Slow(SimHuman):
             self._doing.duration *= SLOW
 
 
-def test_the_live_cell_replans_when_the_person_overruns(tmp_path: Path) -> None:
+def slow_person_cycle(tmp_path: Path, person: type[SimHuman] = _Slow,
+                      extra: tuple[str, ...] = ()) -> LiveCycle:
+    """One reactive painting cycle with ``person`` (a SimHuman class) as the left-slow teammate,
+    watching the plan and the events; ``extra``: more arguments of the hub."""
     world = make_world("painting")
     teammate = world.teammate("left-slow")
     teammate.at(0).perform(world.problem().ids[0], np.random.default_rng(0))
     watch = {ros2.PLAN_TOPIC: "std_msgs/msg/String", ros2.EVENTS_TOPIC: "std_msgs/msg/String"}
-    cell = reactive_painting_cycle(
-        tmp_path, lambda link: _Slow(world, teammate, link, seed=1), watch)
+    return reactive_painting_cycle(
+        tmp_path, lambda link: person(world, teammate, link, seed=1), watch, extra)
+
+
+def test_the_live_cell_replans_when_the_person_overruns(tmp_path: Path) -> None:
+    cell = slow_person_cycle(tmp_path)
     assert cell.code == 0, cell.err[-3000:]
     (rec,), seen = cell.records, cell.seen
     plan = LivePlan.parse(next(r for r in seen if r.topic == ros2.PLAN_TOPIC).msg.data)

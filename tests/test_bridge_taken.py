@@ -12,17 +12,14 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-from test_bridge_e2e import reactive_painting_cycle
-from test_bridge_replan import SLOW, _replanner
+from test_bridge_replan import _replanner, _Slow, slow_person_cycle
 
 from rapidds.bridge import ros2
 from rapidds.bridge.link import Received
 from rapidds.bridge.live import CycleObservation, LivePlan
-from rapidds.bridge.nodes.sim_human import SimHuman, _Doing
+from rapidds.bridge.nodes.sim_human import _Doing
 from rapidds.bridge.ros2 import EVENTS_TOPIC, Event, event_message
 from rapidds.worlds.base import body_points
-from rapidds.worlds.registry import make_world
 
 TAKE = "brush"  # painting's one task either agent may do
 
@@ -59,18 +56,13 @@ def test_the_observation_gives_a_robot_task_to_the_person_only_where_the_hub_all
     assert obs.faults.counts().get("event not in the plan", 0) == 2
 
 
-class _Taker(SimHuman):
-    """The reference person, whose first task runs SLOW times its drawn duration (a pause) and
-    who, as their last task of the plan ends, takes the robot's brush if everything before it
-    has ended. The start of the brush is published just before the end of the last task, both
-    stamped at that end: the events key keeps its order, so the hub sees the take before the
-    end that would let it send the brush to the robot (otherwise the test would race the
-    hub)."""
-
-    def _begin(self, now: int) -> None:
-        super()._begin(now)
-        if self._doing is not None and self._next == 0:
-            self._doing.duration *= SLOW
+class _Taker(_Slow):
+    """The overrunning person of tests/test_bridge_replan.py (their first task runs SLOW times
+    its drawn duration: a pause), who, as their last task of the plan ends, takes the robot's
+    brush if everything before it has ended. The start of the brush is published just before
+    the end of the last task, both stamped at that end: the events key keeps its order, so the
+    hub sees the take before the end that would let it send the brush to the robot (otherwise
+    the test would race the hub)."""
 
     def tick(self) -> float:
         plan, job = self.plan, self._doing
@@ -91,13 +83,8 @@ class _Taker(SimHuman):
 
 
 def test_the_live_cell_replans_when_the_person_takes_a_robot_task(tmp_path: Path) -> None:
-    world = make_world("painting")
-    teammate = world.teammate("left-slow")
-    teammate.at(0).perform(world.problem().ids[0], np.random.default_rng(0))
-    watch = {ros2.PLAN_TOPIC: "std_msgs/msg/String", ros2.EVENTS_TOPIC: "std_msgs/msg/String"}
-    cell = reactive_painting_cycle(
-        tmp_path, lambda link: _Taker(world, teammate, link, seed=1), watch,
-        ("--seed", "2"))  # seed 2 plans the brush for the robot (seed 0, the default: the person)
+    # seed 2 plans the brush for the robot (seed 0, the default: the person)
+    cell = slow_person_cycle(tmp_path, _Taker, ("--seed", "2"))
     assert cell.code == 0, cell.err[-3000:]
     (rec,), seen = cell.records, cell.seen
     plan = LivePlan.parse(next(r for r in seen if r.topic == ros2.PLAN_TOPIC).msg.data)
