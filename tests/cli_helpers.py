@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import subprocess
 import sys
@@ -16,6 +17,11 @@ FORK_SERVERS: list[tuple[str, subprocess.Popen[bytes], Path]] = []
 """The session's fork servers (socket, process, log), started by conftest.py; none with
 ``RAPIDDS_TEST_FORK=off``."""
 _turn = itertools.count()
+
+
+def fork_off() -> bool:
+    """``RAPIDDS_TEST_FORK=off`` (or 0, no, false): the tests start plain interpreters."""
+    return os.environ.get("RAPIDDS_TEST_FORK", "").strip().lower() in ("off", "0", "no", "false")
 
 
 def cli_cmd(*args: str) -> list[str]:

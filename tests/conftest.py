@@ -41,9 +41,9 @@ def _fork_servers(_own_cache: None, tmp_path_factory: pytest.TempPathFactory) ->
     import sys
     from pathlib import Path
 
-    from cli_helpers import FORK_SERVERS, HERE
+    from cli_helpers import FORK_SERVERS, HERE, fork_off
 
-    if os.environ.get("RAPIDDS_TEST_FORK", "").strip().lower() in ("off", "0", "no", "false"):
+    if fork_off():
         yield
         return
     folder = tmp_path_factory.mktemp("fork")

@@ -178,13 +178,14 @@ def _stop(signum: int, frame: object) -> None:
 
 
 _children: dict[int, socket.socket | None] = {}
+"""The forked children not yet reaped, each with its client's connection (None once the client
+has gone)."""
 
 
 def _loop(listener: socket.socket, parent: int) -> None:
     sel = selectors.DefaultSelector()
     sel.register(listener, selectors.EVENT_READ)
     children = _children
-    conns: dict[int, socket.socket] = {}
     while os.getppid() == parent:
         for key, _ in sel.select(timeout=0.02):
             if key.fileobj is listener:
@@ -198,16 +199,15 @@ def _loop(listener: socket.socket, parent: int) -> None:
                 sys.stderr.flush()
                 pid = os.fork()
                 if pid == 0:
-                    _child(request, fds, [listener, conn, *conns.values()])
+                    _child(request, fds, [listener, conn, *filter(None, children.values())])
                 for fd in fds:
                     os.close(fd)
                 conn.sendall(f"pid {pid}\n".encode())
-                children[pid] = conns[pid] = conn
+                children[pid] = conn
                 sel.register(conn, selectors.EVENT_READ, pid)
             else:  # the client's end closed: it was killed, so is its child
                 pid, conn = key.data, key.fileobj
                 sel.unregister(conn)
-                conns.pop(pid, None)
                 if children.get(pid) is not None:
                     children[pid] = None
                     os.kill(pid, signal.SIGKILL)
@@ -222,7 +222,6 @@ def _loop(listener: socket.socket, parent: int) -> None:
             conn = children.pop(pid, None)
             if conn is not None:
                 sel.unregister(conn)
-                conns.pop(pid, None)
                 said = (f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status)
                         else f"exit {os.waitstatus_to_exitcode(status)}")
                 with contextlib.suppress(OSError):

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import PLAIN
 
 from rapidds.errors import RapiddsError, RuntimeFault
 from rapidds.experiments.ablation import (
@@ -51,7 +52,9 @@ RUN_IDS = {f"fetch-{h}-{lv}-s{i}" for h in HUMANS for lv in LEVELS for i in (0, 
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from rapidds.cli import main; main()", *args]
+    """A plain interpreter: the test kills the run's whole session (``killpg``), which a fork
+    server's child (tests/forkserver.py) is not in."""
+    return [*PLAIN, *args]
 
 
 def _strip(records: list[dict]) -> list[dict]:

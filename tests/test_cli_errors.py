@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from cli_helpers import cli_cmd
+from cli_helpers import PLAIN, cli_cmd
 from cli_helpers import run_main as _main
 
 from rapidds.errors import CheckpointError
@@ -21,8 +21,6 @@ from rapidds.motion.config import DiffusionConfig
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.motion.steering import SteerRequest, steer
-
-RAPIDDS = [sys.executable, "-c", "from rapidds.cli import main; main()"]
 
 
 def _one_line_error(code: int, err: str, *needles: str) -> None:
@@ -37,13 +35,13 @@ def _one_line_error(code: int, err: str, *needles: str) -> None:
 def test_help_into_a_closed_pipe_ends_quietly():
     """The reader is gone before the first byte (deterministic EPIPE): no traceback, no
     message, exit 1 (as Python does); and the user's own ``| head -1`` shows one clean line."""
-    proc = subprocess.Popen([*RAPIDDS, "run", "--help"], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([*PLAIN, "run", "--help"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     proc.stdout.close()  # type: ignore[union-attr]
     err = proc.stderr.read()  # type: ignore[union-attr]
     assert proc.wait(timeout=120) == 1
     assert err == ""
-    res = subprocess.run(["bash", "-c", 'exec "$@" run --help | head -1', "bash", *RAPIDDS],
+    res = subprocess.run(["bash", "-c", 'exec "$@" run --help | head -1', "bash", *PLAIN],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stderr == "", res.stderr
     assert len(res.stdout.splitlines()) == 1

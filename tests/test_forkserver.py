@@ -13,13 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_helpers import FORK_SERVERS, HERE, cli_cmd
+from cli_helpers import FORK_SERVERS, HERE, cli_cmd, fork_off
 
 from rapidds.store import RunStore
 
 pytestmark = pytest.mark.skipif(
-    os.environ.get("RAPIDDS_TEST_FORK", "").strip().lower() in ("off", "0", "no", "false"),
-    reason="RAPIDDS_TEST_FORK=off: the CLI processes are plain interpreters")
+    fork_off(), reason="RAPIDDS_TEST_FORK=off: the CLI processes are plain interpreters")
 
 
 def test_the_session_has_its_fork_servers() -> None:
