@@ -1,18 +1,22 @@
-"""A cheaper sampler in the painting loop (issue 36 item 3): cycle CPU time against plan quality.
+"""A cheaper policy in the painting loop (issue 36 item 3): a faster sampler or a smaller,
+distilled network, its cycle CPU time against its plan quality.
 
     .venv/bin/python benchmarks/bench_painting_sampler.py run --seeds 0-3 --out A.jsonl
-    .venv/bin/python benchmarks/bench_painting_sampler.py run --seeds 4-7 --out B.jsonl
+    .venv/bin/python benchmarks/bench_painting_sampler.py run --policy DIR --seeds 0-7 --out B.jsonl
     .venv/bin/python benchmarks/bench_painting_sampler.py report A.jsonl B.jsonl
 
 ``run``: for each seed, the paper's constrained and unconstrained gamma 12 settings (or those
 ``--settings`` names) with
 ``left-slow`` (full adaptation, ``--cycles`` cycles, the default search) run once with the
-policy as shipped (DDIM, 10 steps) and once with ``--sampler`` at ``--steps`` reverse steps
-(``rapidds run --sampler dpm --steps 5``), alternating, in this process with one torch thread;
-one JSON line per run (appended to ``--out``, so seeds can be split over several commands on a
-loaded machine). ``report``: process CPU seconds per cycle, the realised cost (makespan + gamma
-x realised spatial cost) over the settled cycles 4.., paired by (setting, seed) with a 95 %
-bootstrap interval of the difference, and the paper's behaviours (cycles shown / tested).
+policy as shipped (DDIM, 10 steps) and once with the cheaper arm, alternating, in this process
+with one torch thread: ``--sampler`` at ``--steps`` reverse steps (``rapidds run --sampler dpm
+--steps 5``; the default arm when neither ``--policy`` nor ``--sampler`` is given) and/or the
+checkpoint ``--policy`` (``rapidds run --policy DIR``, e.g. a network distilled by
+``rapidds train-policy --teacher``); one JSON line per run (appended to ``--out``, so seeds can
+be split over several commands on a loaded machine). ``report``: process CPU seconds per
+cycle, the realised cost (makespan + gamma x realised spatial cost) over the settled cycles
+4.., paired by (setting, seed) with a 95 % bootstrap interval of the difference, and the
+paper's behaviours (cycles shown / tested).
 """
 
 from __future__ import annotations
@@ -43,8 +47,12 @@ def run(args: argparse.Namespace) -> None:
     torch.set_num_threads(1)
     world = PaintingWorld()
     policy = load_policy(world, device="cpu")
-    arms = {DEFAULT: (policy, None), f"{args.sampler} {args.steps}":
-            (policy.with_sampler(args.sampler), args.steps)}
+    sampler = args.sampler or (None if args.policy else "dpm")
+    steps = args.steps or (None if sampler is None else 5)
+    cheap = policy if args.policy is None else load_policy(world, args.policy, device="cpu")
+    name = " ".join(([] if args.policy is None else [f"policy {args.policy.name}"])
+                    + ([] if sampler is None else [f"{sampler} {steps}"]))
+    arms = {DEFAULT: (policy, None), name: (cheap.with_sampler(sampler), steps)}
     if args.no_default:  # its records are the same by seed: pair with an earlier file's
         del arms[DEFAULT]
     for seed in parse_seeds(args.seeds):
@@ -97,7 +105,7 @@ def report(args: argparse.Namespace) -> None:
         f"seeds {seeds[0]}-{seeds[-1]}, default search, one torch thread, {cpu_model()}, 2 "
         f"cores shared with other sessions; 1-min load average {min(loads):.1f}-"
         f"{max(loads):.1f} at the runs' starts (CPU seconds are upper bounds at this load).\n\n"
-        "| sampler | runs | CPU s per cycle (median of runs) | wall s per cycle (median) | "
+        "| arm | runs | CPU s per cycle (median of runs) | wall s per cycle (median) | "
         "realised cost, cycles 4-6 (mean) |\n|---|---:|---:|---:|---:|\n"
         + "".join(f"| {a} | {len(cost[a])} | {med(a, 'cpu_per_cycle'):.2f} | "
                   f"{med(a, 'wall_per_cycle'):.2f} | {statistics.mean(cost[a].values()):.3f} |\n"
@@ -115,8 +123,10 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
     r.add_argument("--seeds", default="0-7")
-    r.add_argument("--sampler", default="dpm", choices=("ddim", "ddpm", "dpm"))
-    r.add_argument("--steps", type=int, default=5)
+    r.add_argument("--sampler", choices=("ddim", "ddpm", "dpm"),
+                   help="the cheaper arm's sampler (default: dpm without --policy)")
+    r.add_argument("--steps", type=int, help="its reverse steps (default: 5 with --sampler)")
+    r.add_argument("--policy", type=Path, help="the cheaper arm's checkpoint")
     r.add_argument("--cycles", type=int, default=7)
     r.add_argument("--settings", default="constrained-g12,unconstrained-g12",
                    help="which of the paper's gamma 12 settings, comma-separated")

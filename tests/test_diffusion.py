@@ -294,6 +294,35 @@ def test_training_checks_the_demonstrations_fit_the_config(demos):
     assert total_steps(len(demos), tiny_config(demos, epochs=3)) == 3 * 2  # 64 demos, batch 32
 
 
+def _teacher_gap(student: DiffusionPolicy, teacher: DiffusionPolicy, demos) -> float:
+    """Mean squared gap between the two networks' noise predictions on noisy demonstrations
+    drawn apart from training's (another seed)."""
+    batch = {"trajectory": torch.as_tensor(demos.trajectories, dtype=torch.float32),
+             "task_index": torch.as_tensor(demos.task_index)}
+    gen = torch.Generator().manual_seed(123)
+    with torch.no_grad():
+        return float(student.compute_loss(batch, generator=gen, teacher=teacher.model))
+
+
+def test_a_distilled_student_learns_its_teachers_function(demos, trained):
+    teacher, _ = trained
+    small = tiny_config(demos, down_dims=(8, 16), steps=150)
+    student, history = train_policy(demos, small, teacher=teacher)
+    scratch, _ = train_policy(demos, small)
+    assert student.config.down_dims == (8, 16)
+    assert np.array_equal(student.normalizer.low, teacher.normalizer.low)
+    assert history.mean_loss(last=15) < 0.5 * history.mean_loss(first=15)
+    # the same steps with the drawn noise as target (the same seed: the same batches, noise
+    # and init, so a teacher left unused would give this very network) end further from it
+    assert _teacher_gap(student, teacher, demos) < _teacher_gap(scratch, teacher, demos)
+
+
+def test_a_teacher_of_another_forward_process_is_refused(demos, trained):
+    teacher, _ = trained
+    with pytest.raises(ConfigError, match="teacher has num_train_timesteps 50, the student 60"):
+        train_policy(demos, tiny_config(demos, num_train_timesteps=60, steps=2), teacher=teacher)
+
+
 def test_start_conditioned_policy_trains_and_needs_a_start(demos):
     starts = demos.trajectories[:, 0] + np.random.default_rng(0).normal(0, 0.05, (len(demos), 2))
     with_start = Demonstrations(demos.trajectories, demos.task_index, demos.task_names, starts)
@@ -475,6 +504,23 @@ def test_cli_trains_and_samples(tmp_path, demos):
 
     text = _cli("sample", "--policy", str(out), "--task", "up", "-n", "2")
     assert text.exit_code == 0 and "samples of task 'up'" in text.stdout
+
+
+def test_cli_distils_a_teacher_into_a_smaller_network(tmp_path, demos, ckpt):
+    demo_file = demos.save(tmp_path / "demos.npz")
+    (tmp_path / "small.json").write_text(json.dumps({"down_dims": [8, 16]}))
+    out = tmp_path / "student"
+    result = _cli("train-policy", "--demos", str(demo_file), "--out", str(out), "--steps", "3",
+                  "--teacher", str(ckpt), "--config", str(tmp_path / "small.json"))
+    assert result.exit_code == 0, result.output
+    student, teacher = DiffusionPolicy.load(out), DiffusionPolicy.load(ckpt)
+    assert student.config.down_dims == (8, 16) and student.config.steps == 3
+    assert student.config.num_train_timesteps == teacher.config.num_train_timesteps == 50
+
+    other = _cli("train-policy", "--demos", str(demo_file), "--out", str(tmp_path / "x"),
+                 "--teacher", str(ckpt), "--horizon", "32")
+    assert other.exit_code == 2
+    assert "teacher has horizon" in other.stderr and len(other.stderr.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("args, message", [

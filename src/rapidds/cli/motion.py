@@ -123,6 +123,10 @@ def train_policy_cmd(
     config: Annotated[Path | None, typer.Option(
         "--config", help="JSON file of DiffusionConfig fields (network size, sampler, ...); "
         "flags win.")] = None,
+    teacher: Annotated[Path | None, typer.Option(
+        help="Distil this policy checkpoint: learn its noise predictions on the "
+        "demonstrations, with its settings and normaliser unless --config or flags change "
+        "them (a smaller network: --config with smaller down_dims).")] = None,
 ) -> None:
     """Train a trajectory diffusion policy on demonstrations and save a checkpoint."""
     from rapidds.motion.config import ConfigError, DiffusionConfig
@@ -147,6 +151,11 @@ def train_policy_cmd(
             if (foreign := _not_npz(demos)) is not None:
                 raise ConfigError(foreign)
             data = Demonstrations.load(demos, horizon=horizon)
+        mentor = None
+        if teacher is not None:
+            from rapidds.motion.policy import DiffusionPolicy
+            mentor = DiffusionPolicy.load(teacher, device="cpu")
+            fields.update(mentor.config.to_dict())
         if config is not None:
             fields.update(read_yaml(config, "config file"))  # JSON is YAML
         fields.update(horizon=data.horizon, state_dim=data.state_dim,
@@ -167,7 +176,7 @@ def train_policy_cmd(
                 del smooth[:-50]
                 update(step, f"loss {sum(smooth) / len(smooth):.4f}")
 
-            policy, history = train_policy(data, cfg, progress=on_step)
+            policy, history = train_policy(data, cfg, progress=on_step, teacher=mentor)
         where = policy.save(out)
     except RapiddsError as exc:
         fail(str(exc))

@@ -217,12 +217,16 @@ class DiffusionPolicy:
 
     # -- training ----------------------------------------------------------------------------
     def compute_loss(self, batch: Mapping[str, Tensor],
-                     generator: torch.Generator | None = None) -> Tensor:
+                     generator: torch.Generator | None = None,
+                     teacher: Denoiser | None = None) -> Tensor:
         """Denoising loss: MSE between the true and predicted noise at random timesteps.
 
         batch: "trajectory" (B, H, d) world units, "task_index" (B,) long, and for
         start-conditioned policies optionally "start" (B, d) (default: first points).
         generator: CPU generator for the noise and timesteps (reproducible training).
+        teacher: distillation: the target is this network's noise prediction for the same
+        noisy input instead of the noise drawn (a target of lower variance, so a smaller
+        network learns the teacher's function rather than the demonstrations afresh).
         Returns a scalar tensor with gradient.
         """
         traj = batch["trajectory"].to(self.device, torch.float32)
@@ -239,6 +243,9 @@ class DiffusionPolicy:
         t = torch.randint(0, self.config.num_train_timesteps, (b,), generator=generator,
                           device=gen_device).to(self.device)
         x_t = self.noise_scheduler.add_noise(x0, noise, t)
+        if teacher is not None:
+            with torch.no_grad():
+                noise = teacher(x_t, t, cond).float()
         return nn.functional.mse_loss(self.model(x_t, t, cond), noise)
 
     # -- sampling primitives (also used by SVDD steering) ------------------------------------

@@ -74,6 +74,26 @@ def check_compatible(demos: Demonstrations, config: DiffusionConfig) -> None:
                           f"{list(config.task_names)} (same names in the same order needed)")
 
 
+FORWARD_PROCESS = ("horizon", "state_dim", "task_names", "start_conditioned",
+                   "num_train_timesteps", "beta_schedule", "beta_start", "beta_end")
+"""The settings a student must share with its teacher: the same paths, conditioning and
+noising, so a noisy input means the same to both."""
+
+
+def check_teacher(teacher: DiffusionPolicy, config: DiffusionConfig) -> None:
+    """Raise ConfigError unless ``teacher`` noises and conditions as ``config`` does."""
+    for name in FORWARD_PROCESS:
+        mine, theirs = getattr(config, name), getattr(teacher.config, name)
+        if mine != theirs:
+            raise ConfigError(f"the teacher has {name} {_show(theirs)}, the student "
+                              f"{_show(mine)}; a student distils a teacher of the same "
+                              "paths and forward process")
+
+
+def _show(v: object) -> str:
+    return str(list(v)) if isinstance(v, tuple) else str(v)
+
+
 def fit_normalizer(demos: Demonstrations, config: DiffusionConfig) -> MinMaxNormalizer:
     """Min-max bounds over every demonstrated point (and start pose when conditioned on)."""
     pts = demos.trajectories.reshape(-1, demos.state_dim)
@@ -97,6 +117,7 @@ def train_policy(demos: Demonstrations, config: DiffusionConfig,
                  progress: ProgressFn | None = None,
                  device: str | torch.device | None = None,
                  mixed_precision: bool | None = None,
+                 teacher: DiffusionPolicy | None = None,
                  ) -> tuple[DiffusionPolicy, TrainHistory]:
     """Train a policy from scratch on ``demos``.
 
@@ -106,15 +127,20 @@ def train_policy(demos: Demonstrations, config: DiffusionConfig,
     device: overrides ``config.device`` ("auto", "cpu", "cuda").
     mixed_precision: the network's forward pass in bfloat16 autocast (weights, optimiser and
     loss stay float32); None: on a GPU only. Checkpoints are the same float32 format.
+    teacher: distil it: the network learns the teacher's noise predictions on the
+    demonstrations (:meth:`DiffusionPolicy.compute_loss`) in the teacher's normalised units
+    (its normaliser is kept); moved to the device. Its forward process must be ``config``'s.
     Returns the policy (EMA weights when ``config.use_ema``, in eval mode) and the history.
     On CPU the same seed gives bit-identical weights. The demonstrations, every batch's
     indices and the random numbers live on the device: a step never waits for the host.
     """
     check_compatible(demos, config)
+    if teacher is not None:
+        check_teacher(teacher, config)
     dev = resolve_device(device, default=config.device)
     amp = dev.type == "cuda" if mixed_precision is None else mixed_precision
     with cpu_threads(config.cpu_threads if dev.type == "cpu" else 0):
-        return _train(demos, config, progress, dev, amp)
+        return _train(demos, config, progress, dev, amp, teacher)
 
 
 def _batches(config: DiffusionConfig, n: int, steps: int, dev: torch.device
@@ -136,8 +162,11 @@ def _batches(config: DiffusionConfig, n: int, steps: int, dev: torch.device
 
 
 def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn | None,
-           dev: torch.device, amp: bool) -> tuple[DiffusionPolicy, TrainHistory]:
-    policy = DiffusionPolicy.from_config(config, fit_normalizer(demos, config), device=dev)
+           dev: torch.device, amp: bool, teacher: DiffusionPolicy | None
+           ) -> tuple[DiffusionPolicy, TrainHistory]:
+    normalizer = fit_normalizer(demos, config) if teacher is None else teacher.normalizer
+    policy = DiffusionPolicy.from_config(config, normalizer, device=dev)
+    target = None if teacher is None else teacher.to(dev).denoiser()
     model = policy.model.train()
     ema = _Ema(model, config.ema_decay) if config.use_ema else None
 
@@ -168,7 +197,7 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
         pick = index[offsets[step - 1]:offsets[step]]
         batch = {"trajectory": traj[pick], "task_index": task_idx[pick], "start": start[pick]}
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
-            loss = policy.compute_loss(batch, generator=gen)
+            loss = policy.compute_loss(batch, generator=gen, teacher=target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
