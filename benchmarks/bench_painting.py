@@ -9,7 +9,8 @@ kinematics of 32 x 64 and 320 x 64 joint vectors to the arm's 12 points, against
 the demonstrations; building the spatial prior from the population (hands and elbows) and one
 observed cycle; S of a steering batch from the arm's points. Then samples the bundled policy
 (``--policy-samples`` per task, unsteered) and reports how many complete their task, the motion
-modes and how many cannot be executed. With --update-docs the "## Painting world" section of
+modes and how many cannot be executed; ``--policy DIR`` does only that, for another checkpoint
+(a distilled one, say). With --update-docs the "## Painting world" section of
 docs/benchmarks.md is replaced (or added).
 """
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -97,10 +99,13 @@ def world_timings(world: PaintingWorld) -> list[tuple[str, str]]:
     return rows
 
 
-def policy_samples(world: PaintingWorld, n: int) -> list[tuple[str, ...]]:
+def policy_samples(world: PaintingWorld, n: int, path: Path | None = None
+                   ) -> list[tuple[str, ...]]:
+    """Per task: completed, direct / avoidant, median completion time per mode, not
+    executable; of ``n`` unsteered samples of the checkpoint at ``path`` (the bundled one)."""
     from rapidds.motion.policy import DiffusionPolicy
 
-    path = world.bundled_policy()
+    path = path or world.bundled_policy()
     if path is None:
         return []
     policy = DiffusionPolicy.load(path)
@@ -124,7 +129,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--update-docs", action="store_true")
     ap.add_argument("--policy-samples", type=int, default=200)
+    ap.add_argument("--policy", type=Path,
+                    help="only sample this checkpoint (a distilled one, say) and print its rows")
     args = ap.parse_args()
+    if args.policy is not None:
+        torch.set_num_threads(1)
+        for row in policy_samples(PaintingWorld(), args.policy_samples, args.policy):
+            print("| " + " | ".join(row) + " |")
+        return
     torch.set_num_threads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     load0 = load_average()
