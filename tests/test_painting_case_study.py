@@ -14,6 +14,7 @@ from record_helpers import typed_record
 from safetensors.torch import load_file
 
 from rapidds.cli import main
+from rapidds.errors import CheckpointError
 from rapidds.experiments.painting import (
     SETTINGS,
     cell_state,
@@ -194,6 +195,37 @@ def test_train_policy_cli_reproduces_the_shipped_training(tmp_path, monkeypatch,
     a = load_file(str(tmp_path / "p" / "model.safetensors"))
     b = load_file(str(tmp_path / "lib" / "model.safetensors"))
     assert a.keys() == b.keys() and all(bool((a[k] == b[k]).all()) for k in a)
+
+
+def test_the_shipped_student_is_its_command_and_samples_like_its_teacher(
+        tmp_path, monkeypatch, capsys, world) -> None:
+    """The distilled checkpoint (docs/benchmarks.md, "A distilled network") is what its
+    documented command writes, by name through --policy, and its samples complete their task
+    as the paper's network's nearly all do (an under-trained student's 1-6 % would fail)."""
+    from rapidds.loop.context import load_policy
+    from rapidds.motion.train import check_teacher
+    from rapidds.worlds.base import shipped_policies
+
+    shipped = shipped_policies(world)
+    assert list(shipped) == ["paper", "distilled"] and shipped["paper"] == world.bundled_policy()
+    (tmp_path / "small.json").write_text(json.dumps({"down_dims": [16, 32]}))
+    rc, _, err = _cli(["train-policy", "--world", "painting", "--teacher", str(shipped["paper"]),
+                       "--config", str(tmp_path / "small.json"), "--out", str(tmp_path / "s"),
+                       "--steps", "3", "--seed", "0", "--device", "cpu"], monkeypatch, capsys)
+    assert rc == 0, err
+    want = json.loads((shipped["distilled"] / "config.json").read_text())
+    mine = json.loads((tmp_path / "s" / "config.json").read_text())
+    assert mine["normalizer"] == want["normalizer"]
+    assert {**mine["config"], "steps": want["config"]["steps"]} == want["config"]
+
+    student, teacher = load_policy(world, "distilled", "cpu"), load_policy(world, "paper", "cpu")
+    check_teacher(teacher, student.config)
+    assert sum(p.numel() for p in student.model.parameters()) < 0.2 * sum(
+        p.numel() for p in teacher.model.parameters())
+    paths = student.sample("mix_l", 64, generator=7)
+    assert (world.completion_time("mix_l", paths) < world.penalty).mean() >= 0.9
+    with pytest.raises(CheckpointError, match=r"ships no policy of that name \(paper, distil"):
+        load_policy(world, "distiled")
 
 
 def test_corrupt_checkpoint_and_scene_get_one_line(tmp_path, monkeypatch, capsys,

@@ -58,7 +58,11 @@ PORT_HELP = "Port (0: any free one)."
 AS_JSON: Any = typer.Option(False, "--json", help=JSON_HELP)
 """``as_json: bool = AS_JSON``: one JSON object on stdout instead of the text."""
 RUN_PANEL = "Run settings"
-POLICY: Any = typer.Option(None, help="Policy checkpoint.", show_default="the world's bundled one")
+POLICY: Any = typer.Option(
+    None, help="Policy checkpoint: a directory, or one the world ships by name ('paper'; "
+    "painting also 'distilled', a smaller network distilled from it, about half the CPU "
+    "per cycle).",
+    show_default="the world's bundled one: paper")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
 THREADS: Any = typer.Option(1, min=1, max=256, help=THREADS_HELP)
 """``threads: int = THREADS``."""

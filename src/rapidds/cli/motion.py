@@ -311,7 +311,8 @@ def _sample_in_world(
 def sample_cmd(
     task: Annotated[str, typer.Option("--task", help="Task name the policy was trained on.")],
     policy_dir: Annotated[Path | None, typer.Option(
-        "--policy", help="Checkpoint directory (with --world: default the bundled policy).")
+        "--policy", help="Checkpoint directory; with --world also one the world ships by name "
+        "('paper', the default, or painting's 'distilled').")
     ] = None,
     world: Annotated[str | None, typer.Option(
         help="Sample in a bundled world (fetch): its completion time and human spatial costs.")

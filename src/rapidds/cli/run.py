@@ -193,7 +193,9 @@ def _say_done(run: AdaptiveRun, out: Path | None, con: Console) -> None:
 def worlds_cmd(
     as_json: bool = AS_JSON,
 ) -> None:
-    """List the registered worlds with their variants, teammates, tasks and capabilities."""
+    """List the registered worlds with their variants, teammates, tasks, capabilities and the
+    policies they ship (--policy NAME)."""
+    from rapidds.worlds.base import shipped_policies
     from rapidds.worlds.capabilities import capabilities
     from rapidds.worlds.registry import make_world, world_names
 
@@ -203,7 +205,8 @@ def worlds_cmd(
         info[name] = {"variants": list(w.variants), "teammates": list(w.teammate_names),
                       "tasks": list(w.task_ids), "workspace_dim": w.workspace_dim,
                       "robot_dim": w.state_dim, "views": list(w.views),
-                      "capabilities": list(capabilities(w))}
+                      "capabilities": list(capabilities(w)),
+                      "policies": list(shipped_policies(w))}
     if as_json:
         typer.echo(json.dumps(info))
         return
@@ -213,6 +216,7 @@ def worlds_cmd(
         typer.echo(f"  teammates: {', '.join(d['teammates'])}")
         typer.echo(f"  tasks:     {', '.join(d['tasks'])}")
         typer.echo(f"  can:       {', '.join(d['capabilities']) or '(the contract only)'}")
+        typer.echo(f"  policies:  {', '.join(d['policies']) or '(none shipped: train-policy)'}")
 
 
 @app.command("demo")

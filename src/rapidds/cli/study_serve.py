@@ -17,7 +17,7 @@ from pathlib import Path
 import typer
 
 from rapidds.cli import fail
-from rapidds.cli._options import HOST_HELP, PORT_HELP
+from rapidds.cli._options import HOST_HELP, POLICY, PORT_HELP
 from rapidds.cli.study import study_app
 
 
@@ -51,8 +51,7 @@ def serve_cmd(
     host: str = typer.Option("127.0.0.1", help=f"{HOST_HELP} The overview needs the "
                              "experimenter's address printed at start."),
     port: int = typer.Option(8000, min=0, max=65535, help=PORT_HELP),
-    policy: Path | None = typer.Option(None, help="Policy checkpoint (default: the world's "
-                                       "bundled one)."),
+    policy: Path | None = POLICY,
     threads: int = typer.Option(1, min=1, max=256, help="Torch CPU threads."),
     as_json: bool = typer.Option(False, "--json", help="Print the address (and at the end what "
                                  "was stored) as JSON lines."),

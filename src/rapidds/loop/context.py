@@ -21,17 +21,24 @@ from rapidds.loop.slowdowns import Slowdowns
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.settings import require_memory
-from rapidds.worlds.base import SimulatedTeammate, Teammate, World
+from rapidds.worlds.base import SimulatedTeammate, Teammate, World, shipped_policies
 from rapidds.worlds.reactions import Reaction
 from rapidds.worlds.registry import make_world
 
 __all__ = ["RunContext", "load_policy"]
 
 
-def load_policy(world: World, path: Path | None = None, device: str = "auto"
+def load_policy(world: World, path: Path | str | None = None, device: str = "auto"
                 ) -> DiffusionPolicy:
-    """The checkpoint at ``path``, or the world's bundled policy, on ``device`` ("auto": a CUDA
+    """The checkpoint at ``path`` (a directory, or the name of one the world ships: see
+    :func:`shipped_policies`), or the world's bundled policy, on ``device`` ("auto": a CUDA
     GPU when there is one; "cuda" without one is a ConfigError, one line at the CLI)."""
+    if path is not None and len(Path(path).parts) == 1 and not Path(path).exists():
+        shipped = shipped_policies(world)
+        if str(path) not in shipped:
+            raise CheckpointError(f"checkpoint {path} does not exist, and {world.name} ships "
+                                  f"no policy of that name ({', '.join(shipped) or 'none'})")
+        path = shipped[str(path)]
     directory = path or world.bundled_policy()
     if directory is None:
         raise CheckpointError(

@@ -61,6 +61,7 @@ __all__ = [
     "body_points",
     "joint_names",
     "perform_all",
+    "shipped_policies",
 ]
 
 Horizon = Annotated[Int, Field(gt=0, multiple_of=8)]
@@ -427,6 +428,17 @@ class WorldBase:
         """``name`` inside the spec's resources package (None: the world ships none)."""
         package = self.spec.resources
         return None if package is None else Path(str(files(package) / name))
+
+
+def shipped_policies(world: World) -> dict[str, Path]:
+    """The checkpoints ``world`` ships, by name: "paper", its bundled policy (the paper's
+    network), and "NAME" for each ``policy-NAME/`` beside it (painting: "distilled")."""
+    bundled = world.bundled_policy()
+    if bundled is None:
+        return {}
+    return {"paper": bundled} | {d.name.removeprefix("policy-"): d
+                                 for d in sorted(bundled.parent.glob("policy-*"))
+                                 if (d / "config.json").is_file()}
 
 
 def joint_names(world: World) -> tuple[str, ...]:
