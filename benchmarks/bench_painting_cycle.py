@@ -43,25 +43,27 @@ def _strip_timing(obj: object) -> object:
 WORLDS = {"painting": ("left-slow", 12.0), "fetch": ("slow-middle", None)}
 
 
-def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting"
-             ) -> dict[str, object]:
+def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting",
+             policy: str | None = None, threads: int = 1) -> dict[str, object]:
     """One run in this process on ``device`` (the CPU unless told: this benchmark is the CPU's
     even on a machine with a GPU; bench_device.py measures both): per-cycle wall and CPU
     seconds, the wall parts, the records' digest. ``world``: painting (the issue's config)
-    or fetch (its default search, teammate slow-middle)."""
+    or fetch (its default search, teammate slow-middle). ``policy``: a checkpoint or the name
+    of one the world ships (``rapidds run --policy``); ``threads``: torch's intra-op threads
+    (``rapidds run --threads``)."""
     import torch
 
     from rapidds.loop.config import RunConfig
     from rapidds.loop.run import AdaptiveRun, CycleResult, load_policy
     from rapidds.worlds.registry import make_world
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
     w = make_world(world)
-    policy = (load_policy(w) if device == "cpu"  # checkouts before --device
-              else load_policy(w, device=device))
+    net = (load_policy(w) if device == "cpu" and policy is None  # checkouts before --device
+           else load_policy(w, policy, device=device))
     human, gamma = WORLDS[world]
     cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
-    run = AdaptiveRun(cfg, policy)
+    run = AdaptiveRun(cfg, net)
     out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": []}
     digest = hashlib.sha256()
     while not run.finished:
@@ -134,6 +136,9 @@ def main() -> None:
     ap.add_argument("--docs", action="store_true")
     ap.add_argument("--base", type=Path, help="an older checkout to measure beside this one")
     ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--policy", help="without --base: a checkpoint, or the name of one the "
+                    "world ships (distilled)")
+    ap.add_argument("--threads", type=int, default=1, help="without --base: torch threads")
     ap.add_argument("--world", choices=sorted(WORLDS), default="painting",
                     help="with --base: the run measured (default: the issue's painting run)")
     args = ap.parse_args()
@@ -142,16 +147,20 @@ def main() -> None:
                       args.world))
         return
     load0 = load_average()
-    runs = [run_seed(seed, args.cycles) for seed in parse_seeds(args.seeds)]
+    runs = [run_seed(seed, args.cycles, policy=args.policy, threads=args.threads)
+            for seed in parse_seeds(args.seeds)]
+    extra = (f" --policy {args.policy}" if args.policy else "") + (
+        f" --threads {args.threads}" if args.threads != 1 else "")
     wall = [c for r in runs for c in r["wall"]]
     cpu = [c for r in runs for c in r["cpu"]]
     med = {k: statistics.median(c for r in runs for c in r[k])
            for k in ("plan", "deploy", "update")}
     text = (
-        f"`benchmarks/bench_painting_cycle.py --seeds {args.seeds}`: {len(wall)} cycles of "
-        f"`rapidds run painting --human left-slow --gamma 12 --cycles {args.cycles}` (full "
-        "adaptation, default search: population 24, 40 generations, 32 samples, 4 particles x "
-        f"8 candidates), one torch thread, {cpu_model()}, 2 cores shared with other jobs; "
+        f"`benchmarks/bench_painting_cycle.py --seeds {args.seeds}{extra}`: {len(wall)} "
+        f"cycles of `rapidds run painting --human left-slow --gamma 12 --cycles {args.cycles}"
+        f"{extra}` (full adaptation, default search: population 24, 40 generations, 32 "
+        f"samples, 4 particles x 8 candidates), {args.threads} torch thread(s), {cpu_model()}, "
+        "2 cores shared with other jobs; "
         f"1-min load average {load0} at start, {load_average()} at end.\n\n"
         "| per cycle | median | max |\n|---|---|---|\n"
         f"| wall clock (s) | {statistics.median(wall):.2f} | {max(wall):.2f} |\n"
