@@ -21,10 +21,6 @@ from rapidds.cli._options import HOST_HELP, POLICY, PORT_HELP
 from rapidds.cli.study import study_app
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _announce(as_json: bool, url: str, overview: str, store: Path, participants: int,
               waiting: int, host: str, hosts: Sequence[str]) -> None:
     """Say where the study is served: the experimenter's overview (with its token) and the
@@ -94,17 +90,22 @@ def serve_cmd(
                 access_log=False))
 
             # Ctrl-C or SIGTERM (a service manager's stop): the normal stop, exit 0 with the
-            # summary. uvicorn shuts down gracefully on either, then raises the signal again
-            # to the handler that was there before it: this one. It is in place before the
-            # announcement, so a stop sent as soon as the address is read is a normal stop too.
-            before = signal.signal(signal.SIGTERM, _interrupt)
+            # summary. The handler only asks the server to exit, so a stop that comes before
+            # uvicorn's own handlers are in place (from the announcement on) ends the server
+            # as one during serving does; raising KeyboardInterrupt there instead could land
+            # in a task that swallows it, and the server would never stop. uvicorn hands the
+            # signal back to this handler when it has shut down.
+            def stop(signum: int, frame: object) -> None:
+                server.should_exit = True
+
+            before = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
             try:
-                with contextlib.suppress(KeyboardInterrupt):
-                    _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
-                              host, hosts)
-                    server.run(sockets=[sock])
+                _announce(as_json, url, overview, study_path(folder), len(steps), waiting,
+                          host, hosts)
+                server.run(sockets=[sock])
             finally:
-                signal.signal(signal.SIGTERM, before)
+                for sig, handler in before.items():
+                    signal.signal(sig, handler)
             final = worker.run(lambda s: s.store.progress())
         finally:
             worker.close()
