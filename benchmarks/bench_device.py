@@ -2,7 +2,7 @@
 GPU, in one run: the one script a session with a card runs (design notes, section 11).
 
     .venv/bin/python benchmarks/bench_device.py [--seeds 0,1] [--cycles 5] [--train-steps 300]
-        [--devices cpu,cuda] [--json OUT.json]
+        [--devices cpu,cuda] [--policy distilled] [--json OUT.json]
 
 Per device, each in a fresh process (a CUDA context or a warmed allocator must not carry over):
 
@@ -11,7 +11,10 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
   cycle and the median of the later ones, the planning part, and the records' digest;
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
   per optimiser step after a warm-up of 20 steps, float32 and (on cuda) bf16 autocast, and
-  the mean loss of the last 50 steps.
+  the mean loss of the last 50 steps (``--train-steps 0``: not measured).
+
+``--policy``: the runs plan with that checkpoint, or one the world ships by name
+(``rapidds run --policy``); training stays the shipped network's.
 
 A GPU's numbers count only beside the CPU's of the same machine in the same run.
 """
@@ -33,11 +36,12 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 
-def cycles_on(device: str, seed: int, cycles: int) -> dict[str, object]:
+def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None
+              ) -> dict[str, object]:
     """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds."""
     from bench_painting_cycle import run_seed
 
-    return run_seed(seed, cycles, device=device)
+    return run_seed(seed, cycles, device=device, policy=policy)
 
 
 def training_on(device: str, steps: int, amp: bool) -> dict[str, float]:
@@ -73,10 +77,11 @@ def _child(what: str, *args: object) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def measure(devices: list[str], seeds: list[int], cycles: int, steps: int) -> dict:
+def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
+            policy: str | None = None) -> dict:
     out: dict[str, dict] = {}
     for dev in devices:
-        runs = [_child("cycles_on", dev, s, cycles) for s in seeds]
+        runs = [_child("cycles_on", dev, s, cycles, policy) for s in seeds]
         first = [r["cpu"][0] for r in runs]
         later = [c for r in runs for c in r["cpu"][1:]]
         later_wall = [c for r in runs for c in r["wall"][1:]]
@@ -87,18 +92,21 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int) -> di
             "later_cpu_median": statistics.median(later),
             "later_plan_median": statistics.median(p for r in runs for p in r["plan"][1:]),
             "digests": [r["digest"] for r in runs],
-            "train_fp32": _child("training_on", dev, steps, False),
         }
-        if dev == "cuda":
+        if steps > 0:
+            out[dev]["train_fp32"] = _child("training_on", dev, steps, False)
+        if steps > 0 and dev == "cuda":
             out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
 
 
-def markdown(res: dict, seeds: list[int], cycles: int, load0: str) -> str:
+def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
+             policy: str | None = None) -> str:
     rows = []
     for dev, r in res.items():
-        train = f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})"
+        train = ("-" if "train_fp32" not in r else
+                 f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})")
         if "train_bf16" in r:
             train += (f"; bf16 {r['train_bf16']['ms_per_step']:.1f} "
                       f"(loss {r['train_bf16']['final_loss']:.4f})")
@@ -110,9 +118,10 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str) -> str:
         import torch
 
         gpu = f", GPU {torch.cuda.get_device_name(0)}"
+    chosen = "" if policy is None else f" --policy {policy}"
     return (f"`benchmarks/bench_device.py --seeds {','.join(map(str, seeds))} --cycles "
-            f"{cycles}`: {cpu_model()}{gpu}, one torch thread; 1-min load average {load0} at "
-            f"start, {load_average()} at end.\n\n"
+            f"{cycles}{chosen}`: {cpu_model()}{gpu}, one torch thread; 1-min load average "
+            f"{load0} at start, {load_average()} at end.\n\n"
             "| device | first cycle wall / CPU s | later cycles wall / CPU s (median) | "
             "plan wall s (median) | training ms per step (final loss) |\n"
             "|---|---:|---:|---:|---|\n" + "\n".join(rows) + "\n")
@@ -124,6 +133,8 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=5)
     ap.add_argument("--train-steps", type=int, default=300)
     ap.add_argument("--devices", default=None, help="default: cpu, and cuda when available")
+    ap.add_argument("--policy", default=None,
+                    help="plan with this checkpoint or shipped policy name (distilled)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     import torch
@@ -132,8 +143,8 @@ def main() -> None:
                else ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
     load0 = load_average()
     seeds = parse_seeds(args.seeds)
-    res = measure(devices, seeds, args.cycles, args.train_steps)
-    print(markdown(res, seeds, args.cycles, load0))
+    res = measure(devices, seeds, args.cycles, args.train_steps, args.policy)
+    print(markdown(res, seeds, args.cycles, load0, args.policy))
     if args.json is not None:
         args.json.write_text(json.dumps(res, indent=2) + "\n")
 

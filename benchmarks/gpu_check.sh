@@ -3,8 +3,8 @@
 # cycle and painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles, 300
 # training steps per device, float32 and on cuda bf16), then one cycle's steering batch with
 # the value on the host and on the device, with the host synchronisations inside it
-# (bench_steer_device.py), then the painting cycle with the shipped distilled policy (--policy
-# distilled) on cpu and cuda, 2 seeds x 5 cycles. Run from anywhere:
+# (bench_steer_device.py), then the painting cycle with the shipped distilled policy (bench_device.py
+# --policy distilled) on cpu and cuda, 2 seeds x 5 cycles. Run from anywhere:
 #     OUT=/some/dir PYTHON=.venv/bin/python benchmarks/gpu_check.sh
 # Results: $OUT/device.json, $OUT/steer.json and the logs beside them. The GPU's numbers count
 # only beside the CPU's of the same machine in the same run (docs/benchmarks.md).
@@ -22,18 +22,5 @@ timeout 360 "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-step
     --json "$OUT/device.json" 2>&1 | tee "$OUT/device.log"
 timeout 100 "$PY" benchmarks/bench_steer_device.py --repeat 5 --json "$OUT/steer.json" 2>&1 \
     | tee "$OUT/steer.log"
-timeout 120 "$PY" - "$OUT/distilled.json" <<'PY' 2>&1 | tee "$OUT/distilled.log"
-import json, statistics, sys
-import torch
-sys.path.insert(0, "benchmarks")
-from bench_painting_cycle import run_seed
-out = {}
-for dev in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
-    runs = [run_seed(seed, 5, device=dev, policy="distilled") for seed in (0, 1)]
-    later = [c for r in runs for c in r["wall"][1:]]
-    out[dev] = {"later_wall_median": statistics.median(later),
-                "first_wall": [r["wall"][0] for r in runs],
-                "cpu_median": statistics.median(c for r in runs for c in r["cpu"][1:])}
-    print(dev, out[dev], flush=True)
-open(sys.argv[1], "w").write(json.dumps(out, indent=2) + "\n")
-PY
+timeout 150 "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
+    --policy distilled --json "$OUT/distilled.json" 2>&1 | tee "$OUT/distilled.log"
