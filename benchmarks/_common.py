@@ -3,11 +3,20 @@ docs/benchmarks.md (each script rewrites only its own ``## `` section)."""
 
 from __future__ import annotations
 
+import os
 import platform
 import re
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def child_env(*paths: str | Path, **extra: str) -> dict[str, str]:
+    """This process's environment for a child on ``paths`` first, then the inherited
+    ``PYTHONPATH`` (a GPU machine carries the packages it lacks there: design notes, 11)."""
+    inherited = os.environ.get("PYTHONPATH")
+    path = os.pathsep.join([*map(str, paths), *([inherited] if inherited else [])])
+    return {**os.environ, "PYTHONPATH": path, **extra}
 
 
 def cpu_model() -> str:

@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from _common import cpu_model, load_average, parse_seeds
+from _common import child_env, cpu_model, load_average, parse_seeds
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -69,7 +68,7 @@ def training_on(device: str, steps: int, amp: bool) -> dict[str, float]:
 
 
 def _child(what: str, *args: object) -> dict:
-    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{HERE}"}
+    env = child_env(ROOT / "src", HERE)
     code = (f"import json, bench_device as b; print(json.dumps(b.{what}"
             f"({', '.join(map(repr, args))})))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,

@@ -1,26 +1,40 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, in one run of about 6 minutes (under 10): the painting
-# cycle and painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles, 300
-# training steps per device, float32 and on cuda bf16), then one cycle's steering batch with
-# the value on the host and on the device, with the host synchronisations inside it
-# (bench_steer_device.py), then the painting cycle with the shipped distilled policy (bench_device.py
-# --policy distilled) on cpu and cuda, 2 seeds x 5 cycles. Run from anywhere:
-#     OUT=/some/dir PYTHON=.venv/bin/python benchmarks/gpu_check.sh
-# Results: $OUT/device.json, $OUT/steer.json and the logs beside them. The GPU's numbers count
-# only beside the CPU's of the same machine in the same run (docs/benchmarks.md).
-set -euo pipefail
+# Issue 36 on a machine with a CUDA GPU, in one run of about 5 minutes: the painting cycle and
+# painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles, 200 training
+# steps per device, float32 and on cuda bf16), the painting cycle with the shipped distilled
+# policy on cpu and cuda, then one cycle's steering batch with the value on the host and on the
+# device, with the host synchronisations inside it (bench_steer_device.py). Most important
+# first; a part that fails or runs out of time is logged and the next one still runs. From
+# anywhere (a GPU machine lacking packages: PAYLOAD from benchmarks/gpu_payload.sh):
+#     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] benchmarks/gpu_check.sh
+# Results: $OUT/device.json, $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (at
+# most 4 files: a device session brings back 8). The GPU's numbers count only beside the CPU's
+# of the same machine in the same run (docs/benchmarks.md).
+set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python}
 OUT=${OUT:-/tmp/gpu-check}
+LOG="$OUT/gpu_check.log"
 mkdir -p "$OUT"
-export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"
-git rev-parse --short HEAD 2>/dev/null | tee "$OUT/commit.txt" || true
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader \
-    | tee "$OUT/gpu.txt" || echo "no nvidia-smi" | tee "$OUT/gpu.txt"
-"$PY" -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
-timeout 360 "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
-    --json "$OUT/device.json" 2>&1 | tee "$OUT/device.log"
-timeout 100 "$PY" benchmarks/bench_steer_device.py --repeat 5 --json "$OUT/steer.json" 2>&1 \
-    | tee "$OUT/steer.log"
-timeout 150 "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
-    --policy distilled --json "$OUT/distilled.json" 2>&1 | tee "$OUT/distilled.log"
+if [ -n "${PAYLOAD:-}" ]; then
+    mkdir -p /tmp/rapidds-site && tar xJf "$PAYLOAD" -C /tmp/rapidds-site
+    export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
+fi
+export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
+part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
+    local limit=$1 name=$2; shift 2
+    echo "== $name ($(date -u +%T), load $(cut -d' ' -f1 /proc/loadavg))" | tee -a "$LOG"
+    timeout "$limit" "$@" 2>&1 | tee -a "$LOG"
+    echo "== $name: exit ${PIPESTATUS[0]}" | tee -a "$LOG"
+}
+{ git rev-parse --short HEAD 2>/dev/null || echo "no git"; nproc
+  nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader \
+      || echo "no nvidia-smi"; } 2>&1 | tee -a "$LOG"
+part 30 versions "$PY" -c "import torch, diffusers, mujoco, rapidds; print('torch', \
+torch.__version__, 'cuda', torch.cuda.is_available(), 'diffusers', diffusers.__version__, \
+'mujoco', mujoco.__version__)"
+part 220 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 200 \
+    --json "$OUT/device.json"
+part 100 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
+    --policy distilled --json "$OUT/distilled.json"
+part 60 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
