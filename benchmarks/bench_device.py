@@ -10,7 +10,8 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
   adaptation, default search), one torch thread: wall and process CPU seconds of the first
   cycle and the median of the later ones, the planning part, and the records' digest;
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
-  per optimiser step after a warm-up of 20 steps, float32 and (on cuda) bf16 autocast, and
+  per optimiser step after a warm-up of 20 steps, float32 and (on cuda) float32 launched op by
+  op and bf16 autocast, both others a captured CUDA graph (train_policy's default there), and
   the mean loss of the last 50 steps (``--train-steps 0``: not measured).
 
 ``--policy``: the runs plan with that checkpoint, or one the world ships by name
@@ -43,8 +44,10 @@ def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None
     return run_seed(seed, cycles, device=device, policy=policy)
 
 
-def training_on(device: str, steps: int, amp: bool) -> dict[str, float]:
-    """ms per optimiser step of the painting policy at its shipped size on ``device``."""
+def training_on(device: str, steps: int, amp: bool, graph: bool | None = None
+                ) -> dict[str, object]:
+    """ms per optimiser step of the painting policy at its shipped size on ``device``;
+    ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU)."""
     import torch
 
     from rapidds.cli.motion import _world_demos
@@ -56,15 +59,16 @@ def training_on(device: str, steps: int, amp: bool) -> dict[str, float]:
     fields.update(horizon=demos.horizon, state_dim=demos.state_dim,
                   task_names=list(demos.task_names), steps=20, device=device)
     warm = DiffusionConfig.from_dict(fields)
-    train_policy(demos, warm, mixed_precision=amp)  # allocator, kernels, cuDNN choices
+    train_policy(demos, warm, mixed_precision=amp, cuda_graph=graph)  # allocator, kernels
     cfg = warm.replace(steps=steps)
     w0, c0 = time.perf_counter(), time.process_time()
-    _, history = train_policy(demos, cfg, mixed_precision=amp)
+    _, history = train_policy(demos, cfg, mixed_precision=amp, cuda_graph=graph)
     if device == "cuda":
         torch.cuda.synchronize()
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     return {"ms_per_step": 1000 * wall / steps, "cpu_ms_per_step": 1000 * cpu / steps,
-            "steps": steps, "final_loss": history.mean_loss(last=50)}
+            "steps": steps, "final_loss": history.mean_loss(last=50),
+            "cuda_graph": history.cuda_graph, "graph_note": history.graph_note}
 
 
 def _child(what: str, *args: object) -> dict:
@@ -90,11 +94,13 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_wall_median": statistics.median(later_wall),
             "later_cpu_median": statistics.median(later),
             "later_plan_median": statistics.median(p for r in runs for p in r["plan"][1:]),
+            "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
         }
         if steps > 0:
             out[dev]["train_fp32"] = _child("training_on", dev, steps, False)
-        if steps > 0 and dev == "cuda":
+        if steps > 0 and dev == "cuda":  # eager (op by op) beside the captured default
+            out[dev]["train_fp32_eager"] = _child("training_on", dev, steps, False, False)
             out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
@@ -106,12 +112,13 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
     for dev, r in res.items():
         train = ("-" if "train_fp32" not in r else
                  f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})")
-        if "train_bf16" in r:
-            train += (f"; bf16 {r['train_bf16']['ms_per_step']:.1f} "
-                      f"(loss {r['train_bf16']['final_loss']:.4f})")
+        for key, label in (("train_fp32_eager", "fp32 eager"), ("train_bf16", "bf16")):
+            if key in r:
+                train += (f"; {label} {r[key]['ms_per_step']:.1f} "
+                          f"(loss {r[key]['final_loss']:.4f})")
         rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f} | "
                     f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f} | "
-                    f"{r['later_plan_median']:.2f} | {train} |")
+                    f"{r['later_plan_median']:.2f} | {sum(r['later_requests'])} | {train} |")
     gpu = ""
     if "cuda" in res:
         import torch
@@ -122,8 +129,9 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
             f"{cycles}{chosen}`: {cpu_model()}{gpu}, one torch thread; 1-min load average "
             f"{load0} at start, {load_average()} at end.\n\n"
             "| device | first cycle wall / CPU s | later cycles wall / CPU s (median) | "
-            "plan wall s (median) | training ms per step (final loss) |\n"
-            "|---|---:|---:|---:|---|\n" + "\n".join(rows) + "\n")
+            "plan wall s (median) | later cycles' steering requests | "
+            "training ms per step (final loss) |\n|---|---:|---:|---:|---:|---|\n"
+            + "\n".join(rows) + "\n")
 
 
 def main() -> None:

@@ -159,6 +159,25 @@ def test_mixed_precision_training_keeps_the_checkpoint_and_the_loss(toy, tmp_pat
     assert back.sample("right", 2, generator=0).shape == (2, 16, 2)
 
 
+def test_a_captured_training_step_is_a_gpu_matter_only():
+    """``cuda_graph`` asks for a captured optimiser step on a GPU; on the CPU it changes
+    nothing (the same bits), and the history says no graph ran."""
+    from rapidds.motion.config import DiffusionConfig
+    from rapidds.motion.demos import two_route_demos
+    from rapidds.motion.train import train_policy
+
+    demos, _ = two_route_demos(n_per_route=8, seed=0)
+    cfg = DiffusionConfig(horizon=16, state_dim=2, task_names=demos.task_names,
+                          down_dims=(8, 16), step_embed_dim=8, num_train_timesteps=20,
+                          num_inference_steps=5, steps=6, batch_size=8, device="cpu")
+    (plain, hp), (asked, ha) = train_policy(demos, cfg), train_policy(demos, cfg,
+                                                                      cuda_graph=True)
+    assert hp.loss == ha.loss
+    assert not ha.cuda_graph and ha.graph_note == ""
+    assert all(torch.equal(v, asked.model.state_dict()[k])
+               for k, v in plain.model.state_dict().items())
+
+
 def test_a_tensor_value_sees_tensors_and_a_diverged_policy_still_stops(toy):
     """On the device path the value gets tensors (never a host array), and samples holding NaN
     stop the steering as on the host path: checked once, after the loop."""

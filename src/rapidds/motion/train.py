@@ -30,6 +30,10 @@ class TrainHistory:
     steps: int = 0
     seconds: float = 0.0
     device: str = "cpu"
+    cuda_graph: bool = False
+    """Whether the optimiser steps replayed a captured CUDA graph (else each was launched
+    op by op); why not, when it was asked for and capture failed: ``graph_note``."""
+    graph_note: str = ""
 
     def mean_loss(self, first: int | None = None, last: int | None = None) -> float:
         """Mean loss over the first or last ``n`` steps (all steps when neither is given)."""
@@ -112,12 +116,17 @@ def total_steps(n_demos: int, config: DiffusionConfig) -> int:
 GPU_LOG_EVERY = 50
 """Optimiser steps between two reads of the loss on a GPU (each read waits for the device)."""
 
+GRAPH_WARMUP = 3
+"""Eager optimiser steps (real ones, on a side stream) before a CUDA graph is captured: they
+create the optimiser's state and let the allocator and cuDNN settle, as capture requires."""
+
 
 def train_policy(demos: Demonstrations, config: DiffusionConfig,
                  progress: ProgressFn | None = None,
                  device: str | torch.device | None = None,
                  mixed_precision: bool | None = None,
                  teacher: DiffusionPolicy | None = None,
+                 cuda_graph: bool | None = None,
                  ) -> tuple[DiffusionPolicy, TrainHistory]:
     """Train a policy from scratch on ``demos``.
 
@@ -130,6 +139,11 @@ def train_policy(demos: Demonstrations, config: DiffusionConfig,
     teacher: distil it: the network learns the teacher's noise predictions on the
     demonstrations (:meth:`DiffusionPolicy.compute_loss`) in the teacher's normalised units
     (its normaliser is kept); moved to the device. Its forward process must be ``config``'s.
+    cuda_graph: on a GPU, capture one whole optimiser step (forward, backward, AdamW) as a
+    CUDA graph after :data:`GRAPH_WARMUP` eager steps and replay it: a small network's step is
+    hundreds of kernels, each launched by the host, so launching is what a step costs there
+    (docs/benchmarks.md). The same steps, learning rates and random streams; batches of
+    another size (an epoch's last) run eagerly. None: on a GPU. Ignored on the CPU.
     Returns the policy (EMA weights when ``config.use_ema``, in eval mode) and the history.
     On CPU the same seed gives bit-identical weights. The demonstrations, every batch's
     indices and the random numbers live on the device: a step never waits for the host.
@@ -139,8 +153,9 @@ def train_policy(demos: Demonstrations, config: DiffusionConfig,
         check_teacher(teacher, config)
     dev = resolve_device(device, default=config.device)
     amp = dev.type == "cuda" if mixed_precision is None else mixed_precision
+    graph = dev.type == "cuda" and (cuda_graph is None or cuda_graph)
     with cpu_threads(config.cpu_threads if dev.type == "cpu" else 0):
-        return _train(demos, config, progress, dev, amp, teacher)
+        return _train(demos, config, progress, dev, amp, teacher, graph)
 
 
 def _batches(config: DiffusionConfig, n: int, steps: int, dev: torch.device
@@ -162,7 +177,7 @@ def _batches(config: DiffusionConfig, n: int, steps: int, dev: torch.device
 
 
 def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn | None,
-           dev: torch.device, amp: bool, teacher: DiffusionPolicy | None
+           dev: torch.device, amp: bool, teacher: DiffusionPolicy | None, graph: bool = False
            ) -> tuple[DiffusionPolicy, TrainHistory]:
     normalizer = fit_normalizer(demos, config) if teacher is None else teacher.normalizer
     policy = DiffusionPolicy.from_config(config, normalizer, device=dev)
@@ -182,26 +197,46 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
             return (k + 1) / warmup
         return 0.5 * (1.0 + math.cos(math.pi * (k - warmup) / max(steps - warmup, 1)))
 
-    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, betas=(0.95, 0.999),
+    # a replayed step reads its learning rate and step count from the device
+    lr: float | torch.Tensor = (torch.tensor(config.lr * lr_factor(0), device=dev) if graph
+                                else config.lr)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, betas=(0.95, 0.999),
                             weight_decay=config.weight_decay,
-                            **({"fused": True} if dev.type == "cuda" else {}))
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lr_factor)
+                            **({"fused": True, "capturable": graph} if dev.type == "cuda"
+                               else {}))
+    # graph: the rate is set by hand before each step (LambdaLR's values), since a scheduler
+    # may replace a tensor rate by a float the captured step would never read
+    sched = None if graph else torch.optim.lr_scheduler.LambdaLR(opt, lr_factor)
     gen = torch.Generator(dev).manual_seed(config.seed)  # noise drawn where it is used
     history = TrainHistory(device=str(dev))
     log_every = 1 if dev.type == "cpu" else GPU_LOG_EVERY
 
-    t0 = time.perf_counter()
-    index, offsets = _batches(config, n, steps, dev)
-    losses = torch.empty(steps, device=dev)
-    for step in range(1, steps + 1):
-        pick = index[offsets[step - 1]:offsets[step]]
+    def optimiser_step(pick: torch.Tensor) -> torch.Tensor:
         batch = {"trajectory": traj[pick], "task_index": task_idx[pick], "start": start[pick]}
-        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
+        # no autocast cache: a captured step must recast the weights AdamW changed
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp, cache_enabled=False):
             loss = policy.compute_loss(batch, generator=gen, teacher=target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        sched.step()
+        return loss
+
+    t0 = time.perf_counter()
+    index, offsets = _batches(config, n, steps, dev)
+    losses = torch.empty(steps, device=dev)
+    replay = _StepGraph(optimiser_step, min(config.batch_size, n), gen, dev) if graph else None
+    for step in range(1, steps + 1):
+        pick = index[offsets[step - 1]:offsets[step]]
+        if sched is None:
+            opt.param_groups[0]["lr"].fill_(config.lr * lr_factor(step - 1))
+        if replay is not None and step > GRAPH_WARMUP:
+            loss = replay(pick)
+        elif replay is not None:
+            loss = replay.warm(pick)
+        else:
+            loss = optimiser_step(pick)
+        if sched is not None:
+            sched.step()
         if ema is not None:
             ema.update(model)
         losses[step - 1] = loss.detach()
@@ -210,8 +245,60 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
     history.loss = losses.tolist()  # one read at the end
     history.steps = steps
     history.seconds = time.perf_counter() - t0
+    if replay is not None:
+        history.cuda_graph, history.graph_note = replay.captured, replay.note
 
     if ema is not None:
         model.load_state_dict(ema.shadow.state_dict())
     model.eval()
     return policy, history
+
+
+class _StepGraph:
+    """One optimiser step captured as a CUDA graph and replayed (the PyTorch guide's "whole
+    network capture"): the step's batch indices are copied into a static buffer, the graph
+    replays forward, backward and AdamW, and its loss lands in a static tensor. Capture
+    happens at the first full-size batch after the eager warm-up steps; when it fails (an
+    operation that cannot be captured), every step runs eagerly and ``note`` says why."""
+
+    def __init__(self, step: Callable[[torch.Tensor], torch.Tensor], batch_size: int,
+                 gen: torch.Generator, dev: torch.device):
+        self.step, self.batch_size, self.gen, self.dev = step, batch_size, gen, dev
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self.pick = torch.zeros(batch_size, dtype=torch.long, device=dev)
+        self.loss: torch.Tensor | None = None
+        self.captured, self.note = False, ""
+        self.side = torch.cuda.Stream(dev)
+
+    def warm(self, pick: torch.Tensor) -> torch.Tensor:
+        """An eager step on a side stream, as capture's warm-up must be."""
+        self.side.wait_stream(torch.cuda.current_stream(self.dev))
+        with torch.cuda.stream(self.side):
+            loss = self.step(pick)
+        torch.cuda.current_stream(self.dev).wait_stream(self.side)
+        return loss
+
+    def __call__(self, pick: torch.Tensor) -> torch.Tensor:
+        if len(pick) != self.batch_size or self.note:
+            return self.step(pick)
+        if self.graph is None:
+            self._capture()
+            if self.graph is None:
+                return self.step(pick)
+        self.pick.copy_(pick)
+        self.graph.replay()
+        assert self.loss is not None
+        return self.loss
+
+    def _capture(self) -> None:
+        graph = torch.cuda.CUDAGraph()
+        try:
+            graph.register_generator_state(self.gen)
+            torch.cuda.synchronize(self.dev)
+            with torch.cuda.graph(graph):
+                self.loss = self.step(self.pick)
+        except (RuntimeError, AttributeError) as exc:
+            self.note = f"CUDA graph capture failed, steps run eagerly: {exc}".splitlines()[0]
+            torch.cuda.synchronize(self.dev)
+            return
+        self.graph, self.captured = graph, True
