@@ -64,7 +64,8 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
     human, gamma = WORLDS[world]
     cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
     run = AdaptiveRun(cfg, net)
-    out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": []}
+    out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": [],
+                            "requests": []}
     digest = hashlib.sha256()
     while not run.finished:
         w0, c0 = time.perf_counter(), time.process_time()
@@ -75,6 +76,9 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
         rec = res.record.to_json() if hasattr(res.record, "to_json") else res.record
         for k in ("plan", "deploy", "update"):
             out[k].append(rec["seconds"][k])
+        # the steering requests the search made (a cycle's cost is mostly theirs, and runs
+        # that differ in float rounding make different ones)
+        out["requests"].append(rec.get("search", {}).get("motion_requests"))
         digest.update(json.dumps(_strip_timing(rec), sort_keys=True,
                                  default=str).encode())
     return {**out, "digest": digest.hexdigest()[:16]}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Annotated, ClassVar, Protocol
+from typing import Annotated, Any, ClassVar, Protocol
 
 import numpy as np
 import torch
@@ -172,18 +172,18 @@ class DiffusionMotion:
     def _tensor_values(self, terms: DeviceTerms, keys: Sequence[MotionKey], xi: torch.Tensor,
                        b: int) -> torch.Tensor:
         """:meth:`_values` as tensor operations on ``xi``'s device: the forward kinematics of
-        every request's rows in one pass, then each request's completion time and spatial
-        cost on its rows."""
+        every request's rows in one pass, then the completion time once per task and the
+        spatial cost once per concurrent set, over the rows of all requests that share it
+        (each term is row by row, so grouping changes no value; on a GPU each term is tens
+        of kernel launches, which is what a step's value costs there)."""
         pts = terms.points(xi)
         per_key = xi.shape[0] // len(keys)
-        parts = []
-        for k, (task, concurrent) in enumerate(keys):
-            sl = slice(k * per_key, (k + 1) * per_key)
-            v = terms.completion_time(task, xi[sl], pts[sl])
-            if concurrent and self.gamma > 0:
-                v = v + self.gamma * terms.spatial_cost(concurrent, pts[sl])
-            parts.append(v)
-        return torch.cat(parts)
+        v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
+            terms.completion_time(task, _take(xi, rows), _take(pts, rows))))
+        if self.gamma > 0 and any(concurrent for _, concurrent in keys):
+            v = v + _grouped(keys, per_key, lambda key: frozenset(key[1]), lambda conc, rows: (
+                self.gamma * terms.spatial_cost(conc, _take(pts, rows)) if conc else None))
+        return v
 
     @property
     def batches_cycle(self) -> bool:
@@ -231,3 +231,33 @@ class DiffusionMotion:
                     if concurrent and self.hold is not None else 0.0)
             plans.append(MotionPlan(task, concurrent, duration, spatial, traj, hold))
         return plans
+
+
+_Rows = slice | list[slice]
+
+
+def _take(x: torch.Tensor, rows: _Rows) -> torch.Tensor:
+    return x[rows] if isinstance(rows, slice) else torch.cat([x[r] for r in rows])
+
+
+def _grouped(keys: Sequence[MotionKey], per_key: int, group: Callable[[MotionKey], Any],
+             term: Callable[[Any, _Rows], torch.Tensor | None]) -> torch.Tensor:
+    """A row-wise term of every request's ``per_key`` rows (request k's are rows k * per_key
+    on), evaluated once per ``group`` of requests over all their rows together, back in the
+    requests' order; a group whose term is None adds 0."""
+    members: dict[Any, list[int]] = {}
+    for k, key in enumerate(keys):
+        members.setdefault(group(key), []).append(k)
+    parts: list[torch.Tensor | None] = [None] * len(keys)
+    zero: torch.Tensor | None = None
+    for name, ks in members.items():
+        rows = [slice(k * per_key, (k + 1) * per_key) for k in ks]
+        out = term(name, rows[0] if len(rows) == 1 else rows)
+        if out is None:
+            continue
+        for k, chunk in zip(ks, out.split(per_key), strict=True):
+            parts[k] = chunk
+            zero = chunk
+    if zero is None:
+        raise ValueError("no group of requests has a value term")
+    return torch.cat([torch.zeros_like(zero) if p is None else p for p in parts])
