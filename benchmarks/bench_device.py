@@ -81,7 +81,7 @@ def _child(what: str, *args: object) -> dict:
 
 
 def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
-            policy: str | None = None) -> dict:
+            policy: str | None = None, train_on: list[str] | None = None) -> dict:
     out: dict[str, dict] = {}
     for dev in devices:
         runs = [_child("cycles_on", dev, s, cycles, policy) for s in seeds]
@@ -97,9 +97,10 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
         }
-        if steps > 0:
+        if steps > 0 and (train_on is None or dev in train_on):
             out[dev]["train_fp32"] = _child("training_on", dev, steps, False)
-        if steps > 0 and dev == "cuda":  # eager (op by op) beside the captured default
+        # on cuda: launched op by op beside the captured step, train_policy's default there
+        if "train_fp32" in out[dev] and dev == "cuda":
             out[dev]["train_fp32_eager"] = _child("training_on", dev, steps, False, False)
             out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
@@ -140,6 +141,8 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=5)
     ap.add_argument("--train-steps", type=int, default=300)
     ap.add_argument("--devices", default=None, help="default: cpu, and cuda when available")
+    ap.add_argument("--train-on", default=None,
+                    help="train on these of the devices only (default: all of them)")
     ap.add_argument("--policy", default=None,
                     help="plan with this checkpoint or shipped policy name (distilled)")
     ap.add_argument("--json", type=Path, default=None)
@@ -150,7 +153,8 @@ def main() -> None:
                else ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
     load0 = load_average()
     seeds = parse_seeds(args.seeds)
-    res = measure(devices, seeds, args.cycles, args.train_steps, args.policy)
+    res = measure(devices, seeds, args.cycles, args.train_steps, args.policy,
+                  args.train_on.split(",") if args.train_on else None)
     print(markdown(res, seeds, args.cycles, load0, args.policy))
     if args.json is not None:
         args.json.write_text(json.dumps(res, indent=2) + "\n")

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, in one run of about 5 minutes: the painting cycle and
-# painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles, 200 training
-# steps per device, float32 and on cuda bf16), the painting cycle with the shipped distilled
-# policy on cpu and cuda, then one cycle's steering batch with the value on the host and on the
-# device, with the host synchronisations inside it (bench_steer_device.py). Most important
-# first; a part that fails or runs out of time is logged and the next one still runs. From
-# anywhere (a GPU machine lacking packages: PAYLOAD from benchmarks/gpu_payload.sh):
-#     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] benchmarks/gpu_check.sh
+# Issue 36 on a machine with a CUDA GPU, in one run of about 4 minutes: the painting cycle and
+# painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles; 300 training
+# steps, float32, and on cuda also float32 op by op and bf16), the painting cycle with the
+# shipped distilled policy on cpu and cuda, then one cycle's steering batch with the value on
+# the host and on the device, with the host synchronisations inside it (bench_steer_device.py).
+# Most important first; a part that fails or runs out of time is logged and the next one still
+# runs. From anywhere (a GPU machine lacking packages: PAYLOAD from benchmarks/gpu_payload.sh):
+#     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] [TRAIN_ON=cuda] \
+#         benchmarks/gpu_check.sh
 # Results: $OUT/device.json, $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (at
 # most 4 files: a device session brings back 8). The GPU's numbers count only beside the CPU's
 # of the same machine in the same run (docs/benchmarks.md).
@@ -33,8 +34,9 @@ part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit 
 part 30 versions "$PY" -c "import torch, diffusers, mujoco, rapidds; print('torch', \
 torch.__version__, 'cuda', torch.cuda.is_available(), 'diffusers', diffusers.__version__, \
 'mujoco', mujoco.__version__)"
-part 220 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 200 \
-    --json "$OUT/device.json"
+# TRAIN_ON=cuda: skip the CPU's training steps (about 40 s), measured once per machine kind
+part 220 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
+    --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
 part 100 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --policy distilled --json "$OUT/distilled.json"
 part 60 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
