@@ -10,8 +10,9 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
   adaptation, default search), one torch thread: wall and process CPU seconds of the first
   cycle and the median of the later ones, the planning part, and the records' digest;
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
-  per optimiser step after a warm-up of 20 steps, float32 and (on cuda) float32 launched op by
-  op and bf16 autocast, both others a captured CUDA graph (train_policy's default there), and
+  per optimiser step after a warm-up of 20 steps: float32 (on cuda a captured CUDA graph,
+  train_policy's default there) and on cuda also float32 launched op by op, float32 captured
+  with cudnn.benchmark, and bf16 autocast captured; and
   the mean loss of the last 50 steps (``--train-steps 0``: not measured).
 
 ``--policy``: the runs plan with that checkpoint, or one the world ships by name
@@ -44,11 +45,15 @@ def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None
     return run_seed(seed, cycles, device=device, policy=policy)
 
 
-def training_on(device: str, steps: int, amp: bool, graph: bool | None = None
-                ) -> dict[str, object]:
+def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
+                cudnn_benchmark: bool = False) -> dict[str, object]:
     """ms per optimiser step of the painting policy at its shipped size on ``device``;
-    ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU)."""
+    ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU);
+    ``cudnn_benchmark``: let cuDNN time its convolution algorithms first (not rapidds's
+    default: the choice can differ between runs, and so can the weights)."""
     import torch
+
+    torch.backends.cudnn.benchmark = cudnn_benchmark
 
     from rapidds.cli.motion import _world_demos
     from rapidds.motion.config import DiffusionConfig
@@ -102,6 +107,8 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
         # on cuda: launched op by op beside the captured step, train_policy's default there
         if "train_fp32" in out[dev] and dev == "cuda":
             out[dev]["train_fp32_eager"] = _child("training_on", dev, steps, False, False)
+            out[dev]["train_fp32_cudnn_benchmark"] = _child("training_on", dev, steps, False,
+                                                            None, True)
             out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
@@ -113,7 +120,9 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
     for dev, r in res.items():
         train = ("-" if "train_fp32" not in r else
                  f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})")
-        for key, label in (("train_fp32_eager", "fp32 eager"), ("train_bf16", "bf16")):
+        for key, label in (("train_fp32_eager", "fp32 eager"),
+                           ("train_fp32_cudnn_benchmark", "fp32 cudnn.benchmark"),
+                           ("train_bf16", "bf16")):
             if key in r:
                 train += (f"; {label} {r[key]['ms_per_step']:.1f} "
                           f"(loss {r[key]['final_loss']:.4f})")

@@ -143,7 +143,7 @@ def test_a_tensor_value_of_the_wrong_shape_is_refused(toy):
 
 
 def test_mixed_precision_training_keeps_the_checkpoint_and_the_loss(toy, tmp_path):
-    """bfloat16 autocast (the GPU default) trains to a loss no worse than float32's at equal
+    """bfloat16 autocast (mixed_precision) trains to a loss no worse than float32's at equal
     steps (within a quarter), and writes the same float32 checkpoint, which loads."""
     from rapidds.motion.policy import DiffusionPolicy
 
