@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from rapidds.human.spatial import SpatialConfig, SpatialModel
-from rapidds.loop.model import device_terms, workspace_cost
+from rapidds.loop.model import device_terms, host_terms, workspace_cost
 from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.steering import TensorValue
@@ -90,6 +90,36 @@ def test_a_steering_batch_scores_on_the_device_as_on_the_host(world, paths, spat
         assert plan.spatial_cost == pytest.approx(
             float(workspace_cost(world, spatial)(near, plan.trajectory[None])[0]) if near
             else 0.0)
+
+
+def test_the_host_value_from_shared_points_is_the_per_request_value(world, paths,
+                                                                    spatial) -> None:
+    """The CPU's V with the arm points computed once per step for every request and the terms
+    grouped by task and by concurrent set (the ``point_values`` capability) is, bit for bit,
+    the per-request V the stored records were made with, a hold term added alike; a world
+    without the capability keeps the per-request path."""
+    from rapidds.worlds.fetch import FetchWorld
+
+    policy = load_policy(world, device="cpu")
+    requests = [("mix_l", frozenset({"secure_piece"})), ("brush", frozenset()),
+                ("mix_l", frozenset({"prep_vise"})), ("mix_r", frozenset({"secure_piece"})),
+                ("brush", frozenset({"secure_piece"}))]
+    shared = host_terms(world, spatial)
+    assert shared is not None and host_terms(FetchWorld(), spatial) is None
+
+    def hold(task, near, xi):
+        return 0.1 * len(near) + 0.01 * np.abs(xi[:, -1, 0])
+
+    def value(terms, held):
+        return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                               12.0, SteeringConfig(particles=2, candidates=2, steps=3),
+                               terms=ValueTerms(host_terms=terms, hold=held)).value(requests)
+
+    rows = paths[: len(requests) * 2 * 2 * 3]  # 5 requests x 2 particles x 2 candidates, x3
+    for held in (None, hold):
+        got, want = value(shared, held)(rows), value(None, held)(rows)
+        assert np.isfinite(got).all() and len(set(got.tolist())) > len(requests)
+        np.testing.assert_array_equal(got, want)
 
 
 def test_fetch_tensor_terms_equal_the_worlds_numpy_terms() -> None:

@@ -29,7 +29,7 @@ from rapidds.execution import (
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import deploy
-from rapidds.loop.model import device_terms, workspace_cost
+from rapidds.loop.model import device_terms, host_terms, workspace_cost
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
@@ -80,7 +80,8 @@ def _cycle_motion(world: World, config: RunConfig, cycle: int, gamma: float,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
                            terms=ValueTerms(duration=robot_duration(world),
-                                            device_terms=device_terms(world, spatial)))
+                                            device_terms=device_terms(world, spatial),
+                                            host_terms=host_terms(world, spatial)))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,

@@ -19,7 +19,7 @@ from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
 from rapidds.loop.config import RunConfig
-from rapidds.motion.diffusion_motion import DeviceTermsFactory
+from rapidds.motion.diffusion_motion import DeviceTermsFactory, HostTerms
 from rapidds.motion.interface import MotionKey
 from rapidds.scheduler import AllocationHistory
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
@@ -151,6 +151,28 @@ def workspace_cost(
         return spatial.cost(tasks, pts.reshape(pts.shape[0], -1, pts.shape[-1]))
 
     return cost
+
+
+def host_terms(world: World, spatial: SpatialModel) -> HostTerms | None:
+    """The host's steering value from arm points computed once per denoising step, for a
+    world whose completion time takes them (the ``point_values`` capability); None for the
+    others. The same V, to the bit, as ``world.completion_time`` and :func:`workspace_cost`."""
+    values = capability(world, "point_values")
+    return None if values is None else _HostTerms(values, spatial)
+
+
+class _HostTerms:
+    def __init__(self, world: Any, spatial: SpatialModel):
+        self.world, self.spatial = world, spatial
+
+    def points(self, xi: np.ndarray) -> np.ndarray:
+        return self.world.robot_points(xi)
+
+    def completion_time(self, task: str, xi: np.ndarray, points: np.ndarray) -> np.ndarray:
+        return self.world.completion_time_from_points(task, xi, points)
+
+    def spatial_cost(self, tasks: Iterable[str], points: np.ndarray) -> np.ndarray:
+        return self.spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
 
 
 class _WorkspaceTerms:

@@ -57,7 +57,13 @@ from rapidds.loop.execute import (
     execute_cycle,
     replan_steering,
 )
-from rapidds.loop.model import HumanModel, device_terms, oracle_spatial, workspace_cost
+from rapidds.loop.model import (
+    HumanModel,
+    device_terms,
+    host_terms,
+    oracle_spatial,
+    workspace_cost,
+)
 from rapidds.loop.observation import Observation, Source
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
@@ -301,7 +307,8 @@ class AdaptiveRun:
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
             terms=ValueTerms(duration=robot_duration(self.world),
                              hold=None if holds is None else holds.hold,
-                             device_terms=device_terms(self.world, spatial)))
+                             device_terms=device_terms(self.world, spatial),
+                             host_terms=host_terms(self.world, spatial)))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)

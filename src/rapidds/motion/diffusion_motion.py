@@ -58,6 +58,17 @@ DeviceTermsFactory = Callable[[torch.device], DeviceTerms]
 """The :class:`DeviceTerms` on a device (None where a world has no tensor terms)."""
 
 
+class HostTerms(Protocol):
+    """:class:`DeviceTerms` on numpy arrays, the host's value (the stored records' bits): the
+    workspace points computed once per denoising step for every request's candidates."""
+
+    def points(self, xi: np.ndarray) -> np.ndarray: ...
+
+    def completion_time(self, task: str, xi: np.ndarray, points: np.ndarray) -> np.ndarray: ...
+
+    def spatial_cost(self, tasks: Iterable[str], points: np.ndarray) -> np.ndarray: ...
+
+
 class SteeringConfig(Settings):
     """How robot motions are sampled for the scheduler.
 
@@ -100,13 +111,16 @@ class ValueTerms:
     duration: the chosen trajectory's d_j^r (the arm's time-parameterized time; None: the
     completion time of its path); hold: the time the safety monitor would hold it (None: the
     paper's V); device_terms: the world's value as tensor operations on the policy's device;
-    on_device: score there (None: :attr:`DiffusionMotion.default_on_device`).
+    on_device: score there (None: :attr:`DiffusionMotion.default_on_device`); host_terms: the
+    host's value from points shared by its terms (None: ``completion_time`` and
+    ``spatial_cost`` each per request).
     """
 
     duration: Callable[[str, np.ndarray], float] | None = None
     hold: HoldTime | None = None
     device_terms: DeviceTermsFactory | None = None
     on_device: bool | None = None
+    host_terms: HostTerms | None = None
 
 
 class DiffusionMotion:
@@ -144,6 +158,7 @@ class DiffusionMotion:
         # the value on the policy's device (no host copy per denoising step): by default where
         # the policy is not on the CPU, whose numpy value keeps the stored records' bits
         self.device_terms = terms.device_terms
+        self.host_terms = terms.host_terms
         self.on_device = self.default_on_device if terms.on_device is None else terms.on_device
         self.calls = 0
         self.rows = 0
@@ -159,23 +174,34 @@ class DiffusionMotion:
         """V for rows of ``xi`` (N, H, d), particle-major: N is len(keys) * b (final scores) or
         that times M (candidates). Rows of one request are contiguous."""
         per_key = xi.shape[0] // len(keys)
-        v = np.empty(xi.shape[0])
-        for k, (task, concurrent) in enumerate(keys):
-            sl = slice(k * per_key, (k + 1) * per_key)
-            v[sl] = self.completion_time(task, xi[sl])
-            if concurrent and self.gamma > 0:
-                v[sl] += self.gamma * self.spatial_cost(concurrent, xi[sl])
-            if concurrent and self.hold is not None:
-                v[sl] += self.hold(task, concurrent, xi[sl])
+        if self.host_terms is not None:
+            v = self._term_values(self.host_terms, keys, xi)
+        else:
+            v = np.empty(xi.shape[0])
+            for k, (task, concurrent) in enumerate(keys):
+                sl = slice(k * per_key, (k + 1) * per_key)
+                v[sl] = self.completion_time(task, xi[sl])
+                if concurrent and self.gamma > 0:
+                    v[sl] += self.gamma * self.spatial_cost(concurrent, xi[sl])
+        if self.hold is not None:
+            for k, (task, concurrent) in enumerate(keys):
+                if concurrent:
+                    sl = slice(k * per_key, (k + 1) * per_key)
+                    v[sl] += self.hold(task, concurrent, xi[sl])
         return v
 
     def _tensor_values(self, terms: DeviceTerms, keys: Sequence[MotionKey], xi: torch.Tensor,
                        b: int) -> torch.Tensor:
-        """:meth:`_values` as tensor operations on ``xi``'s device: the forward kinematics of
-        every request's rows in one pass, then the completion time once per task and the
-        spatial cost once per concurrent set, over the rows of all requests that share it
-        (each term is row by row, so grouping changes no value; on a GPU each term is tens
-        of kernel launches, which is what a step's value costs there)."""
+        """:meth:`_values` as tensor operations on ``xi``'s device (:meth:`_term_values`)."""
+        return self._term_values(terms, keys, xi)
+
+    def _term_values(self, terms: DeviceTerms | HostTerms, keys: Sequence[MotionKey],
+                     xi: Any) -> Any:
+        """The value from ``terms``: the workspace points of every request's rows in one pass,
+        then the completion time once per task and the spatial cost once per concurrent set,
+        over the rows of all requests that share it. Each term is row by row, so grouping
+        changes no value; it saves a call's fixed cost per request, tens of kernel launches
+        on a GPU and the forward kinematics' per-call overhead on the host."""
         pts = terms.points(xi)
         per_key = xi.shape[0] // len(keys)
         v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
@@ -236,28 +262,34 @@ class DiffusionMotion:
 _Rows = slice | list[slice]
 
 
-def _take(x: torch.Tensor, rows: _Rows) -> torch.Tensor:
-    return x[rows] if isinstance(rows, slice) else torch.cat([x[r] for r in rows])
+def _take(x: Any, rows: _Rows) -> Any:
+    if isinstance(rows, slice):
+        return x[rows]
+    parts = [x[r] for r in rows]
+    return torch.cat(parts) if isinstance(x, torch.Tensor) else np.concatenate(parts)
 
 
 def _grouped(keys: Sequence[MotionKey], per_key: int, group: Callable[[MotionKey], Any],
-             term: Callable[[Any, _Rows], torch.Tensor | None]) -> torch.Tensor:
-    """A row-wise term of every request's ``per_key`` rows (request k's are rows k * per_key
-    on), evaluated once per ``group`` of requests over all their rows together, back in the
-    requests' order; a group whose term is None adds 0."""
+             term: Callable[[Any, _Rows], Any]) -> Any:
+    """A row-wise term (a tensor or an array) of every request's ``per_key`` rows (request
+    k's are rows k * per_key on), evaluated once per ``group`` of requests over all their rows
+    together, back in the requests' order; a group whose term is None adds 0."""
     members: dict[Any, list[int]] = {}
     for k, key in enumerate(keys):
         members.setdefault(group(key), []).append(k)
-    parts: list[torch.Tensor | None] = [None] * len(keys)
-    zero: torch.Tensor | None = None
+    parts: list[Any] = [None] * len(keys)
+    like: Any = None
     for name, ks in members.items():
         rows = [slice(k * per_key, (k + 1) * per_key) for k in ks]
         out = term(name, rows[0] if len(rows) == 1 else rows)
         if out is None:
             continue
-        for k, chunk in zip(ks, out.split(per_key), strict=True):
-            parts[k] = chunk
-            zero = chunk
-    if zero is None:
+        chunks = (out.split(per_key) if isinstance(out, torch.Tensor)
+                  else np.split(out, len(ks)))
+        for k, chunk in zip(ks, chunks, strict=True):
+            parts[k] = like = chunk
+    if like is None:
         raise ValueError("no group of requests has a value term")
-    return torch.cat([torch.zeros_like(zero) if p is None else p for p in parts])
+    if isinstance(like, torch.Tensor):
+        return torch.cat([torch.zeros_like(like) if p is None else p for p in parts])
+    return np.concatenate([np.zeros_like(like) if p is None else p for p in parts])

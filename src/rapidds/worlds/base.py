@@ -69,7 +69,7 @@ Horizon = Annotated[Int, Field(gt=0, multiple_of=8)]
 
 Capability = Literal["browser_play", "physics", "participants", "priming", "reactions",
                      "robot_limits", "robot_timing", "end_effector_ik", "tracking_mapping",
-                     "tensor_values"]
+                     "tensor_values", "point_values"]
 """The optional capabilities a world may declare (:mod:`rapidds.worlds.capabilities` says what
 each one promises and who asks for it)."""
 

@@ -116,6 +116,15 @@ class TensorValues(World, Protocol):
     def tensor_terms(self, device: Any) -> Any: ...
 
 
+class PointValues(World, Protocol):
+    """The completion time from the robot's workspace points already computed (its
+    ``robot_points``), so steering computes them once per denoising step for every request's
+    candidates and shares them with the spatial cost (an arm's forward kinematics)."""
+
+    def completion_time_from_points(self, task: str, traj: np.ndarray,
+                                    points: np.ndarray) -> np.ndarray: ...
+
+
 CAPABILITIES: dict[Capability, tuple[type, str]] = {
     "browser_play": (BrowserPlay, "a person plays it in the browser game"),
     "physics": (Physics, "a MuJoCo model for the reference robot, sim-robot"),
@@ -127,6 +136,7 @@ CAPABILITIES: dict[Capability, tuple[type, str]] = {
     "end_effector_ik": (EndEffectorIK, "inverse kinematics for end-effector demonstrations"),
     "tracking_mapping": (TrackingMapping, "ships a tracker mapping of its body points"),
     "tensor_values": (TensorValues, "scores steering candidates as tensor operations on a device"),
+    "point_values": (PointValues, "its completion time takes the robot points steering shares"),
 }
 """Capability -> (the protocol a declaring world fulfils, one line for ``rapidds worlds``)."""
 
@@ -166,6 +176,8 @@ def capability(world: Any, name: Literal["end_effector_ik"]) -> EndEffectorIK | 
 def capability(world: Any, name: Literal["tracking_mapping"]) -> TrackingMapping | None: ...
 @overload
 def capability(world: Any, name: Literal["tensor_values"]) -> TensorValues | None: ...
+@overload
+def capability(world: Any, name: Literal["point_values"]) -> PointValues | None: ...
 def capability(world: Any, name: str) -> Any:
     """``world`` as the capability ``name`` promises, if it declares it; else None. The one
     place that asks what a world can do beyond the contract."""

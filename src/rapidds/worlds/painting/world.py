@@ -145,7 +145,7 @@ class PaintingWorld(WorldBase):
             resources="rapidds.worlds.painting",
             capabilities=("physics", "participants", "priming", "reactions", "robot_limits",
                           "robot_timing", "end_effector_ik", "tracking_mapping",
-                          "tensor_values"))
+                          "tensor_values", "point_values"))
 
     @property
     def priming_factors(self) -> dict[str, tuple[str, ...]]:
@@ -256,13 +256,20 @@ class PaintingWorld(WorldBase):
         """(...,) seconds for (..., H, 7) robot trajectories (module docstring). One that never
         completes ``task`` gets ``penalty`` plus ``SHORTFALL_RATE`` seconds per metre it stays
         short (module docstring), and ``horizon * dt`` more when it cannot be executed."""
+        return self.completion_time_from_points(task, traj, None)
+
+    def completion_time_from_points(self, task: str, traj: np.ndarray,
+                                    points: np.ndarray | None) -> np.ndarray:
+        """:meth:`completion_time` given the trajectories' arm points (..., H, P, 3) (their
+        :meth:`robot_points`; None: computed here)."""
         goals = self._goals(task)
         q = np.asarray(traj, dtype=float)
         if q.ndim < 2 or q.shape[-1] != 7:
             raise ValueError(f"painting trajectories must have shape (..., H, 7), got {q.shape}")
         lead, h = q.shape[:-2], q.shape[-2]
         flat = q.reshape(-1, h, 7)
-        pts = self.kinematics.points(flat)                                  # (N, H, P, 3)
+        pts = (self.kinematics.points(flat) if points is None                 # (N, H, P, 3)
+               else np.asarray(points, dtype=float).reshape(flat.shape[0], h, -1, 3))
         tool = pts[:, :, -1]
         reached = np.ones((flat.shape[0], h), dtype=bool)
         short = np.zeros(flat.shape[0])
