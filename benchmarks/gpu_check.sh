@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, in one run of about 4 minutes: the painting cycle and
+# Issue 36 on a machine with a CUDA GPU, in one run of about 6 minutes: the painting cycle and
 # painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles; 300 training
 # steps, float32, and on cuda also float32 op by op and bf16), the painting cycle with the
 # shipped distilled policy on cpu and cuda, then one cycle's steering batch with the value on
@@ -7,7 +7,11 @@
 # Most important first; a part that fails or runs out of time is logged and the next one still
 # runs. From anywhere (a GPU machine lacking packages: PAYLOAD from benchmarks/gpu_payload.sh):
 #     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] [TRAIN_ON=cuda] \
-#         benchmarks/gpu_check.sh
+#         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
+# On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured"): unpacking and imports 28 s,
+# the device part 174 s with TRAIN_ON=cuda, the distilled part over 100 s (its CPU cycles were
+# slow on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
+# stale (it was there), so name the commit measured.
 # Results: $OUT/device.json, $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (at
 # most 4 files: a device session brings back 8). The GPU's numbers count only beside the CPU's
 # of the same machine in the same run (docs/benchmarks.md).
@@ -28,15 +32,15 @@ part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit 
     timeout "$limit" "$@" 2>&1 | tee -a "$LOG"
     echo "== $name: exit ${PIPESTATUS[0]}" | tee -a "$LOG"
 }
-{ git rev-parse --short HEAD 2>/dev/null || echo "no git"; nproc
+{ echo "commit ${COMMIT:-$(git rev-parse --short HEAD 2>/dev/null || echo unknown)}"; nproc
   nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader \
       || echo "no nvidia-smi"; } 2>&1 | tee -a "$LOG"
 part 30 versions "$PY" -c "import torch, diffusers, mujoco, rapidds; print('torch', \
 torch.__version__, 'cuda', torch.cuda.is_available(), 'diffusers', diffusers.__version__, \
 'mujoco', mujoco.__version__)"
 # TRAIN_ON=cuda: skip the CPU's training steps (about 40 s), measured once per machine kind
-part 220 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
+part 280 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
-part 100 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
+part 150 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --policy distilled --json "$OUT/distilled.json"
 part 60 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
