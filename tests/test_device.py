@@ -83,6 +83,39 @@ def test_a_run_resumes_on_another_device(tmp_path):
         assert again.next_cycle == 1 and again.config.device == "cpu"
 
 
+def test_a_run_resumes_only_with_the_network_it_began_with(tmp_path, capsys):
+    """A stored run keeps its network's fingerprint (weights and normaliser): another network
+    is refused (one line, exit 2, at the CLI) and nothing is written; the same one, loaded
+    anew, resumes."""
+    from rapidds.errors import StateError
+
+    world = make_world("fetch")
+    policy = load_policy(world, device="cpu")
+    other = load_policy(world, device="cpu")
+    with torch.no_grad():
+        next(other.model.parameters()).add_(1e-3)
+    mine = policy.fingerprint()
+    assert other.fingerprint() != mine == load_policy(world, device="cpu").fingerprint()
+    assert policy.with_sampler("ddpm").fingerprint() == mine  # the sampler is a run setting
+    base = dict(world="fetch", cycles=2, population=4, generations=2, samples=4, particles=1,
+                candidates=2)
+    out = tmp_path / "out"
+    out.mkdir()
+    with RunStore(out / "run.sqlite") as store:
+        AdaptiveRun(RunConfig(**base), policy, store, world=world).step()
+    with RunStore(out / "run.sqlite") as store:
+        with pytest.raises(StateError, match=f"another network \\(fingerprint {mine}"):
+            AdaptiveRun(RunConfig(**base), other, store, world=world)
+        assert store.last_cycle(RunConfig(**base).resolved(world).run_id) == 0
+    other.save(tmp_path / "other")
+    flags = [f"--{k}={v}" for k, v in base.items() if k != "world"]
+    code, _, err = run_main(capsys, "run", "fetch", *flags, "--out", str(out), "--resume",
+                            "--policy", str(tmp_path / "other"))
+    _one_line(code, err, "planned with another network", mine)
+    with RunStore(out / "run.sqlite") as store:
+        assert AdaptiveRun(RunConfig(**base), policy, store, world=world).next_cycle == 1
+
+
 # -- steering and training on the device: what the CPU can check ------------------------------
 @pytest.fixture(scope="module")
 def toy() -> tuple:

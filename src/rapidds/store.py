@@ -501,6 +501,19 @@ class RunStore:
             db.execute("DELETE FROM meta WHERE key=?", (self._FAILED + run_id,))
         return True
 
+    _POLICY: ClassVar[str] = "policy:"  # meta keys: the network a run plans with
+
+    def claim_policy(self, run_id: str, fingerprint: str) -> str:
+        """The fingerprint of the network ``run_id`` plans with: the one stored, or
+        ``fingerprint``, stored now when the run had none (a run stored before runs kept
+        theirs takes the first network it resumes with). One transaction."""
+        with self._tx() as db:
+            db.execute("INSERT INTO meta VALUES (?, ?) ON CONFLICT (key) DO NOTHING",
+                       (self._POLICY + run_id, fingerprint))
+            (stored,) = db.execute("SELECT value FROM meta WHERE key=?",
+                                   (self._POLICY + run_id,)).fetchone()
+        return str(stored)
+
     # failed trials ------------------------------------------------------------------------
     _FAILED: ClassVar[str] = "failed:"  # meta keys: every store has the table; old: none
 

@@ -345,6 +345,16 @@ class DiffusionPolicy:
             x = self.reverse_step(self.predict_noise(x, t, cond), t, x, gen)
         return self.to_world(x)
 
+    def fingerprint(self) -> str:
+        """16 hex digits naming what the network computes: its weights and normaliser (not
+        its sampler, a run's setting, nor its device), the same for a checkpoint wherever
+        it is loaded, so a stored run can tell which network it planned with."""
+        h = hashlib.sha256(json.dumps(self.normalizer.state_dict(), sort_keys=True).encode())
+        for name, tensor in sorted(self.model.state_dict().items()):
+            h.update(name.encode())
+            h.update(tensor.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+        return h.hexdigest()[:16]
+
     # -- checkpoints -------------------------------------------------------------------------
     def save(self, directory: str | Path) -> Path:
         """Write ``model.safetensors`` and ``config.json`` into ``directory`` (created)."""
