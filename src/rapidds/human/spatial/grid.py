@@ -334,7 +334,7 @@ class SpatialCostModel:
     def _corner_table(self, device: torch.device, dtype: torch.dtype
                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(2^d, V) posterior mean at the corners of the cell whose lowest corner is grid point
-        v, corners in :meth:`_stencil`'s order, and the (V,) least and greatest of each cell's
+        v, corners in :meth:`_weights`' order, and the (V,) least and greatest of each cell's
         corners; rows of points on a top face hold the padding 0 (no interpolation reads
         them). Built once per belief, so an evaluation gathers each point's corners in one
         indexing instead of one per corner."""
@@ -364,28 +364,37 @@ class SpatialCostModel:
         return self._grid_cache[key]  # type: ignore[return-value]
 
     def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Multilinear interpolation weights of points x (n, d), clamped to bounds: the flat
-        grid index (n,) of each point's lowest cell corner and the (2^d, n) weights of the
-        cell's corners (corner c = (c_1..c_d) in itertools.product order). Depends on the
-        grid alone, so every task of a model shares it."""
-        shape = self.config.shape
+        """Where points x (n, d) fall in the grid, clamped to bounds: the flat grid index (n,)
+        of each point's lowest cell corner and the point's position within its cell (n, d),
+        from which :meth:`_weights` gives the corners' weights. Depends on the grid alone, so
+        every task of a model shares it."""
         lo, hi, top, strides = self._grid_constants(x.device, x.dtype)
         u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
         i0 = torch.minimum(u.floor(), top - 1)
         frac = u - i0
         base = (i0.long() * strides).sum(dim=1)
-        # Per axis the weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight
-        # is their product taken axis by axis, the same products as one corner at a time.
-        axis_w = [(1.0 - frac[:, k], frac[:, k]) for k in range(len(shape))]
-        weights = [axis_w[0][0], axis_w[0][1]]
-        for k in range(1, len(shape)):
-            weights = [w * a for w in weights for a in axis_w[k]]
-        return base, torch.stack(weights)
+        return base, frac
 
-    def _interpolate(self, base: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-        """The posterior mean at the points of a :meth:`_stencil`, (n,). The corners are
-        summed one after another in a fixed order, so the result does not depend on how many
-        points are evaluated together."""
+    @staticmethod
+    def _weights(frac: torch.Tensor) -> torch.Tensor:
+        """Multilinear interpolation weights (2^d, n) of the cell corners (corner c =
+        (c_1..c_d) in itertools.product order) for positions within cells (n, d). Per axis the
+        weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight is their
+        product taken axis by axis, the same products as one corner at a time. Row by row,
+        so the weights of some points are those of all points, taken at those."""
+        axis_w = [(1.0 - frac[:, k], frac[:, k]) for k in range(frac.shape[1])]
+        weights = [axis_w[0][0], axis_w[0][1]]
+        for k in range(1, frac.shape[1]):
+            weights = [w * a for w in weights for a in axis_w[k]]
+        return torch.stack(weights)
+
+    def _interpolate(self, base: torch.Tensor, frac: torch.Tensor,
+                     weights: torch.Tensor | None = None) -> torch.Tensor:
+        """The posterior mean at the points of a :meth:`_stencil`, (n,) (``weights``: their
+        :meth:`_weights`, when already computed). The corners are summed one after another in
+        a fixed order, so the result does not depend on how many points are evaluated
+        together."""
+        weights = self._weights(frac) if weights is None else weights
         table = self._corner_table(weights.device, weights.dtype)[0]
         corners = torch.index_select(table, 1, base)                        # (2^d, n)
         terms = corners.mul_(weights)
@@ -398,23 +407,24 @@ class SpatialCostModel:
         """Multilinear interpolation of the posterior mean, (n, d) -> (n,), clamped to bounds."""
         return self._interpolate(*self._stencil(x))
 
-    def _row_max(self, base: torch.Tensor, weights: torch.Tensor, rows: int) -> torch.Tensor:
+    def _row_max(self, base: torch.Tensor, frac: torch.Tensor, rows: int,
+                 weights: torch.Tensor | None = None) -> torch.Tensor:
         """max over each row of the interpolated mean at the points of a :meth:`_stencil` of
         ``rows`` equal rows of points, (rows,): the same value as interpolating every point,
-        but only points that can hold their row's maximum are interpolated. An interpolated
-        value lies within its cell's corner range (up to rounding, which ``slack`` covers), so
-        a point whose cell's greatest corner is below the greatest least corner of its row
-        cannot be that row's maximum."""
+        but only points that can hold their row's maximum are interpolated (and only theirs
+        get corner weights). An interpolated value lies within its cell's corner range (up to
+        rounding, which ``slack`` covers), so a point whose cell's greatest corner is below
+        the greatest least corner of its row cannot be that row's maximum. ``weights``: all
+        points', off the CPU, where all are interpolated."""
         if base.device.type != "cpu":  # nonzero would wait for the device: interpolate all
-            return self._interpolate(base, weights).view(rows, -1).amax(dim=1)
-        _, least, greatest = self._corner_table(weights.device, weights.dtype)
+            return self._interpolate(base, frac, weights).view(rows, -1).amax(dim=1)
+        _, least, greatest = self._corner_table(frac.device, frac.dtype)
         floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
-        slack = 256 * torch.finfo(weights.dtype).eps * (1.0 + floor.abs())
+        slack = 256 * torch.finfo(frac.dtype).eps * (1.0 + floor.abs())
         cand = torch.index_select(greatest, 0, base).view(rows, -1) >= (floor - slack)[:, None]
         idx = cand.view(-1).nonzero().squeeze(1)
-        values = torch.full((base.shape[0],), -torch.inf, dtype=weights.dtype,
-                            device=weights.device)
-        values[idx] = self._interpolate(base[idx], weights[:, idx])
+        values = torch.full((base.shape[0],), -torch.inf, dtype=frac.dtype, device=frac.device)
+        values[idx] = self._interpolate(base[idx], frac[idx])
         return values.view(rows, -1).amax(dim=1)
 
     def _mlp_on(self, device: torch.device) -> Surrogate:
@@ -576,8 +586,10 @@ def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> lis
     with torch.no_grad():
         for s in range(0, n, step):
             rows = t[s:s + step]
-            stencil = first._stencil(rows.reshape(-1, d))
+            base, frac = first._stencil(rows.reshape(-1, d))
+            # off the CPU every point is interpolated: its weights once for all the models
+            weights = None if t.device.type == "cpu" else first._weights(frac)
             for part, m in zip(parts, models, strict=True):
-                part.append(m._row_max(*stencil, rows=rows.shape[0]))
+                part.append(m._row_max(base, frac, rows=rows.shape[0], weights=weights))
     outs = [torch.cat(p) if p else t.new_zeros(0) for p in parts]
     return outs if isinstance(xi, torch.Tensor) else [o.numpy() for o in outs]
