@@ -29,14 +29,13 @@ from rapidds.execution import (
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.config import RunConfig
 from rapidds.loop.deploy import deploy
-from rapidds.loop.model import device_terms, host_terms, workspace_cost
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
+from rapidds.loop.model import value_terms, workspace_cost
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
 from rapidds.schedule import Schedule, compile_schedule
 from rapidds.worlds.base import HumanExecution, SimulatedTeammate, Teammate, World
-from rapidds.worlds.capabilities import robot_duration
 from rapidds.worlds.reactions import (
     Deviation,
     Reaction,
@@ -79,9 +78,7 @@ def _cycle_motion(world: World, config: RunConfig, cycle: int, gamma: float,
                            SteeringConfig(particles=config.particles,
                                           candidates=config.candidates, seed=seed,
                                           steps=config.steps),
-                           terms=ValueTerms(duration=robot_duration(world),
-                                            device_terms=device_terms(world, spatial),
-                                            host_terms=host_terms(world, spatial)))
+                           terms=value_terms(world, spatial))
 
 
 def contingency_motions(world: World, problem: Problem, config: RunConfig, cycle: int,

@@ -19,11 +19,16 @@ from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
 from rapidds.loop.config import RunConfig
-from rapidds.motion.diffusion_motion import DeviceTermsFactory, HostTerms
+from rapidds.motion.diffusion_motion import (
+    DeviceTermsFactory,
+    HoldTime,
+    HostTerms,
+    ValueTerms,
+)
 from rapidds.motion.interface import MotionKey
 from rapidds.scheduler import AllocationHistory
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
-from rapidds.worlds.capabilities import capability
+from rapidds.worlds.capabilities import capability, robot_duration
 from rapidds.worlds.changes import changing_teammate
 
 
@@ -147,10 +152,23 @@ def workspace_cost(
     points (identity for a mobile robot, forward kinematics for an arm)."""
 
     def cost(tasks: Iterable[str], xi: np.ndarray) -> np.ndarray:
-        pts = world.robot_points(xi)
-        return spatial.cost(tasks, pts.reshape(pts.shape[0], -1, pts.shape[-1]))
+        return _points_cost(spatial, tasks, world.robot_points(xi))
 
     return cost
+
+
+def _points_cost(spatial: SpatialModel, tasks: Iterable[str], points: Any) -> Any:
+    """max_{i in tasks} S_i of the workspace points (N, H, P, w) of N trajectories."""
+    return spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
+
+
+def value_terms(world: World, spatial: SpatialModel, hold: HoldTime | None = None
+                ) -> ValueTerms:
+    """What ``world`` adds to a run's steering value: its robot's timed duration, its terms
+    on a device and on the host where it has them, and ``hold``, the safety monitor's."""
+    return ValueTerms(duration=robot_duration(world), hold=hold,
+                      device_terms=device_terms(world, spatial),
+                      host_terms=host_terms(world, spatial))
 
 
 def host_terms(world: World, spatial: SpatialModel) -> HostTerms | None:
@@ -158,39 +176,21 @@ def host_terms(world: World, spatial: SpatialModel) -> HostTerms | None:
     world whose completion time takes them (the ``point_values`` capability); None for the
     others. The same V, to the bit, as ``world.completion_time`` and :func:`workspace_cost`."""
     values = capability(world, "point_values")
-    return None if values is None else _HostTerms(values, spatial)
-
-
-class _HostTerms:
-    def __init__(self, world: Any, spatial: SpatialModel):
-        self.world, self.spatial = world, spatial
-
-    def points(self, xi: np.ndarray) -> np.ndarray:
-        return self.world.robot_points(xi)
-
-    def completion_time(self, task: str, xi: np.ndarray, points: np.ndarray) -> np.ndarray:
-        return self.world.completion_time_from_points(task, xi, points)
-
-    def spatial_cost(self, tasks: Iterable[str], points: np.ndarray) -> np.ndarray:
-        return self.spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
+    return (None if values is None else
+            _WorkspaceTerms(values.robot_points, values.completion_time_from_points, spatial))
 
 
 class _WorkspaceTerms:
-    """:class:`~rapidds.motion.diffusion_motion.DeviceTerms` of a world with tensor terms
-    (points, completion time) and the spatial model's tensor evaluation."""
+    """:class:`~rapidds.motion.diffusion_motion.DeviceTerms` (tensors) or
+    :class:`~rapidds.motion.diffusion_motion.HostTerms` (arrays): a world's workspace points
+    and completion time from them, and the spatial model's cost of the points."""
 
-    def __init__(self, terms: Any, spatial: SpatialModel):
-        self.terms, self.spatial = terms, spatial
+    def __init__(self, points: Callable[[Any], Any],
+                 completion_time: Callable[[str, Any, Any], Any], spatial: SpatialModel):
+        self.points, self.completion_time, self.spatial = points, completion_time, spatial
 
-    def points(self, xi: torch.Tensor) -> torch.Tensor:
-        return self.terms.points(xi)
-
-    def completion_time(self, task: str, xi: torch.Tensor, points: torch.Tensor
-                        ) -> torch.Tensor:
-        return self.terms.completion_time(task, xi, points)
-
-    def spatial_cost(self, tasks: Iterable[str], points: torch.Tensor) -> torch.Tensor:
-        return self.spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
+    def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
+        return _points_cost(self.spatial, tasks, points)
 
 
 def device_terms(world: World, spatial: SpatialModel) -> DeviceTermsFactory | None:
@@ -200,7 +200,12 @@ def device_terms(world: World, spatial: SpatialModel) -> DeviceTermsFactory | No
     tensors = capability(world, "tensor_values")
     if tensors is None:
         return None
-    return lambda device: _WorkspaceTerms(tensors.tensor_terms(device), spatial)
+
+    def on(device: torch.device) -> _WorkspaceTerms:
+        terms = tensors.tensor_terms(device)
+        return _WorkspaceTerms(terms.points, terms.completion_time, spatial)
+
+    return on
 
 
 def check_teammate(world: World, cfg: RunConfig, teammate: Teammate | None) -> Teammate:

@@ -57,15 +57,9 @@ from rapidds.loop.execute import (
     execute_cycle,
     replan_steering,
 )
-from rapidds.loop.model import (
-    HumanModel,
-    device_terms,
-    host_terms,
-    oracle_spatial,
-    workspace_cost,
-)
+from rapidds.loop.model import HumanModel, oracle_spatial, value_terms, workspace_cost
 from rapidds.loop.observation import Observation, Source
-from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
+from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig
 from rapidds.motion.interface import MotionKey, MotionModel, MotionPlan, TrajectoryCache
 from rapidds.motion.policy import DiffusionPolicy
 from rapidds.problem import Problem
@@ -81,7 +75,6 @@ from rapidds.scheduler import (
 )
 from rapidds.store import RunStore, path_arrays
 from rapidds.worlds.base import SimulatedTeammate, Teammate, World
-from rapidds.worlds.capabilities import robot_duration
 
 __all__ = ["AdaptiveRun", "Cycle", "CyclePlan", "CycleResult", "FreeOrderTeammate",
            "LiveTeammate", "ReactiveTeammate", "RunContext", "load_policy", "timeline_of"]
@@ -311,10 +304,7 @@ class AdaptiveRun:
             0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
-            terms=ValueTerms(duration=robot_duration(self.world),
-                             hold=None if holds is None else holds.hold,
-                             device_terms=device_terms(self.world, spatial),
-                             host_terms=host_terms(self.world, spatial)))
+            terms=value_terms(self.world, spatial, None if holds is None else holds.hold))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)
