@@ -190,11 +190,6 @@ class DiffusionMotion:
                     v[sl] += self.hold(task, concurrent, xi[sl])
         return v
 
-    def _tensor_values(self, terms: DeviceTerms, keys: Sequence[MotionKey], xi: torch.Tensor,
-                       b: int) -> torch.Tensor:
-        """:meth:`_values` as tensor operations on ``xi``'s device (:meth:`_term_values`)."""
-        return self._term_values(terms, keys, xi)
-
     def _term_values(self, terms: DeviceTerms | HostTerms, keys: Sequence[MotionKey],
                      xi: Any) -> Any:
         """The value from ``terms``: the workspace points of every request's rows in one pass,
@@ -225,7 +220,7 @@ class DiffusionMotion:
         b = self.config.particles
         if self.batches_cycle and self.device_terms is not None and self.hold is None:
             terms = self.device_terms(self.policy.device)
-            return TensorValue(lambda xi: self._tensor_values(terms, requests, xi, b))
+            return TensorValue(lambda xi: self._term_values(terms, requests, xi))
         return lambda xi: self._values(requests, xi, b)
 
     def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:
