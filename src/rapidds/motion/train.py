@@ -234,17 +234,12 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
         pick = index[offsets[step - 1]:offsets[step]]
         if sched is None:
             opt.param_groups[0]["lr"].fill_(config.lr * lr_factor(step - 1))
-        if replay is not None and step > GRAPH_WARMUP:
-            loss = replay(pick)
-        elif replay is not None:
-            loss = replay.warm(pick)
-        else:
-            loss = optimiser_step(pick)
+        loss = optimiser_step(pick) if replay is None else replay(pick)
         if sched is not None:
             sched.step()
         if ema is not None:
             ema.update(model)
-        losses[step - 1] = loss.detach()
+        losses[step - 1] = loss
         if progress is not None and (step % log_every == 0 or step == steps):
             progress(step, float(losses[step - 1]))
     history.loss = losses.tolist()  # one read at the end
@@ -261,9 +256,10 @@ def _train(demos: Demonstrations, config: DiffusionConfig, progress: ProgressFn 
 
 class _StepGraph:
     """One optimiser step captured as a CUDA graph and replayed (the PyTorch guide's "whole
-    network capture"): the step's batch indices are copied into a static buffer, the graph
-    replays forward, backward and AdamW, and its loss lands in a static tensor. Capture
-    happens at the first full-size batch after the eager warm-up steps; when it fails (an
+    network capture"): the first :data:`GRAPH_WARMUP` steps run eagerly on a side stream, as
+    capture's warm-up must; then the step's batch indices are copied into a static buffer,
+    the graph replays forward, backward and AdamW, and its loss lands in a static tensor.
+    Capture happens at the first full-size batch after the warm-up; when it fails (an
     operation that cannot be captured), every step runs eagerly and ``note`` says why."""
 
     def __init__(self, step: Callable[[torch.Tensor], torch.Tensor], batch_size: int,
@@ -274,16 +270,19 @@ class _StepGraph:
         self.loss: torch.Tensor | None = None
         self.captured, self.note = False, ""
         self.side = torch.cuda.Stream(dev)
+        self.warmed = 0
 
-    def warm(self, pick: torch.Tensor) -> torch.Tensor:
-        """An eager step on a side stream, as capture's warm-up must be."""
+    def _warm(self, pick: torch.Tensor) -> torch.Tensor:
         self.side.wait_stream(torch.cuda.current_stream(self.dev))
         with torch.cuda.stream(self.side):
             loss = self.step(pick)
         torch.cuda.current_stream(self.dev).wait_stream(self.side)
+        self.warmed += 1
         return loss
 
     def __call__(self, pick: torch.Tensor) -> torch.Tensor:
+        if self.warmed < GRAPH_WARMUP:
+            return self._warm(pick)
         if len(pick) != self.batch_size or self.note:
             return self.step(pick)
         if self.graph is None:
