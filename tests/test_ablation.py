@@ -298,6 +298,43 @@ def test_bad_input_is_one_line_and_exit_2(study, tmp_path, capsys):
         pass
 
 
+def test_a_study_plans_with_one_network(study, tmp_path, capsys):
+    """Every stored trial keeps the fingerprint of the network it planned with; ``--policy``
+    reaches the workers, and a folder's trials planned with another network are refused (one
+    line, exit 2) before anything runs or is written."""
+    import torch
+
+    from rapidds.cli import main
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
+
+    bundled = load_policy(make_world("fetch"), device="cpu")
+    other = load_policy(make_world("fetch"), device="cpu")
+    with torch.no_grad():
+        next(other.model.parameters()).mul_(1.01)
+    other.save(tmp_path / "other")
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    shutil.copy(study[0] / "study.sqlite", copy / "study.sqlite")
+    with RunStore(copy / "study.sqlite") as st:
+        assert {st.claim_policy(rid, "none") for rid in st.run_ids()} == {bundled.fingerprint()}
+    before = _records(copy)
+    assert _run(main, ["ablation", "--out", str(copy), *ARGS, "--policy",
+                       str(tmp_path / "other")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "planned with another network" in err
+    assert bundled.fingerprint() in err and _records(copy) == before
+    # a new folder with that network: its one trial plans with it on a worker
+    one = ["--trials", "1", "--cycles", "1", "--humans", HUMANS[0], "--adapt", "none",
+           "--workers", "1", *[x for k, v in SEARCH.items() for x in (f"--{k}", str(v))]]
+    assert _run(main, ["ablation", "--out", str(tmp_path / "new"), *one, "--json",
+                       "--policy", str(tmp_path / "other")]) == 0
+    capsys.readouterr()
+    with RunStore(tmp_path / "new" / "study.sqlite") as st:
+        (rid,) = st.run_ids()
+        assert st.claim_policy(rid, "none") == other.fingerprint() != bundled.fingerprint()
+
+
 def _synthetic(scores: dict[str, dict[str, list[float]]], cycles: int = 4) -> AblationData:
     """A study whose trial scores are given: every cycle of trial i costs scores[h][lv][i]."""
     trials = {h: {lv: {s: np.tile([v, 0.0, 0.0, 1.0, v], (cycles, 1))  # one column per METRICS

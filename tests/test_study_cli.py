@@ -211,6 +211,22 @@ def test_tiny_simulated_study_on_dask_resumes_and_is_analysed(tmp_path, capsys):
     code, stdout, err = _main(capsys, *args)  # resume: nothing left to run
     assert code == 0, err
     assert json.loads(stdout)["simulated"]["ran"] == 0
+    # its runs keep their network's fingerprint; another network is refused, nothing written
+    import torch
+
+    from rapidds.loop.run import load_policy
+
+    with StudyStore.open_readonly(study_path(out)) as st:
+        world = make_world(st.base_config.world, st.base_config.variant)
+    bundled, other = (load_policy(world, device="cpu") for _ in range(2))
+    with torch.no_grad():
+        next(other.model.parameters()).mul_(1.01)
+    other.save(tmp_path / "other")
+    before = study_path(out).read_bytes()
+    code, _, err = _main(capsys, *args, "--policy", str(tmp_path / "other"))
+    assert code == 2 and err.count("\n") == 1, err
+    assert "planned with another network" in err and bundled.fingerprint() in err
+    assert study_path(out).read_bytes() == before
     code, stdout, err = _main(capsys, "study", "analyze", str(out), "--json")
     assert code == 0, err
     summary = json.loads(stdout)

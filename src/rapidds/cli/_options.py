@@ -14,6 +14,7 @@ import functools
 import inspect
 import typing
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar, get_args, get_origin
 
 import typer
@@ -42,6 +43,7 @@ __all__ = [
     "describe",
     "gamma_settings",
     "run_settings",
+    "study_checkpoint",
 ]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -65,6 +67,23 @@ POLICY: Any = typer.Option(
     "the network it began with.",
     show_default="the world's bundled one: paper")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
+
+
+def study_checkpoint(world: str, policy: Path | None) -> Path | None:
+    """A study's ``--policy`` as the absolute directory its workers load (None: each worker
+    loads the world's bundled one, as on a cluster whose machines install their own), loaded
+    here once so that a bad checkpoint is one line before any worker starts."""
+    if policy is None:
+        return None
+    from rapidds.experiments.ablation import network_fingerprint
+    from rapidds.loop.context import policy_dir
+    from rapidds.worlds.registry import make_world
+
+    directory = policy_dir(make_world(world), policy).resolve()
+    network_fingerprint(world, directory)
+    return directory
+
+
 THREADS: Any = typer.Option(1, min=1, max=256, help=THREADS_HELP)
 """``threads: int = THREADS``."""
 ROBOT: Any = typer.Option("reference", "--robot", help="Robot profile: the driver's joint names, "

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app
-from rapidds.cli._options import SCHEDULER, SEARCH, WORKERS, run_settings
+from rapidds.cli._options import POLICY, SCHEDULER, SEARCH, WORKERS, run_settings, study_checkpoint
 from rapidds.cli._progress import TrialProgress
 from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, AblationConfig
 from rapidds.loop.config import ADAPT_LEVELS
@@ -75,6 +75,7 @@ def ablation_cmd(
     scheduler: str | None = SCHEDULER,
     gamma: float = typer.Option(_S.gamma, help="Proximity weight of every trial."),
     as_json: bool = _SUMMARY_JSON,
+    policy: Path | None = POLICY,
 ) -> None:
     """Run the fetch ablation study (archetypes x levels x trials) on Dask, then write the
     figure, the table and the claims check. One trial is one task; resumable."""
@@ -88,6 +89,7 @@ def ablation_cmd(
     from rapidds.experiments.sessions import log_session
 
     device = settings.pop("device")
+    checkpoint = study_checkpoint("fetch", policy)
     study = AblationConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
                            cycles=cycles, seed=seed, gamma=gamma, **settings)
     from rich.console import Console
@@ -102,7 +104,7 @@ def ablation_cmd(
         try:
             with dask_client(workers, scheduler) as client, TrialProgress() as bar:
                 outcome = run_ablation(study, store, client, bar.on_trial, bar.on_start,
-                                       device=device)
+                                       device=device, policy=checkpoint)
         except KeyboardInterrupt:
             n = len(store.run_ids())
             err.print(f"interrupted; {n} trials are stored in {out}; rerun the same command "

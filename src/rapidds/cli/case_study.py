@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app, fail
-from rapidds.cli._options import THREADS, deprecated, run_settings
+from rapidds.cli._options import POLICY, THREADS, deprecated, run_settings
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -43,6 +43,7 @@ def case_study_cmd(
     as_json: bool = typer.Option(False, "--json", help="One JSON object on stdout (table rows "
                                  "and behaviours); cycle rows go to stderr."),
     threads: int = THREADS,
+    policy: Path | None = POLICY,
 ) -> None:
     """Run the paper's painting settings (unconstrained gamma 12, constrained gamma 12,
     unconstrained gamma 25 and 85) with full adaptation and write the per-cycle table and the
@@ -87,16 +88,16 @@ def case_study_cmd(
              f"{', '.join(w.teammate_names)}")
     con = Console(stderr=True, soft_wrap=True) if as_json else console()
     set_threads(threads)
-    policy = load_policy(w, device=device)
+    net = load_policy(w, policy, device)
     runs, reacted = {}, {}
     behaviours = {}
     for setting in chosen:
         runs[setting], behaviours[setting.name] = _run_setting(
-            setting, world, human, seed, cycles, out / setting.name, policy, gif, con)
+            setting, world, human, seed, cycles, out / setting.name, net, gif, con)
         if inside is not None:
             name = f"{setting.name}-{inside}"
             reacted[setting], behaviours[name] = _run_setting(
-                setting, world, human, seed, cycles, out / name, policy, gif, con,
+                setting, world, human, seed, cycles, out / name, net, gif, con,
                 execution=inside)
     rows = table_rows(w, human, runs, reacted if inside is not None else None)
     md, cs = write_tables(out, rows)

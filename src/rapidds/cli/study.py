@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from rapidds.cli import app
-from rapidds.cli._options import SCHEDULER, SEARCH, WORKERS, run_settings
+from rapidds.cli._options import POLICY, SCHEDULER, SEARCH, WORKERS, run_settings, study_checkpoint
 from rapidds.errors import StudyDesignError
 from rapidds.experiments.ablation import AblationConfig
 from rapidds.experiments.study.systems import SYSTEMS
@@ -146,7 +146,7 @@ def simulate_cmd(
     participants: int = _PARTICIPANTS, systems: str = _SYSTEMS, rounds: int = _ROUNDS,
     gamma: float | None = _GAMMA, seed: int = _SEED, allow_unbalanced: bool = _UNBALANCED,
     max_task_seconds: float | None = _MAX_TASK, workers: int | None = WORKERS,
-    scheduler: str | None = SCHEDULER, as_json: bool = _JSON,
+    scheduler: str | None = SCHEDULER, as_json: bool = _JSON, policy: Path | None = POLICY,
 ) -> None:
     """The study's protocol with simulated participants drawn around their priming group, each
     system from the population prior, on Dask. Objective measures only: no survey, no ranking."""
@@ -163,13 +163,14 @@ def simulate_cmd(
                             allow_unbalanced, max_task_seconds)
     if scheduler:
         check_scheduler_address(scheduler)
+    checkpoint = study_checkpoint(run.world, policy)
     err = Console(stderr=True, soft_wrap=True)
     where = scheduler or f"local cluster, {workers or os.cpu_count()} workers"
     with create_study(out, design, run, lock_as="rapidds study simulate") as store:
         try:
             with dask_client(workers, scheduler) as client, TrialProgress() as bar:
                 outcome = simulate_study(store, client, bar.on_trial, bar.on_start,
-                                         device=device)
+                                         device=device, policy=checkpoint)
         except KeyboardInterrupt:
             err.print(f"interrupted; finished runs are stored in {out}; rerun the same command "
                       "to finish", highlight=False)

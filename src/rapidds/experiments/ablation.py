@@ -150,11 +150,35 @@ def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
 # prior): a trial of the fetch study took 2.4 s, 0.2 s of it the prior when every trial made its
 # own. The run copies the prior before it learns, so sharing it changes no record.
 @lru_cache(maxsize=4)
-def _worker_policy(world: str, device: str = "auto") -> DiffusionPolicy:
-    """Loaded once per worker process and device, not once per trial (a load is ~0.3 s)."""
+def _worker_policy(world: str, device: str = "auto", policy: str | None = None
+                   ) -> DiffusionPolicy:
+    """Loaded once per worker process, device and checkpoint (``policy``: a directory the
+    client resolved; None: the world's bundled one), not once per trial (a load is ~0.3 s)."""
     from rapidds.loop.run import load_policy
 
-    return load_policy(_worker_world(world, None), device=device)
+    return load_policy(_worker_world(world, None), policy, device=device)
+
+
+@lru_cache(maxsize=4)
+def _worker_fingerprint(world: str, device: str = "auto", policy: str | None = None) -> str:
+    return _worker_policy(world, device, policy).fingerprint()
+
+
+def network_fingerprint(world: str, policy: Path | None) -> str:
+    """The fingerprint of the network a study's trials would plan with (loaded on the CPU:
+    it names the weights, not the device), for :func:`check_network` before any trial runs."""
+    return _worker_fingerprint(world, "cpu", None if policy is None else str(policy))
+
+
+def check_network(store: RunStore, fingerprint: str) -> None:
+    """A folder's runs all plan with one network: another is refused before a trial runs
+    (runs stored before networks were kept take this one, as a resumed run does)."""
+    for rid in store.run_ids():
+        have = store.claim_policy(rid, fingerprint)
+        if have != fingerprint:
+            raise StateError(f"{store.path.parent} holds runs planned with another network "
+                             f"(fingerprint {have}, this one {fingerprint}); use the --policy "
+                             "they began with, or another --out")
 
 
 @lru_cache(maxsize=2)
@@ -188,9 +212,11 @@ def worker_prior(cfg: RunConfig) -> HumanModel:
     return _worker_prior(cfg.world, cfg.variant, _prior_key(cfg))
 
 
-def run_trial(config: dict[str, Any], device: str = "auto") -> dict[str, Any]:
-    """Run one trial (all its cycles) on ``device`` and return its records; the Dask task.
-    Touches no files: the client stores the result."""
+def run_trial(config: dict[str, Any], device: str = "auto", policy: str | None = None
+              ) -> dict[str, Any]:
+    """Run one trial (all its cycles) on ``device`` with the checkpoint ``policy`` (None: the
+    world's bundled one) and return its records and the network's fingerprint; the Dask
+    task. Touches no files: the client stores the result."""
     import torch
 
     from rapidds.loop.run import AdaptiveRun
@@ -200,11 +226,12 @@ def run_trial(config: dict[str, Any], device: str = "auto") -> dict[str, Any]:
     cfg = RunConfig(**config, device=device)
     world = _worker_world(cfg.world, cfg.variant)
     cfg = cfg.resolved(world)
-    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device), world=world,
+    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device, policy), world=world,
                       prior=worker_prior(cfg))
     records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
-            "seconds": time.perf_counter() - t0, "pid": os.getpid()}
+            "seconds": time.perf_counter() - t0, "pid": os.getpid(),
+            "policy": _worker_fingerprint(cfg.world, cfg.device, policy)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -265,16 +292,20 @@ def _task_key(cfg: RunConfig) -> str:
 def run_ablation(
     study: AblationConfig, store: RunStore, client: Client, on_trial: TrialCallback | None = None,
     on_start: Callable[[int, int], None] | None = None, device: str = "auto",
+    policy: Path | None = None,
 ) -> StudyOutcome:
     """Submit every trial not yet stored, store each as it finishes; returns the counts.
     ``on_start(total, already_stored)`` is called once before the first result; every trial
-    runs its policy on ``device`` (not part of the stored settings).
+    runs its policy on ``device`` (not part of the stored settings). ``policy``: the
+    checkpoint directory every trial plans with (None: the bundled one); a folder holds
+    trials of one network (:func:`check_network`).
 
     A trial that fails (a runtime fault, a bug) is kept as failed with its reason and the
     others run on; a user error raised on a worker (e.g. no bundled policy), which every trial
     would raise, stops the study (see :func:`store_results`). A rerun retries failed trials.
     """
     check_settings(study, store)
+    check_network(store, network_fingerprint("fetch", policy))
     done = finished_run_ids(store, study.cycles)
     todo = [cfg for cfg in study.trials_in_order() if cfg.run_id not in done]
     outcome = StudyOutcome(total=study.trials * len(study.humans) * len(study.levels),
@@ -285,7 +316,8 @@ def run_ablation(
         on_start(outcome.total, outcome.skipped)
     t0 = time.perf_counter()
     # priority: in study order (Dask would otherwise pick freely among queued tasks)
-    futures = {client.submit(run_trial, cfg.model_dump(), device, key=_task_key(cfg),
+    where = None if policy is None else str(policy)
+    futures = {client.submit(run_trial, cfg.model_dump(), device, where, key=_task_key(cfg),
                              pure=False,
                              retries=0, priority=len(todo) - k): cfg
                for k, cfg in enumerate(todo)}
@@ -334,6 +366,11 @@ def store_results(client: Client, futures: dict[Any, Any], store: RunStore,
             fut.release()
             if result["run_id"] != run_id:  # pragma: no cover - a key collision
                 raise StateError(f"task for {run_id} returned {result['run_id']}")
+            planned_with = result.get("policy")
+            if planned_with is not None and store.claim_policy(run_id, planned_with) != \
+                    planned_with:  # the checkpoint changed on disk since the check
+                raise StateError(f"{noun} {run_id} planned with another network than the "
+                                 f"{noun}s stored in {store.path.parent}")
             if store.record_trial(run_id, result["config"], result["records"]):
                 outcome.ran += 1
                 stored += 1

@@ -25,14 +25,13 @@ from rapidds.worlds.base import SimulatedTeammate, Teammate, World, shipped_poli
 from rapidds.worlds.reactions import Reaction
 from rapidds.worlds.registry import make_world
 
-__all__ = ["RunContext", "load_policy"]
+__all__ = ["RunContext", "load_policy", "policy_dir"]
 
 
-def load_policy(world: World, path: Path | str | None = None, device: str = "auto"
-                ) -> DiffusionPolicy:
-    """The checkpoint at ``path`` (a directory, or the name of one the world ships: see
-    :func:`shipped_policies`), or the world's bundled policy, on ``device`` ("auto": a CUDA
-    GPU when there is one; "cuda" without one is a ConfigError, one line at the CLI)."""
+def policy_dir(world: World, path: Path | str | None = None) -> Path:
+    """The checkpoint directory ``path`` names: a directory, the name of one the world ships
+    (see :func:`shipped_policies`), or None for the world's bundled policy. A study's client
+    resolves it once and hands its workers the directory, so every trial loads one network."""
     if path is not None and len(Path(path).parts) == 1 and not Path(path).exists():
         shipped = shipped_policies(world)
         if str(path) not in shipped:
@@ -45,7 +44,14 @@ def load_policy(world: World, path: Path | str | None = None, device: str = "aut
             f"no bundled {world.name} policy in this install; train one with "
             f"'rapidds train-policy --world {world.name} --out DIR' and pass --policy DIR"
         )
-    return DiffusionPolicy.load(directory, device=device)
+    return Path(directory)
+
+
+def load_policy(world: World, path: Path | str | None = None, device: str = "auto"
+                ) -> DiffusionPolicy:
+    """The checkpoint :func:`policy_dir` names, on ``device`` ("auto": a CUDA GPU when there
+    is one; "cuda" without one is a ConfigError, one line at the CLI)."""
+    return DiffusionPolicy.load(policy_dir(world, path), device=device)
 
 
 @dataclass

@@ -20,6 +20,7 @@ import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,8 +29,11 @@ from rapidds.errors import RapiddsError
 from rapidds.experiments.ablation import (
     StudyOutcome,
     TrialCallback,
+    _worker_fingerprint,
     _worker_policy,
     _worker_world,
+    check_network,
+    network_fingerprint,
     store_results,
     worker_prior,
 )
@@ -104,9 +108,11 @@ def trials_to_run(store: StudyStore) -> tuple[list[Trial], int]:
 
 
 # -- worker side ---------------------------------------------------------------------------------
-def run_trial(trial: dict[str, Any], device: str = "auto") -> dict[str, Any]:
-    """Run one participant x system (all rounds) on ``device`` and return its records; the Dask
-    task. Touches no files: the client stores the result."""
+def run_trial(trial: dict[str, Any], device: str = "auto", policy: str | None = None
+              ) -> dict[str, Any]:
+    """Run one participant x system (all rounds) on ``device`` with the checkpoint ``policy``
+    (None: the world's bundled one) and return its records and the network's fingerprint;
+    the Dask task. Touches no files: the client stores the result."""
     import torch
 
     from rapidds.loop.run import AdaptiveRun
@@ -118,26 +124,32 @@ def run_trial(trial: dict[str, Any], device: str = "auto") -> dict[str, Any]:
     cfg = RunConfig(**t.config, device=device).resolved(world)
     person = simulated_participant(world, t.participant, t.levels, t.study_seed, t.position)
     prior = worker_prior(cfg)
-    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device), world=world,
+    run = AdaptiveRun(cfg, _worker_policy(cfg.world, cfg.device, policy), world=world,
                       teammate=person, prior=prior)
     records = [r.to_json() for r in run.run()]  # as stored: they cross to the client
     return {"run_id": run.config.run_id, "config": run.config.model_dump(), "records": records,
-            "seconds": time.perf_counter() - t0}
+            "seconds": time.perf_counter() - t0,
+            "policy": _worker_fingerprint(cfg.world, cfg.device, policy)}
 
 
 # -- client side ---------------------------------------------------------------------------------
 def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | None = None,
                    on_start: Callable[[int, int], None] | None = None,
-                   device: str = "auto") -> StudyOutcome:
+                   device: str = "auto", policy: Path | None = None) -> StudyOutcome:
     """Submit every participant x system not yet stored, store each as it finishes. A failed
-    trial stops the study (the others are cancelled; what is stored stays)."""
+    trial stops the study (the others are cancelled; what is stored stays). ``policy``: the
+    checkpoint directory every run plans with (None: the bundled one); a study holds runs of
+    one network (:func:`~rapidds.experiments.ablation.check_network`)."""
+    check_network(store, network_fingerprint(store.base_config.world, policy))
     todo, total = trials_to_run(store)
     outcome = StudyOutcome(total=total, skipped=total - len(todo))
     outcome.workers = len(client.scheduler_info().get("workers", {}))
     if on_start is not None:
         on_start(total, outcome.skipped)
     t0 = time.perf_counter()
-    futures = {client.submit(run_trial, asdict(t), device, key=t.key, pure=False, retries=0,
-                             priority=len(todo) - k): t for k, t in enumerate(todo)}
+    where = None if policy is None else str(policy)
+    futures = {client.submit(run_trial, asdict(t), device, where, key=t.key, pure=False,
+                             retries=0, priority=len(todo) - k): t
+               for k, t in enumerate(todo)}
     store_results(client, futures, store, outcome, on_trial, t0, noun="run")
     return outcome
