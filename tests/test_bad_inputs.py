@@ -83,6 +83,8 @@ CASES: list[tuple[str, str]] = [
     ("ablation --out {tmp}/ab --seed -1", "--seed: Input should be greater than or equal to 0"),
     ("ablation --out {tmp}/ab --workers 0", "--workers must be >= 1"),
     ("ablation --out {tmp}/ab --scheduler nonsense", "scheduler"),
+    ("ablation --out {tmp}/ab --policy distilled", "fetch ships no policy of that name"),
+    ("study simulate --out {tmp}/s --policy {tmp}", "missing config.json"),
     ("report {tmp}", "holds no study"),
     # painting and its case study
     ("run painting --variant upside-down", "world 'painting' has no variant 'upside-down'"),
@@ -93,6 +95,7 @@ CASES: list[tuple[str, str]] = [
     ("case-study fetch --out {tmp}/cs", "no case study for world 'fetch'"),
     ("case-study painting --out {tmp}/cs --cycles 0", "Invalid value for '--cycles'"),
     ("case-study painting", "Missing option '--out'"),
+    ("case-study painting --out {tmp}/cs --policy nowhere", "painting ships no policy of that"),
     # study (the flag a user can type, bounds on a task's duration)
     ("study design --out {tmp}/s --participants 15", "--allow-unbalanced"),
     ("study design --out {tmp}/s --participants 16 --max-task-seconds 0",
