@@ -1,0 +1,170 @@
+"""What decides a painting network's speed on this machine's CPU: the processor's vector units,
+torch's and oneDNN's settings, the kernels oneDNN picks, and one pass of each shipped network.
+
+    .venv/bin/python benchmarks/cpu_facts.py [--rows 192,288] [--repeats 15] [--out FILE]
+
+Written for the GPU machine's Xeon, where the paper's network planned a cycle in 0.27 s and the
+distilled one, a sixth of its arithmetic, in 0.80-1.08 s (docs/benchmarks.md, "The GPU
+measured"), the reverse of this project's AMD EPYC. Per network and batch size it times one
+pass (one torch thread, median of ``--repeats``) with and without flush-to-zero (Intel cores
+slow down on subnormal floats, AMD's far less), counts the convolutions' floating-point
+operations, so a rate beyond the core's float32 peak shows reduced precision, and lists the
+implementations oneDNN ran (``ONEDNN_VERBOSE``, in a child process), where a reference
+kernel (``ref``, ``gemm:ref``) would be the slow path. Prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _common import child_env, cpu_model  # noqa: E402
+
+NETWORKS = ("paper", "distilled")
+ENV = re.compile(r"^(ONEDNN|DNNL|MKL|OMP|KMP|GOMP|ATEN|TORCH|OPENBLAS)_")
+
+
+def _flags() -> list[str]:
+    """The vector extensions that matter to oneDNN (AVX-512 kinds, AMX, AVX2, FMA)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return []
+    line = next((x for x in text.splitlines() if x.startswith("flags")), "")
+    keep = ("avx512", "amx", "avx2", "fma", "avx_vnni")
+    return sorted({f for f in line.split() if f.startswith(keep)})
+
+
+def _network(name: str):
+    from rapidds.loop.run import load_policy
+    from rapidds.worlds.registry import make_world
+
+    return load_policy(make_world("painting"), None if name == "paper" else name, device="cpu")
+
+
+def _inputs(policy, rows: int):
+    import torch
+
+    gen = torch.Generator().manual_seed(0)
+    cfg = policy.config
+    tasks = [cfg.task_names[i % len(cfg.task_names)] for i in range(rows)]
+    # the middle of the normalised range: a pose inside the demonstrations' span
+    start = (policy.normalizer.unnormalize(torch.zeros(rows, cfg.state_dim)).numpy()
+             if cfg.start_conditioned else None)
+    cond = policy.condition(tasks, rows, start)
+    x = torch.randn(rows, cfg.horizon, cfg.state_dim, generator=gen)
+    return x, cond
+
+
+def _conv_flops(policy, x, cond) -> int:
+    """Multiply-adds x 2 of every convolution in one pass (counted by hooking F.conv1d)."""
+    import torch.nn.functional as F
+
+    import rapidds.motion.inference as inference
+
+    total = 0
+    real = F.conv1d
+
+    def counted(h, w, b=None, stride=1, padding=0, *rest):
+        nonlocal total
+        out = real(h, w, b, stride, padding, *rest)
+        total += 2 * out.numel() * w.shape[1] * w.shape[2]
+        return out
+
+    inference.F.conv1d = counted
+    try:
+        policy.predict_noise(x, 5, cond)
+    finally:
+        inference.F.conv1d = real
+    return total
+
+
+def time_pass(name: str, rows: int, repeats: int, flush: bool) -> dict[str, float]:
+    import torch
+
+    torch.set_num_threads(1)
+    torch.set_flush_denormal(flush)
+    policy = _network(name)
+    x, cond = _inputs(policy, rows)
+    flops = _conv_flops(policy, x, cond)
+    for _ in range(3):
+        policy.predict_noise(x, 5, cond)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        policy.predict_noise(x, 5, cond)
+        times.append(time.perf_counter() - t0)
+    ms = 1000 * statistics.median(times)
+    return {"ms": round(ms, 2), "conv_gflop": round(flops / 1e9, 3),
+            "conv_gflops_per_s_if_all_time": round(flops / 1e9 / (ms / 1000), 1)}
+
+
+def kernels(name: str, rows: int) -> dict[str, int]:
+    """oneDNN's primitives and implementations in one pass (a child with ONEDNN_VERBOSE=1)."""
+    code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import cpu_facts as c, torch; "
+            f"torch.set_num_threads(1); p = c._network({name!r}); x, k = c._inputs(p, {rows}); "
+            "print('--pass--', flush=True); p.predict_noise(x, 5, k)")
+    env = {**child_env(ROOT / "src", HERE), "ONEDNN_VERBOSE": "1", "DNNL_VERBOSE": "1"}
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          timeout=300)
+    lines = proc.stdout.split("--pass--", 1)[-1].splitlines()
+    seen: collections.Counter[str] = collections.Counter()
+    for line in lines:
+        parts = line.split(",")
+        if len(parts) > 5 and parts[0].endswith("_verbose") and "exec" in parts:
+            at = parts.index("exec")
+            seen[f"{parts[at + 2]}:{parts[at + 3]}"] += 1  # primitive:implementation
+    return dict(seen.most_common())
+
+
+def facts() -> dict[str, object]:
+    import torch
+
+    out: dict[str, object] = {
+        "cpu": cpu_model(), "machine": platform.machine(), "flags": _flags(),
+        "torch": torch.__version__,
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "mkldnn": torch.backends.mkldnn.is_available(),
+        "env": {k: v for k, v in os.environ.items() if ENV.match(k)},
+    }
+    for kind in ("conv", "matmul"):
+        backend = getattr(torch.backends.mkldnn, kind, None)
+        out[f"mkldnn_{kind}_fp32_precision"] = getattr(backend, "fp32_precision", None)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--rows", default="192,288")
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args()
+    res: dict[str, object] = {"facts": facts()}
+    for name in NETWORKS:
+        for rows in (int(r) for r in args.rows.split(",")):
+            for flush in (False, True):
+                key = f"{name}/{rows} rows/{'flush-to-zero' if flush else 'default'}"
+                res[key] = time_pass(name, rows, args.repeats, flush)
+                print(key, res[key], file=sys.stderr, flush=True)
+        res[f"{name}/kernels"] = kernels(name, 192)
+    text = json.dumps(res, indent=1)
+    if args.out:
+        args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
