@@ -194,3 +194,33 @@ def test_approach_speeds_are_the_same_bits_from_the_cache(
         assert all(got[t].tobytes() == plain[t].tobytes() for t in plain)
     slower = dataclasses.replace(limits, reaction_time=limits.reaction_time * 2)
     assert slowdowns.approach_speeds(world, spatial, slower) is not None and len(calls) > n
+
+
+def test_painting_motions_are_the_same_bits_from_the_cache(
+        cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The nominal motions' IK (0.7 s of every painting process) through the cache: a hit
+    solves nothing and gives the joint vectors a solve gives; another layout (the bowl 2 cm
+    farther) is another entry."""
+    from rapidds.worlds.painting import motions
+    from rapidds.worlds.painting.scene import LAYOUT, Box
+
+    solve = motions.nominal_motion.__wrapped__  # past the per-process cache
+    monkeypatch.setenv("RAPIDDS_CACHE", "off")
+    plain = solve("mix_l", "avoidant")
+    monkeypatch.setenv("RAPIDDS_CACHE", str(cache))
+    calls = []
+    real = motions.solve_ik
+    monkeypatch.setattr(motions, "solve_ik", lambda *a, **k: calls.append(1) or real(*a, **k))
+    built = solve("mix_l", "avoidant")
+    n = len(calls)
+    read = solve("mix_l", "avoidant")
+    assert n == len(plain.waypoints) - 2 and len(calls) == n  # the second one solved nothing
+    for got in (built, read):
+        for field in ("waypoints", "stop", "dwell", "fixed"):
+            assert getattr(got, field).tobytes() == getattr(plain, field).tobytes()
+        assert got.pace == plain.pace
+    bowl = LAYOUT.bowl
+    moved = dataclasses.replace(LAYOUT, bowl=Box((bowl.center[0], bowl.center[1] + 0.02,
+                                                  bowl.center[2]), bowl.half))
+    other = solve("mix_l", "avoidant", moved)
+    assert len(calls) > 2 * n and other.waypoints.tobytes() != plain.waypoints.tobytes()

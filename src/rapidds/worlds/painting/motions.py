@@ -28,6 +28,7 @@ monitoring (ISO/TS 15066) asks near people. Dips pause ``DWELL`` s; a brush stro
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -38,7 +39,7 @@ from rapidds.worlds.painting.kinematics import (
     mirror_joints,
     solve_ik,
 )
-from rapidds.worlds.painting.scene import LAYOUT, CellLayout
+from rapidds.worlds.painting.scene import LAYOUT, CellLayout, load_model
 
 __all__ = [
     "MODES",
@@ -139,13 +140,41 @@ class Motion:
         return out
 
 
+def _ik_cached(what: str, layout: CellLayout, solve: Callable[[], np.ndarray]) -> np.ndarray:
+    """``solve()``'s joint vectors, kept across runs in rapidds's cache (:mod:`rapidds.cache`):
+    the nominal motions' IK took 0.7 s of every painting process. The key holds what the IK
+    reads: this module's and the kinematics' source, the layout, the arm model's kinematic
+    arrays, and the IK libraries' versions."""
+    from importlib.metadata import version
+
+    import mujoco
+
+    from rapidds.cache import cached_arrays, code_version, content_key
+    from rapidds.worlds.painting import kinematics
+
+    model = load_model(layout)
+    key = content_key(code_version(__file__, kinematics.__file__), what, repr(layout), model.nq,
+                      *(np.asarray(getattr(model, f)) for f in _KINEMATIC_FIELDS),
+                      mujoco.__version__, version("mink"), version("daqp"))
+    return cached_arrays("painting-ik", key, ("q",), lambda: {"q": solve()})["q"]
+
+
+# what mink's IK reads of the MuJoCo model: the kinematic tree, joint limits, the tool site
+_KINEMATIC_FIELDS = ("body_parentid", "body_pos", "body_quat", "body_jntadr", "body_jntnum",
+                     "jnt_type", "jnt_axis", "jnt_pos", "jnt_range", "jnt_limited",
+                     "jnt_qposadr", "site_bodyid", "site_pos", "site_quat", "qpos0")
+
+
 @cache
 def rest_pose(layout: CellLayout = LAYOUT) -> np.ndarray:
     """(7,) the robot's rest configuration: tool at ``REST_TOOL`` pointing down, arm in its
     vertical mid-plane (joints 1, 3, 5, 7 exactly 0, so it is its own mirror image)."""
-    q = solve_ik(REST_TOOL, _REST_SEED, layout=layout)
-    q[[0, 2, 4, 6]] = 0.0
-    return q
+    def solve() -> np.ndarray:
+        q = solve_ik(REST_TOOL, _REST_SEED, layout=layout)
+        q[[0, 2, 4, 6]] = 0.0
+        return q
+
+    return _ik_cached("rest", layout, solve)
 
 
 def _tool_targets(task: str, mode: str, layout: CellLayout,
@@ -189,14 +218,17 @@ def nominal_motion(task: str, mode: str, layout: CellLayout = LAYOUT) -> Motion:
         left = nominal_motion("mix_l", mode, layout)
         return Motion(mirror_joints(left.waypoints), left.stop, left.dwell, left.fixed, left.pace)
     rest = rest_pose(layout)
-    qs, dwell, stop, fixed = [rest], [0.0], [True], [0.0]
-    for target, pause, halt, section in _tool_targets(task, mode, layout):
-        qs.append(solve_ik(target, qs[-1], layout=layout))
-        dwell.append(pause)
-        stop.append(halt)
-        fixed.append(section)
-    qs.append(rest)
-    dwell.append(0.0)
-    stop.append(True)
-    fixed.append(0.0)
-    return Motion(np.array(qs), np.array(stop), np.array(dwell), np.array(fixed), PACE[mode])
+    targets = _tool_targets(task, mode, layout)
+
+    def solve() -> np.ndarray:
+        qs = [rest]
+        for target, *_ in targets:
+            qs.append(solve_ik(target, qs[-1], layout=layout))
+        return np.array(qs[1:])
+
+    solved = _ik_cached(f"{task}/{mode}", layout, solve)
+    qs = np.vstack([rest, solved, rest])
+    dwell = [0.0, *(t[1] for t in targets), 0.0]
+    stop = [True, *(t[2] for t in targets), True]
+    fixed = [0.0, *(t[3] for t in targets), 0.0]
+    return Motion(qs, np.array(stop), np.array(dwell), np.array(fixed), PACE[mode])
