@@ -13,7 +13,13 @@ import typer
 from rapidds.cli import app
 from rapidds.cli._options import POLICY, SCHEDULER, SEARCH, WORKERS, run_settings, study_checkpoint
 from rapidds.cli._progress import TrialProgress
-from rapidds.experiments.ablation import ABLATION, ARCHETYPES, BASELINES, AblationConfig
+from rapidds.experiments.ablation import (
+    ABLATION,
+    ARCHETYPES,
+    BASELINES,
+    WORLD,
+    AblationConfig,
+)
 from rapidds.loop.config import ADAPT_LEVELS
 
 if TYPE_CHECKING:
@@ -89,7 +95,7 @@ def ablation_cmd(
     from rapidds.experiments.sessions import log_session
 
     device = settings.pop("device")
-    checkpoint = study_checkpoint("fetch", policy)
+    checkpoint = study_checkpoint(WORLD, policy)
     study = AblationConfig(humans=_split(humans), levels=_split(adapt), trials=trials,
                            cycles=cycles, seed=seed, gamma=gamma, **settings)
     from rich.console import Console

@@ -68,6 +68,10 @@ def _levels_field(name: str, known: tuple[str, ...]) -> Callable[[Any], Any]:
     return check
 
 
+WORLD = "fetch"
+"""The world of the paper's ablation study (its every trial)."""
+
+
 class AblationConfig(Settings):
     """One ablation study: which cells and how many trials, and the settings every trial shares.
 
@@ -107,7 +111,7 @@ class AblationConfig(Settings):
         return self.seed * TRIAL_STRIDE + index
 
     def _trial(self, human: str, level: str, index: int) -> RunConfig:
-        return RunConfig(world="fetch", human=human, adapt=level, cycles=self.cycles,
+        return RunConfig(world=WORLD, human=human, adapt=level, cycles=self.cycles,
                          gamma=self.gamma, lam=self.lam, seed=self.trial_seed(index),
                          population=self.population, generations=self.generations,
                          samples=self.samples, patience=self.patience,
@@ -119,7 +123,7 @@ class AblationConfig(Settings):
         """The trial's settings, resolved against the fetch world (what is stored)."""
         from rapidds.worlds.registry import make_world
 
-        return self._trial(human, level, index).resolved(make_world("fetch"))
+        return self._trial(human, level, index).resolved(make_world(WORLD))
 
     def trials_in_order(self) -> list[RunConfig]:
         """Every trial, trial index outermost: a study stopped early holds about as many trials
@@ -305,7 +309,7 @@ def run_ablation(
     would raise, stops the study (see :func:`store_results`). A rerun retries failed trials.
     """
     check_settings(study, store)
-    check_network(store, network_fingerprint("fetch", policy))
+    check_network(store, network_fingerprint(WORLD, policy))
     done = finished_run_ids(store, study.cycles)
     todo = [cfg for cfg in study.trials_in_order() if cfg.run_id not in done]
     outcome = StudyOutcome(total=study.trials * len(study.humans) * len(study.levels),
