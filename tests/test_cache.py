@@ -5,6 +5,7 @@ two processes filling one entry leave a whole one; the spatial priors read throu
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import os
 import subprocess
@@ -224,3 +225,35 @@ def test_painting_motions_are_the_same_bits_from_the_cache(
                                                   bowl.center[2]), bowl.half))
     other = solve("mix_l", "avoidant", moved)
     assert len(calls) > 2 * n and other.waypoints.tobytes() != plain.waypoints.tobytes()
+
+
+def test_a_warm_painting_process_plans_without_compiling_mujoco(
+        cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The arm's kinematics through the cache are the arrays the compiled model gives, and a
+    painting process whose cache is warm plans a cycle without importing MuJoCo (its import
+    and the scene's compile were 0.9 s of every such process); its record is the cold one's."""
+    from rapidds.worlds.painting import kinematics
+    from rapidds.worlds.painting.scene import load_model
+
+    plain = kinematics.ArmKinematics.from_model(load_model())
+    for _ in range(2):  # built, then read back
+        got = kinematics.arm_kinematics.__wrapped__()
+        for name in kinematics._ARM_FIELDS:
+            assert getattr(got, name).tobytes() == getattr(plain, name).tobytes(), name
+    code = ("import json, sys; from rapidds.loop import AdaptiveRun, RunConfig, load_policy; "
+            "from rapidds.worlds.registry import make_world; "
+            "cfg = RunConfig(world='painting', cycles=1, population=4, generations=2, "
+            "samples=4, particles=1, candidates=2); "
+            "rec = AdaptiveRun(cfg, load_policy(make_world('painting'), device='cpu')).step()"
+            ".record.to_json(); rec.pop('seconds'); "
+            "print(json.dumps({'mujoco': 'mujoco' in sys.modules, 'record': rec}))")
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+
+    def child() -> dict:
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, timeout=300, check=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    cold, warm = child(), child()
+    assert cold["mujoco"] and not warm["mujoco"]
+    assert warm["record"] == cold["record"]

@@ -39,7 +39,7 @@ from rapidds.worlds.painting.kinematics import (
     mirror_joints,
     solve_ik,
 )
-from rapidds.worlds.painting.scene import LAYOUT, CellLayout, load_model
+from rapidds.worlds.painting.scene import LAYOUT, CellLayout, model_key
 
 __all__ = [
     "MODES",
@@ -143,26 +143,16 @@ class Motion:
 def _ik_cached(what: str, layout: CellLayout, solve: Callable[[], np.ndarray]) -> np.ndarray:
     """``solve()``'s joint vectors, kept across runs in rapidds's cache (:mod:`rapidds.cache`):
     the nominal motions' IK took 0.7 s of every painting process. The key holds what the IK
-    reads: this module's and the kinematics' source, the layout, the arm model's kinematic
-    arrays, and the IK libraries' versions."""
+    reads: this module's and the kinematics' source, the scene model (:func:`model_key`), and
+    the IK libraries' versions."""
     from importlib.metadata import version
-
-    import mujoco
 
     from rapidds.cache import cached_arrays, code_version, content_key
     from rapidds.worlds.painting import kinematics
 
-    model = load_model(layout)
-    key = content_key(code_version(__file__, kinematics.__file__), what, repr(layout), model.nq,
-                      *(np.asarray(getattr(model, f)) for f in _KINEMATIC_FIELDS),
-                      mujoco.__version__, version("mink"), version("daqp"))
+    key = content_key(code_version(__file__, kinematics.__file__), what, model_key(layout),
+                      version("mink"), version("daqp"))
     return cached_arrays("painting-ik", key, ("q",), lambda: {"q": solve()})["q"]
-
-
-# what mink's IK reads of the MuJoCo model: the kinematic tree, joint limits, the tool site
-_KINEMATIC_FIELDS = ("body_parentid", "body_pos", "body_quat", "body_jntadr", "body_jntnum",
-                     "jnt_type", "jnt_axis", "jnt_pos", "jnt_range", "jnt_limited",
-                     "jnt_qposadr", "site_bodyid", "site_pos", "site_quat", "qpos0")
 
 
 @cache

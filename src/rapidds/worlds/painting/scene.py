@@ -54,6 +54,7 @@ __all__ = [
     "build_model",
     "franka_assets_dir",
     "load_model",
+    "model_key",
 ]
 
 ARM_JOINTS: tuple[str, ...] = tuple(f"robot:panda0_joint{k}" for k in range(1, 8))
@@ -193,6 +194,21 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
         raise SceneError(f"the Panda model in {folder} is not the expected one (nq = {model.nq}, "
                          f"missing joints: {', '.join(missing) or 'none'})")
     return model
+
+
+def model_key(layout: CellLayout = LAYOUT) -> str:
+    """A key for what :func:`load_model` compiles, found without compiling it (or importing
+    MuJoCo): this module's source, the layout, the Panda's MJCF files (not its meshes, which
+    move nothing) and MuJoCo's version. Caches of what the arm's kinematics give key on it."""
+    from importlib.metadata import version
+
+    from rapidds.cache import code_version, content_key
+
+    folder = franka_assets_dir()
+    files = sorted(folder.glob("*.xml"))
+    return content_key(code_version(__file__), repr(layout), version("mujoco"),
+                       *(x for f in files for x in (f.name, np.frombuffer(f.read_bytes(),
+                                                                           np.uint8))))
 
 
 @cache
