@@ -196,6 +196,7 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
     return model
 
 
+@cache
 def model_key(layout: CellLayout = LAYOUT) -> str:
     """A key for what :func:`load_model` compiles, found without compiling it (or importing
     MuJoCo): this module's source, the layout, the Panda's MJCF files (not its meshes, which
