@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from diffusers import DDIMScheduler, DDPMScheduler, DPMSolverMultistepScheduler
+from diffusers import DDIMScheduler, DDPMScheduler
 from safetensors.torch import load_file, save
 from torch import Tensor, nn
 
@@ -33,12 +34,29 @@ from rapidds.motion.inference import FastUnet
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.unet import TemporalUnet1d
 
+if TYPE_CHECKING:
+    from typing import TypeAlias
+
+    from diffusers import DPMSolverMultistepScheduler
+
+    NoiseScheduler: TypeAlias = DDPMScheduler | DDIMScheduler | DPMSolverMultistepScheduler
+
 FORMAT = "rapidds.diffusion_policy"
 FORMAT_VERSION = 1
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 
-NoiseScheduler = DDPMScheduler | DDIMScheduler | DPMSolverMultistepScheduler
+# DPM-Solver is imported where it is chosen: its module imports scipy.stats, 0.6 s of every
+# process that loads a policy
+_DPM_MODULE = "diffusers.schedulers.scheduling_dpmsolver_multistep"
+
+
+def _is_noise_scheduler(obj: object) -> bool:
+    """Whether ``obj`` is one of the three schedulers (DPM-Solver only once its module is
+    imported: nothing can be an instance of it before)."""
+    dpm = sys.modules.get(_DPM_MODULE)
+    return isinstance(obj, (DDPMScheduler, DDIMScheduler)) or (
+        dpm is not None and isinstance(obj, dpm.DPMSolverMultistepScheduler))
 GeneratorLike = torch.Generator | int | None
 Denoiser = Callable[[Tensor, Tensor, Tensor], Tensor]
 
@@ -67,6 +85,8 @@ def make_noise_scheduler(config: DiffusionConfig) -> NoiseScheduler:
         # step of memory (the previous prediction) stays right under steering, which keeps
         # each particle in its row. Thresholding with a maximum of 1 is clip_sample's clip of
         # the predicted clean sample to [-1, 1].
+        from diffusers import DPMSolverMultistepScheduler
+
         clip = kwargs.pop("clip_sample")
         del kwargs["clip_sample_range"]
         return DPMSolverMultistepScheduler(
@@ -114,7 +134,7 @@ class DiffusionPolicy:
 
     def __init__(self, config: DiffusionConfig, model: nn.Module,
                  noise_scheduler: NoiseScheduler, normalizer: MinMaxNormalizer):
-        if not isinstance(noise_scheduler, NoiseScheduler):
+        if not _is_noise_scheduler(noise_scheduler):
             raise TypeError(f"noise_scheduler must be a diffusers DDPMScheduler, "
                             f"DDIMScheduler or DPMSolverMultistepScheduler, got "
                             f"{type(noise_scheduler).__name__}")
@@ -306,11 +326,9 @@ class DiffusionPolicy:
         if isinstance(self.noise_scheduler, DDIMScheduler):
             out = self.noise_scheduler.step(eps, t, x_t, eta=self.config.ddim_eta,
                                             generator=generator)
-        elif isinstance(self.noise_scheduler, DPMSolverMultistepScheduler):
-            # its one step of memory is the batch's previous prediction: one call per step,
-            # the same rows in the same order (as steering and sample call it)
-            out = self.noise_scheduler.step(eps, t, x_t, generator=generator)
-        else:
+        else:  # DDPM, or DPM-Solver, whose one step of memory is the batch's previous
+            # prediction: one call per step, the same rows in the same order (as steering and
+            # sample call it)
             out = self.noise_scheduler.step(eps, t, x_t, generator=generator)
         return out.prev_sample
 
