@@ -59,8 +59,12 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
 
     torch.set_num_threads(threads)
     w = make_world(world)
-    net = (load_policy(w) if device == "cpu" and policy is None  # checkouts before --device
-           else load_policy(w, policy, device=device))
+    try:  # the device always named: load_policy's default ("auto") is the GPU where one is
+        net = load_policy(w, policy, device=device)
+    except TypeError:  # a checkout from before load_policy took a device: the CPU's
+        if device != "cpu" or policy is not None:
+            raise
+        net = load_policy(w)
     human, gamma = WORLDS[world]
     cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
     run = AdaptiveRun(cfg, net)
