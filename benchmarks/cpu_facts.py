@@ -3,9 +3,9 @@ torch's and oneDNN's settings, the kernels oneDNN picks, and one pass of each sh
 
     .venv/bin/python benchmarks/cpu_facts.py [--rows 192,288] [--repeats 15] [--out FILE]
 
-Written for the GPU machine's Xeon, where the paper's network planned a cycle in 0.27 s and the
-distilled one, a sixth of its arithmetic, in 0.80-1.08 s (docs/benchmarks.md, "The GPU
-measured"), the reverse of this project's AMD EPYC. Per network and batch size it times one
+Part of ``gpu_check.sh``: on a lent machine, whose CPU is not this project's AMD EPYC, it says
+how fast each network's pass is there and whether anything (a precision mode, a reference
+kernel, subnormal floats) makes that CPU a special case. Per network and batch size it times one
 pass (one torch thread, median of ``--repeats``) with and without flush-to-zero (Intel cores
 slow down on subnormal floats, AMD's far less), counts the convolutions' floating-point
 operations, so a rate beyond the core's float32 peak shows reduced precision, and lists the

@@ -9,14 +9,15 @@
 #     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] [TRAIN_ON=cuda] \
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured"): unpacking and imports 28 s,
-# the device part 174 s with TRAIN_ON=cuda, the distilled part over 100 s (its CPU cycles were
-# slow on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
+# the device part 174 s with TRAIN_ON=cuda, the distilled part over 100 s (its CPU cycles took
+# 0.8-1.1 s on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
 # stale (it was there), so name the commit measured.
 # First, about 20 s: the CPU's facts (cpu_facts.py: its vector units, torch's and oneDNN's
-# settings and kernels, one pass of each network), to explain why the distilled network was
-# slower than the paper's on that Xeon. Results: $OUT/cpu_facts.json, $OUT/device.json,
-# $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (a device session brings back 8). The GPU's numbers count only beside the CPU's
-# of the same machine in the same run (docs/benchmarks.md).
+# settings and kernels, one pass of each network on that CPU). Results: $OUT/cpu_facts.json,
+# $OUT/device.json, $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (a device
+# session brings back 8). The GPU's numbers count only beside the CPU's of the same machine in
+# the same run (docs/benchmarks.md); before 2026-11-27's last session, the paper's network's
+# "cpu" runs ran on the GPU (bench_painting_cycle loaded it on "auto").
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python}
