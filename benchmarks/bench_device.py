@@ -8,7 +8,9 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
 
 - the benchmark's painting run (``rapidds run painting --human left-slow --gamma 12``, full
   adaptation, default search), one torch thread: wall and process CPU seconds of the first
-  cycle and the median of the later ones, the planning part, and the records' digest;
+  cycle and the median of the later ones, the planning part, and the records' digest; on cuda
+  also the first cycle of a run (the first seed, 2 cycles) after a small batch through the
+  network on the card, to tell the kernels' loading from the rest of a first cycle;
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
   per optimiser step after a warm-up of 20 steps: float32 (on cuda a captured CUDA graph,
   train_policy's default there) and on cuda also float32 launched op by op, float32 captured
@@ -37,12 +39,13 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 
-def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None
-              ) -> dict[str, object]:
-    """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds."""
+def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
+              warm_up: bool = False) -> dict[str, object]:
+    """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds;
+    ``warm_up``: a small batch through the network first (bench_painting_cycle.run_seed)."""
     from bench_painting_cycle import run_seed
 
-    return run_seed(seed, cycles, device=device, policy=policy)
+    return run_seed(seed, cycles, device=device, policy=policy, warm_up=warm_up)
 
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
@@ -102,6 +105,10 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
         }
+        if dev == "cuda":  # the first cycle once the network's kernels are loaded
+            warmed = _child("cycles_on", dev, seeds[0], 2, policy, True)
+            out[dev]["first_cycle_wall_after_warm_up"] = warmed["wall"][0]
+            out[dev]["digests_after_warm_up"] = warmed["digest"]
         if steps > 0 and (train_on is None or dev in train_on):
             out[dev]["train_fp32"] = _child("training_on", dev, steps, False)
         # on cuda: launched op by op beside the captured step, train_policy's default there
@@ -126,7 +133,9 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
             if key in r:
                 train += (f"; {label} {r[key]['ms_per_step']:.1f} "
                           f"(loss {r[key]['final_loss']:.4f})")
-        rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f} | "
+        warmed = ("" if "first_cycle_wall_after_warm_up" not in r else
+                  f" ({r['first_cycle_wall_after_warm_up']:.2f} wall after a warm-up)")
+        rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f}{warmed} | "
                     f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f} | "
                     f"{r['later_plan_median']:.2f} | {sum(r['later_requests'])} | {train} |")
     gpu = ""

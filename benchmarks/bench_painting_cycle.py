@@ -44,13 +44,15 @@ WORLDS = {"painting": ("left-slow", 12.0), "fetch": ("slow-middle", None)}
 
 
 def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting",
-             policy: str | None = None, threads: int = 1) -> dict[str, object]:
+             policy: str | None = None, threads: int = 1, warm_up: bool = False
+             ) -> dict[str, object]:
     """One run in this process on ``device`` (the CPU unless told: this benchmark is the CPU's
     even on a machine with a GPU; bench_device.py measures both): per-cycle wall and CPU
     seconds, the wall parts, the records' digest. ``world``: painting (the issue's config)
     or fetch (its default search, teammate slow-middle). ``policy``: a checkpoint or the name
     of one the world ships (``rapidds run --policy``); ``threads``: torch's intra-op threads
-    (``rapidds run --threads``)."""
+    (``rapidds run --threads``); ``warm_up``: one small batch through the network on its
+    device before the run (how much of a first cycle on a GPU is loading its kernels)."""
     import torch
 
     from rapidds.loop.config import RunConfig
@@ -65,6 +67,13 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
         if device != "cpu" or policy is not None:
             raise
         net = load_policy(w)
+    if warm_up:
+        cfg0 = net.config
+        start = (net.normalizer.unnormalize(torch.zeros(cfg0.state_dim)).numpy()
+                 if cfg0.start_conditioned else None)
+        net.sample(cfg0.task_names[0], 8, start=start, generator=0)
+        if net.device.type == "cuda":
+            torch.cuda.synchronize()
     human, gamma = WORLDS[world]
     cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
     run = AdaptiveRun(cfg, net)
