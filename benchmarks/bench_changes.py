@@ -81,7 +81,7 @@ def one(job: tuple[str, str, int, int, int]) -> dict[str, Any]:
     torch.set_num_threads(1)
     kind, model, seed, cycles, at = job
     run = AdaptiveRun(RunConfig(**_config(kind, model, seed, cycles, at)),
-                      load_policy(make_world("fetch")))
+                      load_policy(make_world("fetch"), device="cpu"))
     recs = run.run()
     done = sorted({t for r in recs[at:] for t in r.observed})
     err = []

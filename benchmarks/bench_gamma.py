@@ -72,7 +72,8 @@ def one(job: tuple[str, str, int, float, int, bool, str]) -> dict[str, Any]:
                     execution=execution, **kw, **SEARCH)
     t_cpu = time.process_time()
     t0 = time.perf_counter()
-    recs = [r.to_json() for r in AdaptiveRun(cfg, load_policy(w)).run()]  # the stored form
+    run = AdaptiveRun(cfg, load_policy(w, device="cpu"))
+    recs = [r.to_json() for r in run.run()]  # the stored form
     return {
         "world": world, "arm": arm, "seed": seed, "factor": factor, "truth": truth,
         "planned": [r["gamma"] for r in recs],

@@ -29,7 +29,7 @@ def main() -> None:
     ap.add_argument("--update-docs", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    policy = load_policy(make_world("fetch"))
+    policy = load_policy(make_world("fetch"), device="cpu")
     rows, times = [], []
     wins = 0
     t_all, load0 = time.perf_counter(), load_average()

@@ -211,7 +211,7 @@ def main() -> None:
     torch.set_num_threads(1)
     load_start = load_average()
     world = FetchWorld()
-    policy = load_policy(world)
+    policy = load_policy(world, device="cpu")
     spatial = prior_model(world, RunConfig().resolved(world)).spatial
 
     def value(xi: np.ndarray) -> np.ndarray:

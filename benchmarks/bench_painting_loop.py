@@ -43,7 +43,7 @@ def main() -> None:
     torch.set_num_threads(1)
     load0 = load_average()
     world = PaintingWorld()
-    policy = load_policy(world)
+    policy = load_policy(world, device="cpu")
     done = {}
     if args.runs.exists():
         for line in args.runs.read_text().splitlines():

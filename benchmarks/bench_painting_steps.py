@@ -42,7 +42,7 @@ def main() -> None:
     torch.set_num_threads(1)
     load0 = load_average()
     world = PaintingWorld()
-    policy = load_policy(world)
+    policy = load_policy(world, device="cpu")
     arms = {"default (10)": None, f"steps {args.steps}": args.steps}
     cpu: dict[str, list[float]] = defaultdict(list)
     cost: dict[str, dict[tuple[str, int], float]] = defaultdict(dict)

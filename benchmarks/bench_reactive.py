@@ -179,7 +179,7 @@ def decompose(args: argparse.Namespace) -> None:
     from rapidds.worlds.registry import make_world
 
     torch.set_num_threads(1)
-    policy = load_policy(make_world(args.world))
+    policy = load_policy(make_world(args.world), device="cpu")
     out = Path(args.decomposition)
     done = set()
     if out.exists():
@@ -209,7 +209,7 @@ def bench(args: argparse.Namespace) -> None:
         for line in runs.read_text().splitlines():
             d = json.loads(line)
             done.add((d["world"], d["deviate"], d["system"], d["seed"], d["cycles"]))
-    policy = load_policy(make_world(args.world))
+    policy = load_policy(make_world(args.world), device="cpu")
     for seed in range(args.first_seed, args.seeds):
         for deviate in args.deviations:
             for system in args.systems:

@@ -43,7 +43,8 @@ def one(world: str, seed: int, reacts: bool = False) -> dict[str, Any]:
     truth = g_ref * FACTORS[seed % len(FACTORS)]
     cfg = RunConfig(world=world, cycles=10, seed=seed, comfort=truth, gamma_learn=True,
                     reacts=reacts, **SEARCH)
-    recs = [r.to_json() for r in AdaptiveRun(cfg, load_policy(w)).run()]  # the stored form
+    run = AdaptiveRun(cfg, load_policy(w, device="cpu"))
+    recs = [r.to_json() for r in run.run()]  # the stored form
     return {"world": world, "seed": seed, "truth": truth, "g_ref": g_ref, "reacts": reacts,
             "evidence": [r["comfort"] for r in recs]}
 
