@@ -196,11 +196,11 @@ def build_model(layout: CellLayout = LAYOUT, assets: Path | None = None, *,
     return model
 
 
-@cache
 def model_key(layout: CellLayout = LAYOUT) -> str:
     """A key for what :func:`load_model` compiles, found without compiling it (or importing
     MuJoCo): this module's source, the layout, the Panda's MJCF files (not its meshes, which
-    move nothing) and MuJoCo's version. Caches of what the arm's kinematics give key on it."""
+    move nothing) and MuJoCo's version. Caches of what the arm's kinematics give key on it.
+    Read anew at each call (about a millisecond), so edited assets never meet a stale key."""
     from importlib.metadata import version
 
     from rapidds.cache import code_version, content_key
