@@ -10,7 +10,8 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
   adaptation, default search), one torch thread: wall and process CPU seconds of the first
   cycle and the median of the later ones, the planning part, and the records' digest; on cuda
   also the first cycle of a run (the first seed, 2 cycles) after a small batch through the
-  network on the card, to tell the kernels' loading from the rest of a first cycle;
+  network on the card, to tell the kernels' loading from the rest of a first cycle; on the CPU
+  also the first seed's later cycles with 4 torch threads (a workstation's cores);
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
   per optimiser step after a warm-up of 20 steps: float32 (on cuda a captured CUDA graph,
   train_policy's default there) and on cuda also float32 launched op by op, float32 captured
@@ -40,12 +41,14 @@ ROOT = HERE.parent
 
 
 def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
-              warm_up: bool = False) -> dict[str, object]:
+              warm_up: bool = False, threads: int = 1) -> dict[str, object]:
     """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds;
-    ``warm_up``: a small batch through the network first (bench_painting_cycle.run_seed)."""
+    ``warm_up``: a small batch through the network first; ``threads``: torch's intra-op
+    threads (bench_painting_cycle.run_seed)."""
     from bench_painting_cycle import run_seed
 
-    return run_seed(seed, cycles, device=device, policy=policy, warm_up=warm_up)
+    return run_seed(seed, cycles, device=device, policy=policy, warm_up=warm_up,
+                    threads=threads)
 
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
@@ -105,6 +108,9 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
         }
+        if dev == "cpu":  # a workstation's CPU with more than one core for torch
+            four = _child("cycles_on", dev, seeds[0], cycles, policy, False, 4)
+            out[dev]["later_wall_median_4_threads"] = statistics.median(four["wall"][1:])
         if dev == "cuda":  # the first cycle once the network's kernels are loaded
             warmed = _child("cycles_on", dev, seeds[0], 2, policy, True)
             out[dev]["first_cycle_wall_after_warm_up"] = warmed["wall"][0]
@@ -135,8 +141,10 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
                           f"(loss {r[key]['final_loss']:.4f})")
         warmed = ("" if "first_cycle_wall_after_warm_up" not in r else
                   f" ({r['first_cycle_wall_after_warm_up']:.2f} wall after a warm-up)")
+        four = ("" if "later_wall_median_4_threads" not in r else
+                f" ({r['later_wall_median_4_threads']:.2f} wall with 4 threads)")
         rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f}{warmed} | "
-                    f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f} | "
+                    f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f}{four} | "
                     f"{r['later_plan_median']:.2f} | {sum(r['later_requests'])} | {train} |")
     gpu = ""
     if "cuda" in res:
