@@ -9,7 +9,8 @@
 #     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] [TRAIN_ON=cuda] \
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured"): unpacking and imports 28 s,
-# the device part 174 s with TRAIN_ON=cuda, the distilled part over 100 s (its CPU cycles took
+# the device part 174 s with TRAIN_ON=cuda (expect about 50 s more now: the paper's network's cpu
+# runs really on the CPU, a 4-thread CPU run and a warmed-up cuda run), the distilled part over 100 s (its CPU cycles took
 # 0.8-1.1 s on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
 # stale (it was there), so name the commit measured.
 # First, about 20 s: the CPU's facts (cpu_facts.py: its vector units, torch's and oneDNN's
