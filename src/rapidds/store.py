@@ -503,16 +503,19 @@ class RunStore:
 
     _POLICY: ClassVar[str] = "policy:"  # meta keys: the network a run plans with
 
-    def claim_policy(self, run_id: str, fingerprint: str) -> str:
-        """The fingerprint of the network ``run_id`` plans with: the one stored, or
-        ``fingerprint``, stored now when the run had none (a run stored before runs kept
-        theirs takes the first network it resumes with). One transaction."""
+    def claim_policy(self, run_id: str, fingerprint: str) -> None:
+        """Keep that ``run_id`` plans with the network ``fingerprint`` names; StateError, one
+        line, when the run planned with another. A run stored before runs kept theirs takes the
+        first network it resumes with. One transaction."""
         with self._tx() as db:
             db.execute("INSERT INTO meta VALUES (?, ?) ON CONFLICT (key) DO NOTHING",
                        (self._POLICY + run_id, fingerprint))
             (stored,) = db.execute("SELECT value FROM meta WHERE key=?",
                                    (self._POLICY + run_id,)).fetchone()
-        return str(stored)
+        if stored != fingerprint:
+            raise StateError(f"run '{run_id}' in {self.path} planned with another network "
+                             f"(fingerprint {stored}, this one {fingerprint}); resume it with "
+                             "the --policy it began with, or use another --out")
 
     # failed trials ------------------------------------------------------------------------
     _FAILED: ClassVar[str] = "failed:"  # meta keys: every store has the table; old: none

@@ -154,7 +154,7 @@ def shared_settings(run_config: dict[str, Any]) -> dict[str, Any]:
 # prior): a trial of the fetch study took 2.4 s, 0.2 s of it the prior when every trial made its
 # own. The run copies the prior before it learns, so sharing it changes no record.
 @lru_cache(maxsize=4)
-def _worker_policy(world: str, device: str = "auto", policy: str | None = None
+def _worker_policy(world: str, device: str = "auto", policy: Path | None = None
                    ) -> DiffusionPolicy:
     """Loaded once per worker process, device and checkpoint (``policy``: a directory the
     client resolved; None: the world's bundled one), not once per trial (a load is ~0.3 s)."""
@@ -164,25 +164,21 @@ def _worker_policy(world: str, device: str = "auto", policy: str | None = None
 
 
 @lru_cache(maxsize=4)
-def _worker_fingerprint(world: str, device: str = "auto", policy: str | None = None) -> str:
+def _worker_fingerprint(world: str, device: str = "auto", policy: Path | None = None) -> str:
     return _worker_policy(world, device, policy).fingerprint()
 
 
 def network_fingerprint(world: str, policy: Path | None) -> str:
     """The fingerprint of the network a study's trials would plan with (loaded on the CPU:
     it names the weights, not the device), for :func:`check_network` before any trial runs."""
-    return _worker_fingerprint(world, "cpu", None if policy is None else str(policy))
+    return _worker_fingerprint(world, "cpu", policy)
 
 
 def check_network(store: RunStore, fingerprint: str) -> None:
     """A folder's runs all plan with one network: another is refused before a trial runs
     (runs stored before networks were kept take this one, as a resumed run does)."""
     for rid in store.run_ids():
-        have = store.claim_policy(rid, fingerprint)
-        if have != fingerprint:
-            raise StateError(f"{store.path.parent} holds runs planned with another network "
-                             f"(fingerprint {have}, this one {fingerprint}); use the --policy "
-                             "they began with, or another --out")
+        store.claim_policy(rid, fingerprint)
 
 
 @lru_cache(maxsize=2)
@@ -216,7 +212,7 @@ def worker_prior(cfg: RunConfig) -> HumanModel:
     return _worker_prior(cfg.world, cfg.variant, _prior_key(cfg))
 
 
-def run_trial(config: dict[str, Any], device: str = "auto", policy: str | None = None
+def run_trial(config: dict[str, Any], device: str = "auto", policy: Path | None = None
               ) -> dict[str, Any]:
     """Run one trial (all its cycles) on ``device`` with the checkpoint ``policy`` (None: the
     world's bundled one) and return its records and the network's fingerprint; the Dask
@@ -320,8 +316,7 @@ def run_ablation(
         on_start(outcome.total, outcome.skipped)
     t0 = time.perf_counter()
     # priority: in study order (Dask would otherwise pick freely among queued tasks)
-    where = None if policy is None else str(policy)
-    futures = {client.submit(run_trial, cfg.model_dump(), device, where, key=_task_key(cfg),
+    futures = {client.submit(run_trial, cfg.model_dump(), device, policy, key=_task_key(cfg),
                              pure=False,
                              retries=0, priority=len(todo) - k): cfg
                for k, cfg in enumerate(todo)}
@@ -370,11 +365,8 @@ def store_results(client: Client, futures: dict[Any, Any], store: RunStore,
             fut.release()
             if result["run_id"] != run_id:  # pragma: no cover - a key collision
                 raise StateError(f"task for {run_id} returned {result['run_id']}")
-            planned_with = result.get("policy")
-            if planned_with is not None and store.claim_policy(run_id, planned_with) != \
-                    planned_with:  # the checkpoint changed on disk since the check
-                raise StateError(f"{noun} {run_id} planned with another network than the "
-                                 f"{noun}s stored in {store.path.parent}")
+            if "policy" in result:  # refused if the checkpoint changed since the check
+                store.claim_policy(run_id, result["policy"])
             if store.record_trial(run_id, result["config"], result["records"]):
                 outcome.ran += 1
                 stored += 1

@@ -187,12 +187,7 @@ class AdaptiveRun:
             raise StateError(f"run '{rid}' in {store.path} was stored with other settings: "
                              f"{diff}; use the same settings or another --out")
         store.create_run(rid, raw if raw is not None else self.config.model_dump())
-        mine = self.policy.fingerprint()
-        planned_with = store.claim_policy(rid, mine)
-        if planned_with != mine:
-            raise StateError(f"run '{rid}' in {store.path} planned with another network "
-                             f"(fingerprint {planned_with}, this one {mine}); resume it with "
-                             "the --policy it began with, or use another --out")
+        store.claim_policy(rid, self.policy.fingerprint())
         last = store.last_cycle(rid)
         if last is not None:
             state = store.state(rid, last)

@@ -108,7 +108,7 @@ def trials_to_run(store: StudyStore) -> tuple[list[Trial], int]:
 
 
 # -- worker side ---------------------------------------------------------------------------------
-def run_trial(trial: dict[str, Any], device: str = "auto", policy: str | None = None
+def run_trial(trial: dict[str, Any], device: str = "auto", policy: Path | None = None
               ) -> dict[str, Any]:
     """Run one participant x system (all rounds) on ``device`` with the checkpoint ``policy``
     (None: the world's bundled one) and return its records and the network's fingerprint;
@@ -147,8 +147,7 @@ def simulate_study(store: StudyStore, client: Client, on_trial: TrialCallback | 
     if on_start is not None:
         on_start(total, outcome.skipped)
     t0 = time.perf_counter()
-    where = None if policy is None else str(policy)
-    futures = {client.submit(run_trial, asdict(t), device, where, key=t.key, pure=False,
+    futures = {client.submit(run_trial, asdict(t), device, policy, key=t.key, pure=False,
                              retries=0, priority=len(todo) - k): t
                for k, t in enumerate(todo)}
     store_results(client, futures, store, outcome, on_trial, t0, noun="run")
