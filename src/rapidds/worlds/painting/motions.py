@@ -216,9 +216,7 @@ def nominal_motion(task: str, mode: str, layout: CellLayout = LAYOUT) -> Motion:
             qs.append(solve_ik(target, qs[-1], layout=layout))
         return np.array(qs[1:])
 
-    solved = _ik_cached(f"{task}/{mode}", layout, solve)
-    qs = np.vstack([rest, solved, rest])
-    dwell = [0.0, *(t[1] for t in targets), 0.0]
-    stop = [True, *(t[2] for t in targets), True]
-    fixed = [0.0, *(t[3] for t in targets), 0.0]
-    return Motion(qs, np.array(stop), np.array(dwell), np.array(fixed), PACE[mode])
+    qs = np.vstack([rest, _ik_cached(f"{task}/{mode}", layout, solve), rest])
+    _, dwell, stop, fixed = zip(*targets, strict=True)
+    return Motion(qs, np.array([True, *stop, True]), np.array([0.0, *dwell, 0.0]),
+                  np.array([0.0, *fixed, 0.0]), PACE[mode])
