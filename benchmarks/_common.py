@@ -11,6 +11,18 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
 
+def middle_start(policy, rows: int | None = None):
+    """A start pose in the middle of ``policy``'s normalised range, inside its demonstrations'
+    span: (state_dim,), or (rows, state_dim); None for a policy that takes no start."""
+    import torch
+
+    cfg = policy.config
+    if not cfg.start_conditioned:
+        return None
+    shape = (cfg.state_dim,) if rows is None else (rows, cfg.state_dim)
+    return policy.normalizer.unnormalize(torch.zeros(shape)).numpy()
+
+
 def child_env(*paths: str | Path, **extra: str) -> dict[str, str]:
     """This process's environment for a child on ``paths`` first, then the inherited
     ``PYTHONPATH`` (a GPU machine carries the packages it lacks there: design notes, 11)."""

@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import cpu_model, load_average, parse_seeds, update_docs_section
+from _common import cpu_model, load_average, middle_start, parse_seeds, update_docs_section
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,10 +68,7 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
             raise
         net = load_policy(w)
     if warm_up:
-        cfg0 = net.config
-        start = (net.normalizer.unnormalize(torch.zeros(cfg0.state_dim)).numpy()
-                 if cfg0.start_conditioned else None)
-        net.sample(cfg0.task_names[0], 8, start=start, generator=0)
+        net.sample(net.config.task_names[0], 8, start=middle_start(net), generator=0)
         if net.device.type == "cuda":
             torch.cuda.synchronize()
     human, gamma = WORLDS[world]

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import child_env, cpu_model  # noqa: E402
+from _common import child_env, cpu_model, middle_start  # noqa: E402
 
 NETWORKS = ("paper", "distilled")
 ENV = re.compile(r"^(ONEDNN|DNNL|MKL|OMP|KMP|GOMP|ATEN|TORCH|OPENBLAS)_")
@@ -61,10 +61,7 @@ def _inputs(policy, rows: int):
     gen = torch.Generator().manual_seed(0)
     cfg = policy.config
     tasks = [cfg.task_names[i % len(cfg.task_names)] for i in range(rows)]
-    # the middle of the normalised range: a pose inside the demonstrations' span
-    start = (policy.normalizer.unnormalize(torch.zeros(rows, cfg.state_dim)).numpy()
-             if cfg.start_conditioned else None)
-    cond = policy.condition(tasks, rows, start)
+    cond = policy.condition(tasks, rows, middle_start(policy, rows))
     x = torch.randn(rows, cfg.horizon, cfg.state_dim, generator=gen)
     return x, cond
 
