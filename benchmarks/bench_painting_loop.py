@@ -2,12 +2,16 @@
 time (plan + execute + learn, from each record's ``seconds``).
 
     .venv/bin/python benchmarks/bench_painting_loop.py --seeds 0-7 --runs runs.jsonl [--docs]
+    .venv/bin/python benchmarks/bench_painting_loop.py --policy distilled --runs d.jsonl
 
 Per seed: the case study's four settings with ``left-slow`` (full adaptation, 7 cycles, the
 world's lambda), unconstrained gamma 12 with ``left-fast`` (Brush to the faster agent) and with
 ``right-slow`` (the mirror image: Mix R is then the near mix). Every finished run is appended
 to ``--runs`` (JSON lines), and runs already there are not run again, so the script resumes.
-The behaviours are :func:`rapidds.experiments.painting.setting_behaviours`.
+The behaviours are :func:`rapidds.experiments.painting.setting_behaviours`. ``--policy``: a
+checkpoint directory or the name of one the world ships (``rapidds run --policy``); a runs
+file holds one network's runs (each line names its network's fingerprint, and a file of
+another network is refused).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
 from rapidds.experiments.painting import SETTINGS, Setting, run_setting, setting_behaviours
 from rapidds.loop.run import load_policy
+from rapidds.record import CycleRecord
 from rapidds.worlds.painting import PaintingWorld
 
 RUNS: tuple[tuple[Setting, str], ...] = (
@@ -33,22 +38,33 @@ RUNS: tuple[tuple[Setting, str], ...] = (
 )
 
 
+def _seconds(record: CycleRecord) -> float:
+    assert record.seconds is not None  # kept by every run since the loop's timing
+    return record.seconds["total"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", default="0-4")
     ap.add_argument("--cycles", type=int, default=7)
     ap.add_argument("--runs", type=Path, default=Path("painting-loop-runs.jsonl"))
+    ap.add_argument("--policy", help="checkpoint directory or shipped name (default: the "
+                    "world's default)")
     ap.add_argument("--docs", action="store_true", help="rewrite the docs section")
     args = ap.parse_args()
     torch.set_num_threads(1)
     load0 = load_average()
     world = PaintingWorld()
-    policy = load_policy(world, device="cpu")
+    policy = load_policy(world, args.policy, device="cpu")
     done = {}
     if args.runs.exists():
         for line in args.runs.read_text().splitlines():
             d = json.loads(line)
-            done[d["setting"], d["human"], d["seed"]] = d["records"]
+            if d.get("policy", policy.fingerprint()) != policy.fingerprint():
+                raise SystemExit(f"{args.runs} holds runs of another network "
+                                 f"({d['policy'][:12]}); pass its --policy or another --runs")
+            done[d["setting"], d["human"], d["seed"]] = [CycleRecord.from_json(r)
+                                                         for r in d["records"]]
     t0 = time.perf_counter()
     for seed in parse_seeds(args.seeds):
         for setting, human in RUNS:
@@ -59,9 +75,10 @@ def main() -> None:
             done[key] = recs
             with args.runs.open("a") as f:
                 f.write(json.dumps({"setting": setting.name, "human": human, "seed": seed,
-                                    "records": recs}) + "\n")
+                                    "policy": policy.fingerprint(),
+                                    "records": [r.to_json() for r in recs]}) + "\n")
             print(f"{setting.name} {human} seed {seed}: "
-                  f"{sum(r['seconds']['total'] for r in recs):.1f} s", flush=True)
+                  f"{sum(_seconds(r) for r in recs):.1f} s", flush=True)
     wall = time.perf_counter() - t0
     seeds = parse_seeds(args.seeds)
     shown: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0])
@@ -70,7 +87,7 @@ def main() -> None:
     for (name, human, seed), recs in done.items():
         if seed not in seeds:
             continue
-        cycle_s += [r["seconds"]["total"] for r in recs]
+        cycle_s += [_seconds(r) for r in recs]
         for b in setting_behaviours(world, by_name[name], human, recs):
             row = shown[name, human, f"{b.belief}: {b.name}"]
             row[0] += b.holds
