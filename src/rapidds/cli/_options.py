@@ -62,8 +62,9 @@ AS_JSON: Any = typer.Option(False, "--json", help=JSON_HELP)
 RUN_PANEL = "Run settings"
 POLICY: Any = typer.Option(
     None, help="Policy checkpoint: a directory, or one the world ships by name ('paper'; "
-    "painting also 'distilled', a smaller network distilled from it that plans as well at "
-    "half the CPU per cycle). A stored run resumes only with the network it began with.",
+    "painting also 'distilled', a smaller network distilled from it: half the CPU per cycle, "
+    "plans as well over the painting benchmark but worse in its constrained setting). A stored "
+    "run resumes only with the network it began with.",
     show_default="the world's bundled one: paper")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
 
