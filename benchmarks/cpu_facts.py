@@ -10,7 +10,12 @@ pass (one torch thread, median of ``--repeats``) with and without flush-to-zero 
 slow down on subnormal floats, AMD's far less), counts the convolutions' floating-point
 operations, so a rate beyond the core's float32 peak shows reduced precision, and lists the
 implementations oneDNN ran (``ONEDNN_VERBOSE``, in a child process), where a reference
-kernel (``ref``, ``gemm:ref``) would be the slow path. Prints one JSON object.
+kernel (``ref``, ``gemm:ref``) would be the slow path. Then, at 192 rows, the pass in reduced
+precision, which the product does not use (its records are float32's): oneDNN's bf16 mode for
+float32 convolutions and torch's bf16 autocast, with their relative error against float32. Here
+(AVX-512 with bf16, no AMX) autocast saved about a quarter of a pass; a CPU with AMX tiles may
+save far more, which would make a reduced-precision option worth measuring for plan quality.
+Prints one JSON object.
 """
 
 from __future__ import annotations
@@ -109,6 +114,52 @@ def time_pass(name: str, rows: int, repeats: int, flush: bool) -> dict[str, floa
             "conv_gflops_per_s_if_all_time": round(flops / 1e9 / (ms / 1000), 1)}
 
 
+PRECISIONS = ("onednn-bf16", "autocast-bf16")
+
+
+def time_precision(name: str, rows: int, repeats: int, mode: str) -> dict[str, float]:
+    """One pass in reduced precision ``mode`` against float32: ms of each (median, one torch
+    thread) and the relative error of the noise prediction."""
+    import contextlib
+
+    import torch
+
+    torch.set_num_threads(1)
+    policy = _network(name)
+    x, cond = _inputs(policy, rows)
+    conv = getattr(torch.backends.mkldnn, "conv", None)
+    if mode == "onednn-bf16" and not hasattr(conv, "fp32_precision"):
+        return {"unsupported": 1.0}
+
+    def run(reduced: bool) -> torch.Tensor:
+        if not reduced:
+            return policy.predict_noise(x, 5, cond)
+        if mode == "autocast-bf16":
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                return policy.predict_noise(x, 5, cond).float()
+        old = conv.fp32_precision
+        conv.fp32_precision = "bf16"
+        try:
+            return policy.predict_noise(x, 5, cond)
+        finally:
+            conv.fp32_precision = old
+
+    out: dict[str, float] = {}
+    for reduced in (False, True):
+        for _ in range(3):
+            run(reduced)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            run(reduced)
+            times.append(time.perf_counter() - t0)
+        out["ms_" + (mode if reduced else "float32")] = round(1000 * statistics.median(times), 2)
+    with contextlib.suppress(Exception):
+        ref, low = run(False), run(True)
+        out["relative_error"] = float((low - ref).norm() / ref.norm())
+    return out
+
+
 def kernels(name: str, rows: int) -> dict[str, int]:
     """oneDNN's primitives and implementations in one pass (a child with ONEDNN_VERBOSE=1)."""
     code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import cpu_facts as c, torch; "
@@ -157,6 +208,10 @@ def main() -> None:
                 res[key] = time_pass(name, rows, args.repeats, flush)
                 print(key, res[key], file=sys.stderr, flush=True)
         res[f"{name}/kernels"] = kernels(name, 192)
+        for mode in PRECISIONS:
+            key = f"{name}/192 rows/{mode}"
+            res[key] = time_precision(name, 192, args.repeats, mode)
+            print(key, res[key], file=sys.stderr, flush=True)
     text = json.dumps(res, indent=1)
     if args.out:
         args.out.write_text(text)

@@ -13,8 +13,9 @@
 # runs really on the CPU, a 4-thread CPU run and a warmed-up cuda run), the distilled part over 100 s (its CPU cycles took
 # 0.8-1.1 s on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
 # stale (it was there), so name the commit measured.
-# First, about 20 s: the CPU's facts (cpu_facts.py: its vector units, torch's and oneDNN's
-# settings and kernels, one pass of each network on that CPU). Results: $OUT/cpu_facts.json,
+# First, about 25 s here (up to twice that on a slower core): the CPU's facts (cpu_facts.py: its
+# vector units, torch's and oneDNN's settings and kernels, one pass of each network on that CPU,
+# and in bf16, which an AMX Xeon may run far faster). Results: $OUT/cpu_facts.json,
 # $OUT/device.json, $OUT/distilled.json, $OUT/steer.json and $OUT/gpu_check.log (a device
 # session brings back 8). The GPU's numbers count only beside the CPU's of the same machine in
 # the same run (docs/benchmarks.md); before 2026-11-27's last session, the paper's network's
@@ -42,7 +43,7 @@ part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit 
 part 30 versions "$PY" -c "import torch, diffusers, mujoco, rapidds; print('torch', \
 torch.__version__, 'cuda', torch.cuda.is_available(), 'diffusers', diffusers.__version__, \
 'mujoco', mujoco.__version__)"
-part 60 cpu_facts "$PY" benchmarks/cpu_facts.py --repeats 7 --out "$OUT/cpu_facts.json"
+part 90 cpu_facts "$PY" benchmarks/cpu_facts.py --repeats 7 --out "$OUT/cpu_facts.json"
 # TRAIN_ON=cuda: skip the CPU's training steps (about 40 s), measured once per machine kind
 part 280 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
