@@ -11,7 +11,10 @@ to ``--runs`` (JSON lines), and runs already there are not run again, so the scr
 The behaviours are :func:`rapidds.experiments.painting.setting_behaviours`. ``--policy``: a
 checkpoint directory or the name of one the world ships (``rapidds run --policy``); a runs
 file holds one network's runs (each line names its network's fingerprint, and a file of
-another network is refused).
+another network is refused). ``--no-reuse``: every motion steered anew each cycle
+(``RunConfig(reuse_motions=False)``), so that one unlucky draw of a motion whose value never
+changes (a task with no concurrent human task) is not carried for the whole run: the fairer
+setting for comparing networks (docs/benchmarks.md, "Painting loop").
 """
 
 from __future__ import annotations
@@ -50,6 +53,8 @@ def main() -> None:
     ap.add_argument("--runs", type=Path, default=Path("painting-loop-runs.jsonl"))
     ap.add_argument("--policy", help="checkpoint directory or shipped name (default: the "
                     "world's default)")
+    ap.add_argument("--no-reuse", action="store_true",
+                    help="steer every motion anew each cycle (reuse_motions=False)")
     ap.add_argument("--docs", action="store_true", help="rewrite the docs section")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -63,6 +68,9 @@ def main() -> None:
             if d.get("policy", policy.fingerprint()) != policy.fingerprint():
                 raise SystemExit(f"{args.runs} holds runs of another network "
                                  f"({d['policy'][:12]}); pass its --policy or another --runs")
+            if d.get("reuse", True) == args.no_reuse:
+                raise SystemExit(f"{args.runs} holds runs {'with' if args.no_reuse else 'without'}"
+                                 " reused motions; match its --no-reuse or use another --runs")
             done[d["setting"], d["human"], d["seed"]] = [CycleRecord.from_json(r)
                                                          for r in d["records"]]
     t0 = time.perf_counter()
@@ -71,11 +79,12 @@ def main() -> None:
             key = (setting.name, human, seed)
             if key in done:
                 continue
-            recs = run_setting(setting, human, seed, args.cycles, policy)
+            recs = run_setting(setting, human, seed, args.cycles, policy,
+                               **({"reuse_motions": False} if args.no_reuse else {}))
             done[key] = recs
             with args.runs.open("a") as f:
                 f.write(json.dumps({"setting": setting.name, "human": human, "seed": seed,
-                                    "policy": policy.fingerprint(),
+                                    "policy": policy.fingerprint(), "reuse": not args.no_reuse,
                                     "records": [r.to_json() for r in recs]}) + "\n")
             print(f"{setting.name} {human} seed {seed}: "
                   f"{sum(_seconds(r) for r in recs):.1f} s", flush=True)
