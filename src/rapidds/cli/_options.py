@@ -63,7 +63,7 @@ RUN_PANEL = "Run settings"
 POLICY: Any = typer.Option(
     None, help="Policy checkpoint: a directory, or one the world ships by name ('paper'; "
     "painting also 'distilled', a smaller network distilled from it: half the CPU per cycle, "
-    "plans as well over the painting benchmark but worse in its constrained setting). A stored "
+    "plans as well over the painting benchmark, docs/benchmarks.md 'Painting loop'). A stored "
     "run resumes only with the network it began with.",
     show_default="the world's bundled one: paper")
 """``policy: Path | None = POLICY``: the checkpoint of every command that loads a policy."""
