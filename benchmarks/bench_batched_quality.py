@@ -2,6 +2,7 @@
 first batch) against the CPU's host path, both run on the CPU.
 
     .venv/bin/python benchmarks/bench_batched_quality.py [--seeds 0-7] [--json OUT]
+    .venv/bin/python benchmarks/bench_batched_quality.py --execution reactive   # monitored
 
 On a GPU steering scores candidates with the world's tensor terms and pre-steers the moved
 carried requests (:class:`rapidds.loop.carry.CarriedMotions`), which changes floating-point
@@ -12,6 +13,8 @@ where it can be compared with the stored one seed by seed: the painting benchmar
 8 cycles, settled cycles 4-7), the two paths alternating, one torch thread. Reported: the mean
 realised cost of the settled cycles per run, the difference device - host paired by (world,
 seed) with a 95 % bootstrap interval, and the painting behaviours shown (docs/reproduction.md).
+``--execution reactive``: the runs under the safety monitor, planning for its holds (the
+default there), whose hold term the device path scores as tensor operations too.
 """
 
 from __future__ import annotations
@@ -37,9 +40,9 @@ from rapidds.worlds.registry import make_world
 ARMS = {"host": None, "device path": True}
 
 
-def _painting(seed: int, policy, shown: dict) -> float:
+def _painting(seed: int, policy, shown: dict, execution: str) -> float:
     setting = SETTINGS[0]
-    recs = run_setting(setting, "left-slow", seed, 7, policy)
+    recs = run_setting(setting, "left-slow", seed, 7, policy, execution=execution)
     for b in setting_behaviours(make_world("painting"), setting, "left-slow", recs):
         row = shown[f"{b.belief}: {b.name}"]
         row[0] += len(b.shown)
@@ -47,9 +50,9 @@ def _painting(seed: int, policy, shown: dict) -> float:
     return statistics.mean(r.realised.cost for r in recs[4:])
 
 
-def _fetch(seed: int, policy) -> float:
-    recs = AdaptiveRun(RunConfig(world="fetch", human="slow-middle", cycles=8, seed=seed),
-                       policy).run()
+def _fetch(seed: int, policy, execution: str) -> float:
+    recs = AdaptiveRun(RunConfig(world="fetch", human="slow-middle", cycles=8, seed=seed,
+                                 execution=execution), policy).run()
     return statistics.mean(r.realised.cost for r in recs[4:])
 
 
@@ -58,6 +61,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0-7")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--worlds", default="fetch,painting")
+    ap.add_argument("--execution", default="planned", choices=("planned", "reactive"))
     args = ap.parse_args()
     worlds = args.worlds.split(",")
     torch.set_num_threads(1)
@@ -71,15 +75,15 @@ def main() -> None:
             for arm, flag in (ARMS.items() if seed % 2 == 0 else reversed(ARMS.items())):
                 DiffusionMotion.default_on_device = flag
                 c0 = time.process_time()
-                got = (_fetch(seed, policies[world]) if world == "fetch"
-                       else _painting(seed, policies[world], shown[arm]))
+                got = (_fetch(seed, policies[world], args.execution) if world == "fetch"
+                       else _painting(seed, policies[world], shown[arm], args.execution))
                 cpu[f"{world} {arm}"].append(time.process_time() - c0)
                 cost[arm][f"{world} {seed}"] = got
                 print(f"{world} seed {seed} {arm}: settled cost {got:.3f}, CPU "
                       f"{cpu[f'{world} {arm}'][-1]:.1f} s, load {load_average()}", flush=True)
     DiffusionMotion.default_on_device = None
-    lines = [f"{cpu_model()}, one torch thread; 1-min load average {load0} at start, "
-             f"{load_average()} at end"]
+    lines = [f"{args.execution} execution; {cpu_model()}, one torch thread; 1-min load "
+             f"average {load0} at start, {load_average()} at end"]
     for world in worlds:
         keys = sorted(k for k in cost["host"] if k.startswith(world))
         diffs = np.array([cost["device path"][k] - cost["host"][k] for k in keys])

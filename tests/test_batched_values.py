@@ -144,7 +144,8 @@ def test_fetch_tensor_terms_equal_the_worlds_numpy_terms() -> None:
             np.testing.assert_array_equal(terms.completion_time(task, t).numpy(), host)
 
 
-def test_the_hold_term_keeps_the_value_on_the_host(world, spatial) -> None:
+def test_a_hold_term_without_its_tensor_form_keeps_the_value_on_the_host(world,
+                                                                        spatial) -> None:
     policy = load_policy(world, device="cpu")
 
     def hold(task, near, xi):
@@ -154,6 +155,60 @@ def test_the_hold_term_keeps_the_value_on_the_host(world, spatial) -> None:
                         terms=ValueTerms(device_terms=device_terms(world, spatial), hold=hold,
                                          on_device=True))
     assert not isinstance(m.value([("mix_l", frozenset())]), TensorValue)
+
+
+def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, paths,
+                                                                        spatial) -> None:
+    """Plans that expect the monitor (issue 36 item 2): the predicted hold as tensor
+    operations, from the value's own points and completion times, gives the numpy hold's
+    seconds, so a GPU steers a monitored plan without leaving the device; in float32 too,
+    to its rounding. A value with the hold is then a tensor value."""
+    from rapidds.execution.slowdowns import HoldModel, approach_speeds
+    from rapidds.human.slowdowns import SlowdownBelief
+    from rapidds.worlds.reactions import cell_reactions
+
+    limits = cell_reactions(world)[1]
+    model = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits),
+                      SlowdownBelief(0.8, 0.2))
+    terms = world.tensor_terms("cpu")
+    near = ["secure_piece", "prep_vise"]
+    for task in ("mix_l", "mix_r", "brush"):
+        host = model.hold(task, near, paths)
+        assert (host > 0).all() and len(np.unique(host.round(6))) > 20  # held, by varying time
+        q = torch.from_numpy(paths)
+        pts = terms.points(q)
+        done = terms.completion_time(task, q, pts)
+        # the painting terms are float64; a world's float32 points give a float32 hold
+        for dtype, rtol, atol in ((torch.float64, 1e-9, 1e-9), (torch.float32, 2e-3, 2e-3)):
+            got = model.tensor_hold(task, near, q.to(dtype), pts.to(dtype), done.to(dtype))
+            assert got.dtype == dtype
+            np.testing.assert_allclose(got.numpy(), host, rtol=rtol, atol=atol)
+        assert not model.tensor_hold(task, [], q, pts, done).any()
+
+    policy = load_policy(world, device="cpu")
+    requests = [("mix_l", frozenset({"secure_piece"})), ("brush", frozenset()),
+                ("mix_r", frozenset({"secure_piece", "prep_vise"}))]
+
+    def motion(device_hold) -> DiffusionMotion:
+        return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                               12.0, SteeringConfig(particles=2, candidates=3, steps=3),
+                               terms=ValueTerms(device_terms=device_terms(world, spatial),
+                                                hold=model.hold, device_hold=device_hold,
+                                                on_device=True))
+
+    rows = paths[: 3 * 2 * 3 * 2]
+    dev_value = motion(model.tensor_hold).value(requests)
+    assert isinstance(dev_value, TensorValue)
+    host_value = DiffusionMotion(
+        policy, world.completion_time, workspace_cost(world, spatial), 12.0,
+        SteeringConfig(particles=2, candidates=3, steps=3),
+        terms=ValueTerms(hold=model.hold)).value(requests)
+    want = host_value(rows)
+    np.testing.assert_allclose(dev_value(torch.from_numpy(rows)).numpy(), want, rtol=1e-9)
+    without = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
+                              12.0, SteeringConfig(particles=2, candidates=3, steps=3)
+                              ).value(requests)(rows)
+    assert (want > without).any()  # the hold is in the value
 
 
 def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spatial) -> None:

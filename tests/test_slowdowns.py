@@ -230,6 +230,29 @@ def test_a_reactive_run_plans_with_and_learns_its_slowdowns(fetch_policy, tmp_pa
     assert all(belief.pairs[k][2] >= 1 for k in learned)
 
 
+def test_a_monitored_run_on_the_device_path_scores_its_holds_there(fetch_policy, monkeypatch):
+    """With steering on the device (forced here on the CPU, as benchmarks do), a run that
+    plans for the monitor scores its candidates, hold included, as tensor operations: the
+    value handed to steering is a tensor value, never the host's fallback."""
+    import rapidds.motion.diffusion_motion as dm
+    from rapidds.motion.steering import TensorValue
+
+    kinds: list[bool] = []
+    real = dm.steer
+
+    def watched(policy, request, value, **kw):
+        kinds.append(isinstance(value, TensorValue))
+        return real(policy, request, value, **kw)
+
+    monkeypatch.setattr(dm, "steer", watched)
+    monkeypatch.setattr(dm.DiffusionMotion, "default_on_device", True)
+    cfg = RunConfig(human="slow-middle", adapt="none", cycles=1, seed=5, execution="reactive",
+                    **SMALL)
+    rec = AdaptiveRun(cfg, fetch_policy).run()[0]
+    assert kinds and all(kinds)
+    assert rec.slowdowns is not None and set(rec.slowdowns.predicted) == set(rec.tasks("robot"))
+
+
 def test_a_planned_run_has_no_slowdowns_in_its_record_or_model(fetch_policy):
     run = AdaptiveRun(RunConfig(human="slow-middle", cycles=1, seed=5, **SMALL), fetch_policy)
     rec = run.run()[0]

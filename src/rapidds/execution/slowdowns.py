@@ -32,13 +32,14 @@ elementwise array arithmetic (no Python loop over trajectories), so it can run a
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from rapidds.cache import cached_arrays, code_version, content_key
-from rapidds.execution.policies import directed_arrays, monitor_rates
+from rapidds.execution.policies import directed_arrays, monitor_rates, protective_distance
 from rapidds.human.slowdowns import SlowdownBelief
 from rapidds.human.spatial import SpatialModel
 from rapidds.worlds.base import World
@@ -84,6 +85,19 @@ def directed_rates(limits: SafetyLimits, robot: np.ndarray, velocity: np.ndarray
     total = np.linalg.norm(velocity, axis=-1).max(axis=-1)
     v_r = np.where(norm[..., 0] <= 1e-9, total, v_r)
     return monitor_rates(limits, d, approach, v_r)
+
+
+def _tensor_rates(limits: SafetyLimits, separation: Any, human_speed: Any,
+                  robot_speed: Any) -> Any:
+    """:func:`~rapidds.execution.policies.monitor_rates` as tensor operations."""
+    import torch
+
+    still = protective_distance(limits, human_speed, 0.0 * robot_speed)
+    per_rate = protective_distance(limits, human_speed, robot_speed) - still
+    room = separation - still
+    safe = torch.where(per_rate > 0.0, per_rate, torch.ones_like(per_rate))
+    r = torch.where(per_rate > 0.0, (room / safe).clamp(max=1.0), torch.ones_like(room))
+    return torch.where(room < 0.0, torch.zeros_like(r), r)
 
 
 def approach_speeds(world: World, spatial: SpatialModel, limits: SafetyLimits,
@@ -148,6 +162,7 @@ class HoldModel:
     limits: SafetyLimits
     speeds: Mapping[str, np.ndarray]
     belief: SlowdownBelief | None = None
+    _tables: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def raw(self, task: str, concurrent: Iterable[str], xi: np.ndarray) -> dict[str, np.ndarray]:
         """Per concurrent person's task, the uncorrected lost time of trajectories xi (N, H, d)
@@ -195,6 +210,81 @@ class HoldModel:
         dist = self._distance
         return np.stack([(dist(task, inside + h * e) - dist(task, inside - h * e)) / (2 * h)
                          for h, e in zip(step, np.eye(len(lo)), strict=True)], axis=-1)
+
+    def tensor_hold(self, task: str, concurrent: Iterable[str], xi: Any, points: Any,
+                    done: Any) -> Any:
+        """:meth:`hold` as tensor operations on the device of the steering value's own
+        workspace points (N, H, P, w) and completion times (N,) of trajectories xi (N, H, d):
+        no copy to the host inside the denoising loop, so a GPU scores a monitored plan's
+        candidates where it samples them. The numpy path's arithmetic, rounded apart (tests
+        check the two agree); the host's stays the stored records'."""
+        import torch
+
+        dt = self.world.dt
+        vel = torch.cat([torch.diff(points, dim=1) / dt, torch.zeros_like(points[:, :1])], dim=1)
+        step = torch.arange(points.shape[1], device=points.device, dtype=points.dtype) * dt
+        active = step[None] < done[:, None] - 1e-9
+        out = None
+        b = self.belief
+        for i in dict.fromkeys(concurrent):
+            dist = self._tensor_distance(i, points)                        # (N, H, P)
+            near = dist.argmin(dim=-1, keepdim=True)
+            d = dist.gather(-1, near)[..., 0]
+            x = points.gather(-2, near[..., None].expand(*near.shape, points.shape[-1]))[..., 0, :]
+            grad = torch.stack(self._tensor_gradient(i, x), dim=-1)
+            norm = torch.linalg.vector_norm(grad, dim=-1)
+            # directed_rates: the robot's directed speed towards the route's point nearest to
+            # its nearest body point (directed_arrays with that one point as the person)
+            route = x - d[..., None] * grad / norm.clamp(min=1e-12)[..., None]
+            to_h = route[..., None, :] - points                              # (N, H, P, w)
+            length = torch.linalg.vector_norm(to_h, dim=-1).clamp(min=1e-12)
+            v_r = ((vel * to_h).sum(dim=-1) / length).amax(dim=-1).clamp(min=0.0)
+            total = torch.linalg.vector_norm(vel, dim=-1).amax(dim=-1)
+            v_r = torch.where(norm <= 1e-9, total, v_r)
+            rates = _tensor_rates(self.limits, d, self._tensor_approach(i, x), v_r)
+            lost = (dt * (1.0 / rates.clamp(min=FLOOR) - 1.0) * active).sum(dim=-1)
+            lost = lost * (1.0 if b is None else b.factor(task, i))
+            out = lost if out is None else torch.maximum(out, lost)
+        return torch.zeros_like(done) if out is None else out
+
+    def _tensor_distance(self, task: str, x: Any) -> Any:
+        """:meth:`_distance` of points (..., d) as tensor operations on their device."""
+        import torch
+
+        s = self.spatial[task].point_cost(x)
+        tiny = torch.finfo(s.dtype).tiny  # float32's, where 1e-300 would round to 0
+        return -torch.log(s.clamp(min=max(tiny, 1e-300))) / self.spatial.config.beta
+
+    def _tensor_gradient(self, task: str, x: Any) -> list[Any]:
+        """:meth:`_gradient` as tensor operations: the d components, each (...)."""
+        import torch
+
+        cfg = self.spatial.config
+        lo, hi = np.asarray(cfg.bounds, dtype=float).T
+        step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
+        at = {"device": x.device, "dtype": x.dtype}
+        inside = torch.clamp(x, torch.as_tensor(lo + step, **at), torch.as_tensor(hi - step, **at))
+        out = []
+        for k, h in enumerate(step):
+            e = torch.zeros(len(lo), **at)
+            e[k] = h
+            out.append((self._tensor_distance(task, inside + e)
+                        - self._tensor_distance(task, inside - e)) / (2 * h))
+        return out
+
+    def _tensor_approach(self, task: str, x: Any) -> Any:
+        """:meth:`_approach` as tensor operations; the speeds' corner table is copied to the
+        device once per task."""
+        import torch
+
+        v = self.speeds.get(task)
+        if v is None:
+            return torch.zeros(x.shape[:-1], device=x.device, dtype=x.dtype)
+        model = self.spatial[task]
+        key = (task, x.device, x.dtype)
+        if key not in self._tables:
+            self._tables[key] = model.field_table(v, x.device, x.dtype)
+        return model.field_at(self._tables[key], x)
 
     def hold(self, task: str, concurrent: Iterable[str], xi: np.ndarray) -> np.ndarray:
         """Predicted lost time beside C_j = ``concurrent``: the largest over its tasks of the

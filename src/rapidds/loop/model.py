@@ -20,6 +20,7 @@ from rapidds.human.temporal import TemporalModel
 from rapidds.loop.carry import Stamped, decode_plans, encode_plans
 from rapidds.loop.config import RunConfig
 from rapidds.motion.diffusion_motion import (
+    DeviceHold,
     DeviceTermsFactory,
     HoldTime,
     HostTerms,
@@ -162,11 +163,12 @@ def _points_cost(spatial: SpatialModel, tasks: Iterable[str], points: Any) -> An
     return spatial.cost(tasks, points.reshape(points.shape[0], -1, points.shape[-1]))
 
 
-def value_terms(world: World, spatial: SpatialModel, hold: HoldTime | None = None
-                ) -> ValueTerms:
+def value_terms(world: World, spatial: SpatialModel, hold: HoldTime | None = None,
+                device_hold: DeviceHold | None = None) -> ValueTerms:
     """What ``world`` adds to a run's steering value: its robot's timed duration, its terms
-    on a device and on the host where it has them, and ``hold``, the safety monitor's."""
-    return ValueTerms(duration=robot_duration(world), hold=hold,
+    on a device and on the host where it has them, and ``hold``, the safety monitor's (with
+    ``device_hold``, the same as tensor operations, so that a GPU scores it)."""
+    return ValueTerms(duration=robot_duration(world), hold=hold, device_hold=device_hold,
                       device_terms=device_terms(world, spatial),
                       host_terms=host_terms(world, spatial))
 

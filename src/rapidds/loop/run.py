@@ -299,7 +299,8 @@ class AdaptiveRun:
             0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
                            seed=int(rng.integers(2**31)), steps=cfg.steps),
-            terms=value_terms(self.world, spatial, None if holds is None else holds.hold))
+            terms=value_terms(self.world, spatial, None if holds is None else holds.hold,
+                              None if holds is None else holds.tensor_hold))
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)

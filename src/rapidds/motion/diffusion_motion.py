@@ -34,6 +34,10 @@ CompletionTime = Callable[[str, np.ndarray], np.ndarray]
 """(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
 HoldTime = Callable[[str, Iterable[str], np.ndarray], np.ndarray]
 """(task, C_j, xi (N, H, d)) -> (N,) seconds the safety monitor is predicted to add."""
+DeviceHold = Callable[[str, Iterable[str], torch.Tensor, torch.Tensor, torch.Tensor],
+                     torch.Tensor]
+""":data:`HoldTime` as tensor operations: (task, C_j, xi (N, H, d), their workspace points
+(N, H, P, w), their completion times (N,)) -> (N,), on the tensors' device."""
 
 
 class DeviceTerms(Protocol):
@@ -111,13 +115,15 @@ class ValueTerms:
     duration: the chosen trajectory's d_j^r (the arm's time-parameterized time; None: the
     completion time of its path); hold: the time the safety monitor would hold it (None: the
     paper's V); device_terms: the world's value as tensor operations on the policy's device;
-    on_device: score there (None: :attr:`DiffusionMotion.default_on_device`); host_terms: the
-    host's value from points shared by its terms (None: ``completion_time`` and
-    ``spatial_cost`` each per request).
+    device_hold: ``hold`` as tensor operations there (None: a value with a hold term is scored
+    on the host); on_device: score there (None: :attr:`DiffusionMotion.default_on_device`);
+    host_terms: the host's value from points shared by its terms (None: ``completion_time``
+    and ``spatial_cost`` each per request).
     """
 
     duration: Callable[[str, np.ndarray], float] | None = None
     hold: HoldTime | None = None
+    device_hold: DeviceHold | None = None
     device_terms: DeviceTermsFactory | None = None
     on_device: bool | None = None
     host_terms: HostTerms | None = None
@@ -155,6 +161,7 @@ class DiffusionMotion:
         self._duration = terms.duration
         # planning for the safety monitor: V gains the time it would take (None: the paper's V)
         self.hold = terms.hold
+        self.device_hold = terms.device_hold
         # the value on the policy's device (no host copy per denoising step): by default where
         # the policy is not on the CPU, whose numpy value keeps the stored records' bits
         self.device_terms = terms.device_terms
@@ -191,19 +198,25 @@ class DiffusionMotion:
         return v
 
     def _term_values(self, terms: DeviceTerms | HostTerms, keys: Sequence[MotionKey],
-                     xi: Any) -> Any:
+                     xi: Any, hold: DeviceHold | None = None) -> Any:
         """The value from ``terms``: the workspace points of every request's rows in one pass,
         then the completion time once per task and the spatial cost once per concurrent set,
-        over the rows of all requests that share it. Each term is row by row, so grouping
-        changes no value; it saves a call's fixed cost per request, tens of kernel launches
-        on a GPU and the forward kinematics' per-call overhead on the host."""
+        over the rows of all requests that share it; ``hold`` (tensors) once per request
+        with a concurrent set, from the same points and completion times. Each term is row by
+        row, so grouping changes no value; it saves a call's fixed cost per request, tens of
+        kernel launches on a GPU and the forward kinematics' per-call overhead on the host."""
         pts = terms.points(xi)
         per_key = xi.shape[0] // len(keys)
-        v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
+        done = v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
             terms.completion_time(task, _take(xi, rows), _take(pts, rows))))
         if self.gamma > 0 and any(concurrent for _, concurrent in keys):
             v = v + _grouped(keys, per_key, lambda key: frozenset(key[1]), lambda conc, rows: (
                 self.gamma * terms.spatial_cost(conc, _take(pts, rows)) if conc else None))
+        if hold is not None and any(concurrent for _, concurrent in keys):
+            v = v + _grouped(keys, per_key, lambda key: (key[0], frozenset(key[1])),
+                             lambda key, rows: hold(key[0], key[1], _take(xi, rows),
+                                                    _take(pts, rows), _take(done, rows))
+                             if key[1] else None)
         return v
 
     @property
@@ -215,12 +228,14 @@ class DiffusionMotion:
 
     def value(self, requests: Sequence[MotionKey]) -> ValueFn | TensorValue:
         """V of a steering batch of ``requests``: on the policy's device when the world has
-        tensor terms and :attr:`batches_cycle` and no hold term (numpy) joins; else the numpy
-        value on the host."""
+        tensor terms and :attr:`batches_cycle`, and a hold term, if any, comes as tensor
+        operations too (``device_hold``); else the numpy value on the host."""
         b = self.config.particles
-        if self.batches_cycle and self.device_terms is not None and self.hold is None:
+        hold = self.device_hold if self.hold is not None else None
+        if (self.batches_cycle and self.device_terms is not None
+                and (self.hold is None or hold is not None)):
             terms = self.device_terms(self.policy.device)
-            return TensorValue(lambda xi: self._term_values(terms, requests, xi))
+            return TensorValue(lambda xi: self._term_values(terms, requests, xi, hold))
         return lambda xi: self._values(requests, xi, b)
 
     def plan(self, requests: Sequence[MotionKey]) -> list[MotionPlan]:

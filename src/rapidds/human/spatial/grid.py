@@ -340,15 +340,33 @@ class SpatialCostModel:
         indexing instead of one per corner."""
         key = (device, dtype)
         if key not in self._grid_cache:
-            d = len(self.config.shape)
-            offsets = [sum(c * s for c, s in zip(corner, self._strides, strict=True))
-                       for corner in itertools.product((0, 1), repeat=d)]
-            padded = np.concatenate([self._mean, np.zeros(max(offsets))])
-            v = len(self._mean)
-            table = torch.as_tensor(np.stack([padded[o:o + v] for o in offsets]), dtype=dtype,
-                                    device=device)
+            table = self.field_table(self._mean, device, dtype)
             self._grid_cache[key] = (table, table.amin(dim=0), table.amax(dim=0))
         return self._grid_cache[key]  # type: ignore[return-value]
+
+    def field_table(self, values: np.ndarray, device: torch.device, dtype: torch.dtype
+                    ) -> torch.Tensor:
+        """(2^d, V) corner table of a field ``values`` (V,) on this model's grid (the posterior
+        mean's is :meth:`_corner_table`'s), for :meth:`field_at`. Build it once per field and
+        device: building copies the field to the device."""
+        d = len(self.config.shape)
+        offsets = [sum(c * s for c, s in zip(corner, self._strides, strict=True))
+                   for corner in itertools.product((0, 1), repeat=d)]
+        values = np.asarray(values, dtype=float)
+        if values.shape != self._mean.shape:
+            raise ValueError(f"a field on this grid has shape {self._mean.shape}, got "
+                             f"{values.shape}")
+        padded = np.concatenate([values, np.zeros(max(offsets))])
+        v = len(values)
+        return torch.as_tensor(np.stack([padded[o:o + v] for o in offsets]), dtype=dtype,
+                               device=device)
+
+    def field_at(self, table: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Multilinear interpolation of the field of a :meth:`field_table` at points x (..., d),
+        clamped onto the grid, as the posterior mean is evaluated: (...). Tensor operations on
+        x's device (the slowdown model's approach speeds where steering runs)."""
+        base, frac = self._stencil(x.reshape(-1, x.shape[-1]))
+        return self._sum_corners(table, base, self._weights(frac)).reshape(x.shape[:-1])
 
     def _grid_constants(self, device: torch.device, dtype: torch.dtype
                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -395,7 +413,14 @@ class SpatialCostModel:
         a fixed order, so the result does not depend on how many points are evaluated
         together."""
         weights = self._weights(frac) if weights is None else weights
-        table = self._corner_table(weights.device, weights.dtype)[0]
+        return self._sum_corners(self._corner_table(weights.device, weights.dtype)[0], base,
+                                 weights)
+
+    @staticmethod
+    def _sum_corners(table: torch.Tensor, base: torch.Tensor, weights: torch.Tensor
+                     ) -> torch.Tensor:
+        """The corners of ``table`` at the cells ``base`` weighted by ``weights``, summed one
+        corner after another in a fixed order, (n,)."""
         corners = torch.index_select(table, 1, base)                        # (2^d, n)
         terms = corners.mul_(weights)
         out = terms[0].clone()
