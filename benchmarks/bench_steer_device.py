@@ -1,6 +1,7 @@
 """One painting cycle's steering batch (6 requests x 4 particles x 8 candidates, the policy's
 10 steps) with the value on the host (numpy, the CPU's path) and on the policy's device
-(tensor terms), on each device given: seconds per batch, and on CUDA the host synchronisations
+(tensor terms), each without and with the safety monitor's predicted hold (a plan that expects
+the monitor), on each device given: seconds per batch, and on CUDA the host synchronisations
 inside it (``torch.cuda.set_sync_debug_mode``).
 
     .venv/bin/python benchmarks/bench_steer_device.py [--devices cpu,cuda] [--repeat 5]
@@ -19,11 +20,13 @@ import numpy as np
 import torch
 from _common import cpu_model, load_average
 
+from rapidds.execution.slowdowns import HoldModel, approach_speeds
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.worlds.painting import PaintingWorld
+from rapidds.worlds.reactions import cell_reactions
 
 REQUESTS = [("mix_l", frozenset({"secure_piece"})), ("mix_r", frozenset({"secure_piece"})),
             ("brush", frozenset({"prep_vise"})), ("mix_l", frozenset({"prep_vise"})),
@@ -44,14 +47,20 @@ def measure(device: str, repeat: int) -> dict[str, object]:
         SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid),
         world.prior().paths)
     policy = load_policy(world, device=device)
+    limits = cell_reactions(world)[1]
+    holds = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits))
     out: dict[str, object] = {}
-    for label, on_device in (("host value", False), ("device value", True)):
-        def motion(seed: int, on: bool = on_device) -> DiffusionMotion:
+    for label, on_device, held in (("host value", False, False), ("device value", True, False),
+                                   ("host value + hold", False, True),
+                                   ("device value + hold", True, True)):
+        def motion(seed: int, on: bool = on_device, held: bool = held) -> DiffusionMotion:
             return DiffusionMotion(policy, world.completion_time,
                                    workspace_cost(world, spatial), 12.0,
                                    SteeringConfig(seed=seed),
                                    terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                                    on_device=on))
+                                                    hold=holds.hold if held else None,
+                                                    device_hold=holds.tensor_hold if held
+                                                    else None, on_device=on))
 
         motion(99).plan(REQUESTS)  # warm-up: kernels, caches, tensor terms
         wall, cpu, syncs = [], [], 0

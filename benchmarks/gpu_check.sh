@@ -3,16 +3,18 @@
 # painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles; 300 training
 # steps, float32, and on cuda also float32 op by op and bf16), the painting cycle with the
 # shipped distilled policy on cpu and cuda, then one cycle's steering batch with the value on
-# the host and on the device, with the host synchronisations inside it (bench_steer_device.py).
+# the host and on the device, each without and with the monitor's predicted hold, with the host
+# synchronisations inside it (bench_steer_device.py).
 # Most important first; a part that fails or runs out of time is logged and the next one still
 # runs. From anywhere (a GPU machine lacking packages: PAYLOAD from benchmarks/gpu_payload.sh):
 #     OUT=/some/dir PYTHON=python3 [PAYLOAD=.dev/site312.tar.xz] [TRAIN_ON=cuda] \
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured"): unpacking and imports 28 s,
-# the device part 174 s with TRAIN_ON=cuda (expect about 50 s more now: the paper's network's cpu
-# runs really on the CPU, a 4-thread CPU run and a warmed-up cuda run), the distilled part over 100 s (its CPU cycles took
-# 0.8-1.1 s on that Xeon), the steering batch about 40 s. COMMIT: a device's copy of .git can be
-# stale (it was there), so name the commit measured.
+# the device part 174 s with TRAIN_ON=cuda (expect about 50 s more now: the paper's network's
+# cpu runs really on the CPU, a 4-thread CPU run and a warmed-up cuda run), the distilled part
+# over 100 s (its CPU cycles took 0.8-1.1 s on that Xeon), the steering batch about 40 s (80 s
+# now, with the hold's two runs). COMMIT: a device's copy of .git can be stale (it was there),
+# so name the commit measured.
 # First, about 25 s here (up to twice that on a slower core): the CPU's facts (cpu_facts.py: its
 # vector units, torch's and oneDNN's settings and kernels, one pass of each network on that CPU,
 # and in bf16, which an AMX Xeon may run far faster). Results: $OUT/cpu_facts.json,
@@ -49,4 +51,4 @@ part 280 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
 part 150 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --policy distilled --json "$OUT/distilled.json"
-part 60 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
+part 120 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"

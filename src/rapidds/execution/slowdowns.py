@@ -256,21 +256,24 @@ class HoldModel:
         return -torch.log(s.clamp(min=max(tiny, 1e-300))) / self.spatial.config.beta
 
     def _tensor_gradient(self, task: str, x: Any) -> list[Any]:
-        """:meth:`_gradient` as tensor operations: the d components, each (...)."""
+        """:meth:`_gradient` as tensor operations: the d components, each (...). Its constants
+        are copied to the device once (a copy per call would make a GPU wait for the host)."""
         import torch
 
-        cfg = self.spatial.config
-        lo, hi = np.asarray(cfg.bounds, dtype=float).T
-        step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
-        at = {"device": x.device, "dtype": x.dtype}
-        inside = torch.clamp(x, torch.as_tensor(lo + step, **at), torch.as_tensor(hi - step, **at))
-        out = []
-        for k, h in enumerate(step):
-            e = torch.zeros(len(lo), **at)
-            e[k] = h
-            out.append((self._tensor_distance(task, inside + e)
-                        - self._tensor_distance(task, inside - e)) / (2 * h))
-        return out
+        key = ("gradient", x.device, x.dtype)
+        if key not in self._tables:
+            cfg = self.spatial.config
+            lo, hi = np.asarray(cfg.bounds, dtype=float).T
+            step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
+            at = {"device": x.device, "dtype": x.dtype}
+            self._tables[key] = (torch.as_tensor(lo + step, **at),
+                                 torch.as_tensor(hi - step, **at),
+                                 [(float(h), torch.as_tensor(h * e, **at))
+                                  for h, e in zip(step, np.eye(len(lo)), strict=True)])
+        low, high, steps = self._tables[key]
+        inside = torch.clamp(x, low, high)
+        return [(self._tensor_distance(task, inside + e) - self._tensor_distance(task, inside - e))
+                / (2 * h) for h, e in steps]
 
     def _tensor_approach(self, task: str, x: Any) -> Any:
         """:meth:`_approach` as tensor operations; the speeds' corner table is copied to the
