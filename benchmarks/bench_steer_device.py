@@ -2,7 +2,8 @@
 10 steps) with the value on the host (numpy, the CPU's path) and on the policy's device
 (tensor terms), each without and with the safety monitor's predicted hold (a plan that expects
 the monitor), on each device given: seconds per batch, and on CUDA the host synchronisations
-inside it (``torch.cuda.set_sync_debug_mode``).
+inside it (``torch.cuda.set_sync_debug_mode``) and the tensor operations it issues (each a
+kernel launched by the host on a GPU; counted on any device).
 
     .venv/bin/python benchmarks/bench_steer_device.py [--devices cpu,cuda] [--repeat 5]
 """
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from _common import cpu_model, load_average
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from rapidds.execution.slowdowns import HoldModel, approach_speeds
 from rapidds.human.spatial import SpatialConfig, SpatialModel
@@ -32,6 +34,16 @@ REQUESTS = [("mix_l", frozenset({"secure_piece"})), ("mix_r", frozenset({"secure
             ("brush", frozenset({"prep_vise"})), ("mix_l", frozenset({"prep_vise"})),
             ("mix_r", frozenset({"prep_vise", "secure_piece"})),
             ("brush", frozenset({"secure_piece"}))]
+
+
+class _OpCount(TorchDispatchMode):
+    """Counts the ATen operations run inside it."""
+
+    count = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # type: ignore[override]
+        self.count += 1
+        return func(*args, **(kwargs or {}))
 
 
 def _sync(device: str) -> None:
@@ -78,8 +90,10 @@ def measure(device: str, repeat: int) -> dict[str, object]:
             wall.append(time.perf_counter() - w0)
             cpu.append(time.process_time() - c0)
             syncs += sum("synchroniz" in str(w.message) for w in caught)
+        with _OpCount() as ops:  # untimed: the tensor operations a batch issues (on a GPU,
+            motion(repeat).plan(REQUESTS)  # each a kernel the host launches)
         out[label] = {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu),
-                      "syncs_per_batch": syncs / repeat,
+                      "syncs_per_batch": syncs / repeat, "tensor_ops_per_batch": ops.count,
                       "mean_duration": float(np.mean([p.duration for p in plans]))}
         print(f"{device} {label}: {json.dumps(out[label])}", flush=True)
     return out

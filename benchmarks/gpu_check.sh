@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, in one run of about 6 minutes: the painting cycle and
+# Issue 36 on a machine with a CUDA GPU, in one run of about 7-8 minutes: the painting cycle and
 # painting-policy training on cpu and cuda (bench_device.py: 2 seeds x 5 cycles; 300 training
 # steps, float32, and on cuda also float32 op by op and bf16), the painting cycle with the
 # shipped distilled policy on cpu and cuda, then one cycle's steering batch with the value on

@@ -168,8 +168,12 @@ def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, 
     from rapidds.worlds.reactions import cell_reactions
 
     limits = cell_reactions(world)[1]
-    model = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits),
-                      SlowdownBelief(0.8, 0.2))
+    belief = SlowdownBelief(0.8, 0.2)
+    # learned corrections that differ by pair: one person's task beside two robot tasks
+    assert belief.observe("mix_l", "secure_piece", 2.0, 0.5)
+    assert belief.observe("mix_r", "secure_piece", 2.0, 3.0)
+    assert belief.factor("mix_l", "secure_piece") < belief.factor("mix_r", "secure_piece")
+    model = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits), belief)
     terms = world.tensor_terms("cpu")
     near = ["secure_piece", "prep_vise"]
     for task in ("mix_l", "mix_r", "brush"):
@@ -179,11 +183,12 @@ def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, 
         pts = terms.points(q)
         done = terms.completion_time(task, q, pts)
         # the painting terms are float64; a world's float32 points give a float32 hold
+        key = [(task, frozenset(near))]
         for dtype, rtol, atol in ((torch.float64, 1e-9, 1e-9), (torch.float32, 2e-3, 2e-3)):
-            got = model.tensor_hold(task, near, q.to(dtype), pts.to(dtype), done.to(dtype))
+            got = model.tensor_hold(key, len(q), q.to(dtype), pts.to(dtype), done.to(dtype))
             assert got.dtype == dtype
             np.testing.assert_allclose(got.numpy(), host, rtol=rtol, atol=atol)
-        assert not model.tensor_hold(task, [], q, pts, done).any()
+        assert not model.tensor_hold([(task, frozenset())], len(q), q, pts, done).any()
 
     policy = load_policy(world, device="cpu")
     requests = [("mix_l", frozenset({"secure_piece"})), ("brush", frozenset()),

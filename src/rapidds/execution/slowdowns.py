@@ -211,41 +211,59 @@ class HoldModel:
         return np.stack([(dist(task, inside + h * e) - dist(task, inside - h * e)) / (2 * h)
                          for h, e in zip(step, np.eye(len(lo)), strict=True)], axis=-1)
 
-    def tensor_hold(self, task: str, concurrent: Iterable[str], xi: Any, points: Any,
-                    done: Any) -> Any:
-        """:meth:`hold` as tensor operations on the device of the steering value's own
-        workspace points (N, H, P, w) and completion times (N,) of trajectories xi (N, H, d):
-        no copy to the host inside the denoising loop, so a GPU scores a monitored plan's
-        candidates where it samples them. The numpy path's arithmetic, rounded apart (tests
-        check the two agree); the host's stays the stored records'."""
+    def tensor_hold(self, keys: Sequence[tuple[str, frozenset[str]]], per_key: int, xi: Any,
+                    points: Any, done: Any) -> Any:
+        """:meth:`hold` of every request of a steering batch as tensor operations on the
+        device of the steering value's own workspace points (N, H, P, w) and completion times
+        (N,) of trajectories xi (N, H, d), request k's being rows k * per_key on: (N,), no copy
+        to the host inside the denoising loop, so a GPU scores a monitored plan's candidates
+        where it samples them. The prediction depends on the robot's task only through the
+        steps still moving and the correction, so it is made once per person's task over the
+        rows of every request beside it (each operation a kernel on a GPU). The numpy path's
+        arithmetic, rounded apart (tests check the two agree); the host's stays the stored
+        records'."""
         import torch
 
         dt = self.world.dt
         vel = torch.cat([torch.diff(points, dim=1) / dt, torch.zeros_like(points[:, :1])], dim=1)
         step = torch.arange(points.shape[1], device=points.device, dtype=points.dtype) * dt
         active = step[None] < done[:, None] - 1e-9
-        out = None
+        out = torch.zeros_like(done)
         b = self.belief
-        for i in dict.fromkeys(concurrent):
-            dist = self._tensor_distance(i, points)                        # (N, H, P)
-            near = dist.argmin(dim=-1, keepdim=True)
-            d = dist.gather(-1, near)[..., 0]
-            x = points.gather(-2, near[..., None].expand(*near.shape, points.shape[-1]))[..., 0, :]
-            grad = torch.stack(self._tensor_gradient(i, x), dim=-1)
-            norm = torch.linalg.vector_norm(grad, dim=-1)
-            # directed_rates: the robot's directed speed towards the route's point nearest to
-            # its nearest body point (directed_arrays with that one point as the person)
-            route = x - d[..., None] * grad / norm.clamp(min=1e-12)[..., None]
-            to_h = route[..., None, :] - points                              # (N, H, P, w)
-            length = torch.linalg.vector_norm(to_h, dim=-1).clamp(min=1e-12)
-            v_r = ((vel * to_h).sum(dim=-1) / length).amax(dim=-1).clamp(min=0.0)
-            total = torch.linalg.vector_norm(vel, dim=-1).amax(dim=-1)
-            v_r = torch.where(norm <= 1e-9, total, v_r)
-            rates = _tensor_rates(self.limits, d, self._tensor_approach(i, x), v_r)
-            lost = (dt * (1.0 / rates.clamp(min=FLOOR) - 1.0) * active).sum(dim=-1)
-            lost = lost * (1.0 if b is None else b.factor(task, i))
-            out = lost if out is None else torch.maximum(out, lost)
-        return torch.zeros_like(done) if out is None else out
+        for i in dict.fromkeys(i for _, near in keys for i in near):
+            ks = [k for k, (_, near) in enumerate(keys) if i in near]
+            rows = [slice(k * per_key, (k + 1) * per_key) for k in ks]
+            lost = self._tensor_lost(i, *(torch.cat([a[r] for r in rows]) if len(rows) > 1
+                                          else a[rows[0]] for a in (points, vel, active)))
+            for j, (k, r) in enumerate(zip(ks, rows, strict=True)):
+                mine = lost[j * per_key:(j + 1) * per_key]
+                if b is not None:
+                    mine = mine * b.factor(keys[k][0], i)
+                out[r] = torch.maximum(out[r], mine)
+        return out
+
+    def _tensor_lost(self, task: str, points: Any, vel: Any, active: Any) -> Any:
+        """The uncorrected lost time (N,) beside the person's ``task`` of robot points
+        (N, H, P, w) with their full-rate velocities and the steps still moving (N, H):
+        :meth:`raw`'s per task, as tensor operations."""
+        import torch
+
+        dist = self._tensor_distance(task, points)                            # (N, H, P)
+        near = dist.argmin(dim=-1, keepdim=True)
+        d = dist.gather(-1, near)[..., 0]
+        x = points.gather(-2, near[..., None].expand(*near.shape, points.shape[-1]))[..., 0, :]
+        grad = self._tensor_gradient(task, x)
+        norm = torch.linalg.vector_norm(grad, dim=-1)
+        # directed_rates: the robot's directed speed towards the route's point nearest to its
+        # nearest body point (directed_arrays with that one point as the person)
+        route = x - d[..., None] * grad / norm.clamp(min=1e-12)[..., None]
+        to_h = route[..., None, :] - points                                   # (N, H, P, w)
+        length = torch.linalg.vector_norm(to_h, dim=-1).clamp(min=1e-12)
+        v_r = ((vel * to_h).sum(dim=-1) / length).amax(dim=-1).clamp(min=0.0)
+        total = torch.linalg.vector_norm(vel, dim=-1).amax(dim=-1)
+        v_r = torch.where(norm <= 1e-9, total, v_r)
+        rates = _tensor_rates(self.limits, d, self._tensor_approach(task, x), v_r)
+        return (self.world.dt * (1.0 / rates.clamp(min=FLOOR) - 1.0) * active).sum(dim=-1)
 
     def _tensor_distance(self, task: str, x: Any) -> Any:
         """:meth:`_distance` of points (..., d) as tensor operations on their device."""
@@ -255,25 +273,28 @@ class HoldModel:
         tiny = torch.finfo(s.dtype).tiny  # float32's, where 1e-300 would round to 0
         return -torch.log(s.clamp(min=max(tiny, 1e-300))) / self.spatial.config.beta
 
-    def _tensor_gradient(self, task: str, x: Any) -> list[Any]:
-        """:meth:`_gradient` as tensor operations: the d components, each (...). Its constants
-        are copied to the device once (a copy per call would make a GPU wait for the host)."""
+    def _tensor_gradient(self, task: str, x: Any) -> Any:
+        """:meth:`_gradient` as tensor operations, (..., d): the 2d shifted points in one
+        evaluation of the belief. Its constants are copied to the device once (a copy per call
+        would make a GPU wait for the host)."""
         import torch
 
-        key = ("gradient", x.device, x.dtype)
+        key = ("gradient", x.device, x.dtype, x.ndim)
         if key not in self._tables:
             cfg = self.spatial.config
             lo, hi = np.asarray(cfg.bounds, dtype=float).T
             step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
             at = {"device": x.device, "dtype": x.dtype}
+            shifts = np.concatenate([np.diag(step), -np.diag(step)])           # (2d, d)
             self._tables[key] = (torch.as_tensor(lo + step, **at),
                                  torch.as_tensor(hi - step, **at),
-                                 [(float(h), torch.as_tensor(h * e, **at))
-                                  for h, e in zip(step, np.eye(len(lo)), strict=True)])
-        low, high, steps = self._tables[key]
-        inside = torch.clamp(x, low, high)
-        return [(self._tensor_distance(task, inside + e) - self._tensor_distance(task, inside - e))
-                / (2 * h) for h, e in steps]
+                                 torch.as_tensor(shifts, **at).reshape(-1, *[1] * (x.ndim - 1),
+                                                                       len(lo)),
+                                 torch.as_tensor(2 * step, **at))
+        low, high, shifts, width = self._tables[key]
+        dist = self._tensor_distance(task, torch.clamp(x, low, high)[None] + shifts)
+        n = width.shape[0]
+        return torch.movedim(dist[:n] - dist[n:], 0, -1) / width
 
     def _tensor_approach(self, task: str, x: Any) -> Any:
         """:meth:`_approach` as tensor operations; the speeds' corner table is copied to the

@@ -34,10 +34,11 @@ CompletionTime = Callable[[str, np.ndarray], np.ndarray]
 """(task, xi (N, H, d)) -> (N,) seconds until the trajectory completes the task."""
 HoldTime = Callable[[str, Iterable[str], np.ndarray], np.ndarray]
 """(task, C_j, xi (N, H, d)) -> (N,) seconds the safety monitor is predicted to add."""
-DeviceHold = Callable[[str, Iterable[str], torch.Tensor, torch.Tensor, torch.Tensor],
+DeviceHold = Callable[[Sequence[MotionKey], int, torch.Tensor, torch.Tensor, torch.Tensor],
                      torch.Tensor]
-""":data:`HoldTime` as tensor operations: (task, C_j, xi (N, H, d), their workspace points
-(N, H, P, w), their completion times (N,)) -> (N,), on the tensors' device."""
+""":data:`HoldTime` of a whole steering batch as tensor operations: (its requests, rows per
+request, xi (N, H, d), their workspace points (N, H, P, w), their completion times (N,)) ->
+(N,), 0 for a request beside no person's task, on the tensors' device."""
 
 
 class DeviceTerms(Protocol):
@@ -201,10 +202,10 @@ class DiffusionMotion:
                      xi: Any, hold: DeviceHold | None = None) -> Any:
         """The value from ``terms``: the workspace points of every request's rows in one pass,
         then the completion time once per task and the spatial cost once per concurrent set,
-        over the rows of all requests that share it; ``hold`` (tensors) once per request
-        with a concurrent set, from the same points and completion times. Each term is row by
-        row, so grouping changes no value; it saves a call's fixed cost per request, tens of
-        kernel launches on a GPU and the forward kinematics' per-call overhead on the host."""
+        over the rows of all requests that share it; ``hold`` (tensors) for the whole batch,
+        from the same points and completion times. Each term is row by row, so grouping
+        changes no value; it saves a call's fixed cost per request, tens of kernel launches on
+        a GPU and the forward kinematics' per-call overhead on the host."""
         pts = terms.points(xi)
         per_key = xi.shape[0] // len(keys)
         done = v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
@@ -213,10 +214,7 @@ class DiffusionMotion:
             v = v + _grouped(keys, per_key, lambda key: frozenset(key[1]), lambda conc, rows: (
                 self.gamma * terms.spatial_cost(conc, _take(pts, rows)) if conc else None))
         if hold is not None and any(concurrent for _, concurrent in keys):
-            v = v + _grouped(keys, per_key, lambda key: (key[0], frozenset(key[1])),
-                             lambda key, rows: hold(key[0], key[1], _take(xi, rows),
-                                                    _take(pts, rows), _take(done, rows))
-                             if key[1] else None)
+            v = v + hold(keys, per_key, xi, pts, done)
         return v
 
     @property
