@@ -17,10 +17,10 @@ Storage: :meth:`SpatialModel.to_dict` is JSON-safe (arrays as little-endian base
 and shape, so float64 beliefs and float32 MLP weights round-trip bit for bit);
 :meth:`SpatialModel.save` writes that dict as JSON with a SHA-256 of its body, atomically.
 
-The package's parts: :mod:`.config` (the settings), :mod:`.grid` (Eq. 7 and the belief of one
-task), :mod:`.surrogate` (the MLP, torch's autograd) and :mod:`.model` (a person's beliefs for
-all tasks, saved and loaded; arrays in :mod:`rapidds.codec`). Names are imported on first use,
-so reading a config does not load torch.
+The package's parts: :mod:`.config` (the settings), :mod:`.path_cost` (Eq. 7), :mod:`.grid`
+(the belief of one task), :mod:`.surrogate` (the MLP, torch's autograd) and :mod:`.model` (a
+person's beliefs for all tasks, saved and loaded; arrays in :mod:`rapidds.codec`). Names are
+imported on first use, so reading a config does not load torch.
 """
 
 from __future__ import annotations
@@ -31,8 +31,9 @@ from rapidds.lazy import submodule_attributes
 
 if TYPE_CHECKING:
     from rapidds.human.spatial.config import SpatialConfig
-    from rapidds.human.spatial.grid import SpatialCostModel, point_cost
+    from rapidds.human.spatial.grid import SpatialCostModel
     from rapidds.human.spatial.model import FORMAT, FORMAT_VERSION, SpatialModel
+    from rapidds.human.spatial.path_cost import point_cost
     from rapidds.human.spatial.surrogate import FitReport, SurrogateError
 
 __all__ = [
@@ -49,5 +50,5 @@ __all__ = [
 __getattr__ = submodule_attributes(__name__, {
     "FORMAT": "model", "FORMAT_VERSION": "model", "SpatialModel": "model",
     "FitReport": "surrogate", "SurrogateError": "surrogate", "SpatialConfig": "config",
-    "SpatialCostModel": "grid", "point_cost": "grid",
+    "SpatialCostModel": "grid", "point_cost": "path_cost",
 })

@@ -4,6 +4,7 @@ grid points, evaluated by multilinear interpolation or the MLP surrogate)."""
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import math
 import time
@@ -17,106 +18,13 @@ from numpy.typing import ArrayLike
 from rapidds.cache import cached_arrays, code_version, content_key
 from rapidds.codec import decode_array, encode_array
 from rapidds.errors import StateError
-from rapidds.human.spatial.config import SpatialConfig, _is_int, _is_real
+from rapidds.human.spatial.config import SpatialConfig, _is_int
+from rapidds.human.spatial.path_cost import check_path, point_cost
 from rapidds.human.spatial.surrogate import FitReport, Surrogate, SurrogateError
 
-__all__ = ["Points", "SpatialCostModel", "grid_trajectory_costs", "point_cost"]
-
-# Elements of point_cost's (chunk x S) temporaries: 1 MiB of float64 each, to stay in cache.
-_POINT_COST_PAIRS = 1 << 17
+__all__ = ["Points", "SpatialCostModel", "grid_trajectory_costs"]
 
 Points = TypeVar("Points", np.ndarray, torch.Tensor)
-
-
-def _check_points(a: ArrayLike, what: str, d: int | None = None) -> np.ndarray:
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise ValueError(f"{what} must be a non-empty (n, d) array, got shape {arr.shape}")
-    if d is not None and arr.shape[1] != d:
-        raise ValueError(f"{what} has {arr.shape[1]} coordinates per point, the model has {d}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{what} contains NaN or infinite coordinates")
-    return arr
-
-
-def _check_path(a: ArrayLike, what: str, d: int) -> np.ndarray:
-    """A validated human path, (T, d) (one body point) or (T, K, d) (K body points, each a
-    polyline over the same T samples), as float64 in the same layout."""
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim == 3:
-        if 0 in arr.shape:
-            raise ValueError(f"{what} must be a non-empty (T, K, d) array, got shape {arr.shape}")
-        if arr.shape[2] != d:
-            raise ValueError(f"{what} has {arr.shape[2]} coordinates per point, the model has {d}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{what} contains NaN or infinite coordinates")
-        return arr
-    if arr.ndim != 2:
-        raise ValueError(f"{what} must be a non-empty (T, d) or (T, K, d) array, got shape "
-                         f"{arr.shape}")
-    return _check_points(arr, what, d)
-
-
-def point_cost(
-    points: ArrayLike, human_traj: ArrayLike, beta: float, *, polyline: bool = True
-) -> np.ndarray:
-    """Eq. 7: s(x, xi_h) = max over the human path of exp(-beta ||x_h - x||), for every x.
-
-    Args:
-        points: (V, d) robot points x.
-        human_traj: (T, d) human path xi_h, T >= 1 samples in time order; or (T, K, d), K body
-            points (hands, elbows, ...) each followed over the same T samples: the cost is then
-            the max over the K paths, i.e. set by the body point nearest to x.
-        beta: distance decay, > 0.
-        polyline: True takes each path as the piecewise-linear route through its samples (the
-            person is between two samples between time steps); False takes the samples alone,
-            as Eq. 7 is printed, which leaves dips between samples spaced wider than ~1/beta.
-
-    Returns:
-        (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
-        exp(-beta * distance to the nearest path point or segment), computed coordinate by
-        coordinate on (chunk, S) arrays of about 1 MiB (S segments of all K paths together),
-        which stay in cache: several times faster than (chunk, S, d) arrays and einsum.
-    """
-    if not _is_real(beta) or not math.isfinite(beta) or beta <= 0:
-        raise ValueError(f"beta must be a finite number > 0, got {beta!r}")
-    pts = _check_points(points, "points")
-    traj = _check_path(human_traj, "human_traj", pts.shape[1])
-    paths = traj[None] if traj.ndim == 2 else traj.transpose(1, 0, 2)   # (K, T, d)
-    if polyline and paths.shape[1] > 1:
-        # The segments of every body point's path, and only those: no segment joins the end of
-        # one body point's path to the start of the next.
-        start = paths[:, :-1].reshape(-1, pts.shape[1])
-        seg = np.diff(paths, axis=1).reshape(-1, pts.shape[1])  # (S, d)
-        seg_len2 = np.einsum("sd,sd->s", seg, seg)
-        inv = np.divide(1.0, seg_len2, out=np.zeros_like(seg_len2), where=seg_len2 > 0)
-    else:
-        start = paths.reshape(-1, pts.shape[1])
-        seg, inv = np.zeros_like(start), np.zeros(len(start))
-    start_t, seg_t = start.T.copy(), seg.T.copy()                       # (d, S)
-    step = max(1, _POINT_COST_PAIRS // len(start))
-    nearest = np.empty(len(pts))
-    for k in range(0, len(pts), step):
-        rel = [pts[k:k + step, i, None] - start_t[i] for i in range(len(start_t))]  # d x (c, S)
-        t = np.clip(_coordinate_sum([r * g for r, g in zip(rel, seg_t, strict=True)]) * inv,
-                    0.0, 1.0)
-        for r, g in zip(rel, seg_t, strict=True):
-            r -= t * g
-        nearest[k:k + step] = _coordinate_sum([r * r for r in rel]).min(axis=1)
-    return np.exp(-float(beta) * np.sqrt(nearest))
-
-
-def _coordinate_sum(terms: list[np.ndarray]) -> np.ndarray:
-    """Sum of per-coordinate arrays in the order NumPy's einsum adds three coordinates
-    ((x + z) + y), so that costs are the bits the einsum form gave; other d in order."""
-    if len(terms) == 3:
-        out = terms[0] + terms[2]
-        out += terms[1]
-        return out
-    out = terms[0].copy()
-    for term in terms[1:]:
-        out += term
-    return out
 
 
 class SpatialCostModel:
@@ -179,7 +87,7 @@ class SpatialCostModel:
         if len(trajectories) == 0:
             raise ValueError("from_population needs at least one population trajectory")
         grid = config.grid()
-        paths = [_check_path(t, f"population trajectory {m}", config.dim)
+        paths = [check_path(t, f"population trajectory {m}", config.dim)
                  for m, t in enumerate(trajectories)]
 
         def build() -> dict[str, np.ndarray]:
@@ -189,8 +97,8 @@ class SpatialCostModel:
 
         # seconds of point costs, the same in every run with these paths (the population
         # prior, a simulated person's truth): built once, then read back bit for bit
-        key = content_key(code_version(__file__), grid, float(config.beta), config.polyline,
-                          *paths)
+        key = content_key(code_version(__file__, inspect.getfile(point_cost)), grid,
+                          float(config.beta), config.polyline, *paths)
         stats = cached_arrays("population-costs", key, ("mean", "var"), build)
         mean = stats["mean"]
         if config.prior_var is None:
@@ -237,7 +145,7 @@ class SpatialCostModel:
         At every grid point s_obs = point_cost(x, traj);
         1/var' = 1/var + 1/rho and mean' = var' (mean/var + s_obs/rho). Marks the MLP stale.
         """
-        obs = point_cost(self._grid, _check_path(traj, "trajectory", self.config.dim),
+        obs = point_cost(self._grid, check_path(traj, "trajectory", self.config.dim),
                          self.config.beta, polyline=self.config.polyline)
         rho, f = self.config.rho, self.config.forgetting
         var = self._var / f if f < 1 else self._var  # forgetting: precision times f
