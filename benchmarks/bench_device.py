@@ -107,11 +107,15 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_plan_median": statistics.median(p for r in runs for p in r["plan"][1:]),
             "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
+            # the run's construction: its prior and, on a GPU, its warm-up (older trees: none)
+            "construct_wall": [c for r in runs for c in r.get("construct", [])],
         }
         if dev == "cpu":  # a workstation's CPU with more than one core for torch
             four = _child("cycles_on", dev, seeds[0], cycles, policy, False, 4)
             out[dev]["later_wall_median_4_threads"] = statistics.median(four["wall"][1:])
-        if dev == "cuda":  # the first cycle once the network's kernels are loaded
+        # the first cycle after a batch through the network before the run as well (the run
+        # warms up its own kernels on a GPU: equal to the plain first cycle unless it misses some)
+        if dev == "cuda":
             warmed = _child("cycles_on", dev, seeds[0], 2, policy, True)
             out[dev]["first_cycle_wall_after_warm_up"] = warmed["wall"][0]
             out[dev]["digests_after_warm_up"] = warmed["digest"]
@@ -141,6 +145,8 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
                           f"(loss {r[key]['final_loss']:.4f})")
         warmed = ("" if "first_cycle_wall_after_warm_up" not in r else
                   f" ({r['first_cycle_wall_after_warm_up']:.2f} wall after a warm-up)")
+        if r.get("construct_wall"):
+            warmed += f" (run made in {statistics.median(r['construct_wall']):.2f} s)"
         four = ("" if "later_wall_median_4_threads" not in r else
                 f" ({r['later_wall_median_4_threads']:.2f} wall with 4 threads)")
         rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f}{warmed} | "

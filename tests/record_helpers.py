@@ -50,3 +50,12 @@ def stored(rec: CycleRecord | Mapping[str, Any], *drop: str) -> dict[str, Any]:
     wall-clock ``seconds`` and the keys ``drop``: what the same seed must give again."""
     d = rec.to_json() if isinstance(rec, CycleRecord) else rec
     return {k: v for k, v in d.items() if k not in ("seconds", *drop)}
+
+
+def decided(rec: CycleRecord | Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`stored` without anything a clock measures in a reactive record either (each
+    re-plan's latency and steering time): what the same seed must decide again."""
+    out = stored(rec)
+    out["replans"] = [{k: v for k, v in r.items() if k not in ("latency_s", "steer_s")}
+                      for r in out.get("replans", [])]
+    return out

@@ -233,3 +233,31 @@ def test_a_tensor_value_sees_tensors_and_a_diverged_policy_still_stops(toy):
         next(iter(broken.model.parameters())).fill_(float("nan"))
     with pytest.raises(CheckpointError, match="non-finite"):
         steer(broken, SteerRequest("right", 4), tensor_value(value), num_candidates=2, generator=0)
+
+
+@pytest.mark.parametrize("on_device", [None, True], ids=["host path", "device path"])
+def test_the_warm_up_leaves_the_records_as_they_were(fetch_policy, monkeypatch, on_device):
+    """A run made on a GPU steers one tiny batch first, so the first cycle does not load the
+    kernels while the person waits. Forced here on the CPU (where a run does not warm up),
+    under the monitor so that the hold's terms warm up too: the records are a cold run's."""
+    from conftest import SMALL_SEARCH
+    from record_helpers import decided
+
+    from rapidds.motion.diffusion_motion import DiffusionMotion
+
+    monkeypatch.setattr(DiffusionMotion, "default_on_device", on_device)
+    cfg = RunConfig(human="slow-middle", cycles=2, seed=3, execution="reactive",
+                    **SMALL_SEARCH)
+    cold = AdaptiveRun(cfg, fetch_policy).run()
+    calls = []
+    real = DiffusionMotion.plan
+
+    def counted(self, requests):
+        calls.append(list(requests))
+        return real(self, requests)
+
+    monkeypatch.setattr(DiffusionMotion, "plan", counted)
+    warm = AdaptiveRun(cfg, fetch_policy)
+    warm.warm_up()
+    assert len(calls) == 1 and calls[0][0][1]  # one request, beside a person's task
+    assert [decided(r) for r in warm.run()] == [decided(r) for r in cold]

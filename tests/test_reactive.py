@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import cli_cmd, kill_run, resume_and_compare, run_main
 from conftest import SMALL_SEARCH as SMALL
-from record_helpers import stored
+from record_helpers import decided, stored
 
 from rapidds.execution import (
     CycleExecutor,
@@ -202,14 +202,6 @@ def test_bad_execution_settings_are_one_line_errors(capsys, tmp_path, command, f
     assert err.count("\n") == 1 and err.startswith("rapidds: error:") and says in err, err
 
 
-def _same(rec: dict) -> dict:
-    """A record without what a clock measures (seconds, re-plan latencies and steering times)."""
-    out = stored(rec)
-    out["replans"] = [{k: v for k, v in r.items() if k not in ("latency_s", "steer_s")}
-                      for r in rec["replans"]]
-    return out
-
-
 @pytest.mark.slow
 def test_a_killed_reactive_run_resumes_identically(tmp_path):
     import os
@@ -233,7 +225,7 @@ def test_a_killed_reactive_run_resumes_identically(tmp_path):
     assert kept is not None and kept < 3, "the run finished before it could be killed"
     ra, rb, _, _ = resume_and_compare(cli_cmd(*args, "--out", str(tmp_path / "b"), "--resume"),
                                       tmp_path / "a" / "run.sqlite", db, env, timeout=400)
-    assert [_same(r) for r in ra] == [_same(r) for r in rb]
+    assert [decided(r) for r in ra] == [decided(r) for r in rb]
     assert (tmp_path / "b" / "gantt" / f"{rid}-cycle-03.png").exists()
 
 

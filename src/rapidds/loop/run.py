@@ -28,6 +28,7 @@ import numpy as np
 from rapidds.errors import RapiddsError, StateError
 from rapidds.execution import CycleExecutor, HumanSource, Replanning
 from rapidds.execution.registry import Planned
+from rapidds.execution.slowdowns import HoldModel
 from rapidds.human.spatial import SpatialModel
 from rapidds.loop.carry import CarriedMotions, spatial_stamps, valid_plans
 from rapidds.loop.changes import detect_changes
@@ -140,6 +141,8 @@ class AdaptiveRun:
         self.next_cycle = 0
         if store is not None:
             self._attach(store)
+        if self.policy.device.type != "cpu" and not self.finished:
+            self.warm_up()
 
     # the context's parts, by the names drivers read them
     @property
@@ -279,6 +282,30 @@ class AdaptiveRun:
         return ev, {"solver": "cp-sat", "optimal": exact.optimal,
                     "motion_requests": cache.misses}
 
+    def _motion(self, spatial: SpatialModel, gamma: float, steering: SteeringConfig,
+                holds: HoldModel | None) -> DiffusionMotion:
+        """The steered motions of a plan: the run's policy, V against ``spatial`` with the
+        world's terms and, when the plan expects the monitor, its predicted ``holds``."""
+        return DiffusionMotion(
+            self.policy, self.world.completion_time, workspace_cost(self.world, spatial), gamma,
+            steering, terms=value_terms(self.world, spatial,
+                                        None if holds is None else holds.hold,
+                                        None if holds is None else holds.tensor_hold))
+
+    def warm_up(self) -> None:
+        """One tiny steering batch with the run's value (the network, the world's terms, the
+        monitor's hold when the run plans for it), its result dropped. On a GPU the first
+        cycle would otherwise load all those kernels while the person waits; the run warms up
+        when it is made there. It draws from no random stream the run uses and changes no
+        belief, so the records are those of a run without it (tests check it)."""
+        spatial = self._spatial()
+        holds = self.context.slowdowns.model(spatial, self.model.slowdowns)
+        robot = next(t.id for t in self.problem.tasks if t.can("robot"))
+        near = frozenset(spatial.tasks[:1])
+        self._motion(spatial, self.problem.objective.gamma,
+                     SteeringConfig(particles=1, candidates=2, steps=2, seed=0),
+                     holds).plan([(robot, near)])
+
     def plan(self) -> Cycle:
         """Plan the next cycle from the current belief (nothing changes until it is recorded)."""
         if self.finished:
@@ -293,14 +320,10 @@ class AdaptiveRun:
         spatial = self._spatial()
         slowdowns = self.context.slowdowns
         holds = slowdowns.model(spatial, self.model.slowdowns)  # None: open-loop robot
-        motion: MotionModel = DiffusionMotion(
-            self.policy, self.world.completion_time,
-            workspace_cost(self.world, spatial),
-            0.0 if exact else gamma,  # the CP-SAT user ignores proximity
+        motion: MotionModel = self._motion(
+            spatial, 0.0 if exact else gamma,  # the CP-SAT user ignores proximity
             SteeringConfig(particles=cfg.particles, candidates=cfg.candidates,
-                           seed=int(rng.integers(2**31)), steps=cfg.steps),
-            terms=value_terms(self.world, spatial, None if holds is None else holds.hold,
-                              None if holds is None else holds.tensor_hold))
+                           seed=int(rng.integers(2**31)), steps=cfg.steps), holds)
         carried = CarriedMotions(motion, dict(self.model.motions) if cfg.reuse_motions else {},
                                  spatial_stamps(spatial))
         held = slowdowns.wrap(carried, holds)
