@@ -194,26 +194,18 @@ def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, 
     requests = [("mix_l", frozenset({"secure_piece"})), ("brush", frozenset()),
                 ("mix_r", frozenset({"secure_piece", "prep_vise"}))]
 
-    def motion(device_hold) -> DiffusionMotion:
+    def value(terms: ValueTerms):
         return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
                                12.0, SteeringConfig(particles=2, candidates=3, steps=3),
-                               terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                                hold=model.hold, device_hold=device_hold,
-                                                on_device=True))
+                               terms=terms).value(requests)
 
     rows = paths[: 3 * 2 * 3 * 2]
-    dev_value = motion(model.tensor_hold).value(requests)
+    dev_value = value(ValueTerms(device_terms=device_terms(world, spatial), hold=model.hold,
+                                 device_hold=model.tensor_hold, on_device=True))
     assert isinstance(dev_value, TensorValue)
-    host_value = DiffusionMotion(
-        policy, world.completion_time, workspace_cost(world, spatial), 12.0,
-        SteeringConfig(particles=2, candidates=3, steps=3),
-        terms=ValueTerms(hold=model.hold)).value(requests)
-    want = host_value(rows)
+    want = value(ValueTerms(hold=model.hold))(rows)
     np.testing.assert_allclose(dev_value(torch.from_numpy(rows)).numpy(), want, rtol=1e-9)
-    without = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
-                              12.0, SteeringConfig(particles=2, candidates=3, steps=3)
-                              ).value(requests)(rows)
-    assert (want > without).any()  # the hold is in the value
+    assert (want > value(ValueTerms())(rows)).any()  # the hold is in the value
 
 
 def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spatial) -> None:

@@ -279,22 +279,20 @@ class HoldModel:
         would make a GPU wait for the host)."""
         import torch
 
-        key = ("gradient", x.device, x.dtype, x.ndim)
+        key = ("gradient", x.device, x.dtype)
         if key not in self._tables:
             cfg = self.spatial.config
             lo, hi = np.asarray(cfg.bounds, dtype=float).T
             step = 0.1 * (hi - lo) / (np.asarray(cfg.shape) - 1)
             at = {"device": x.device, "dtype": x.dtype}
             shifts = np.concatenate([np.diag(step), -np.diag(step)])           # (2d, d)
-            self._tables[key] = (torch.as_tensor(lo + step, **at),
-                                 torch.as_tensor(hi - step, **at),
-                                 torch.as_tensor(shifts, **at).reshape(-1, *[1] * (x.ndim - 1),
-                                                                       len(lo)),
-                                 torch.as_tensor(2 * step, **at))
+            self._tables[key] = tuple(torch.as_tensor(a, **at)
+                                      for a in (lo + step, hi - step, shifts, 2 * step))
         low, high, shifts, width = self._tables[key]
-        dist = self._tensor_distance(task, torch.clamp(x, low, high)[None] + shifts)
-        n = width.shape[0]
-        return torch.movedim(dist[:n] - dist[n:], 0, -1) / width
+        d = width.shape[0]
+        inside = torch.clamp(x, low, high)[None]                              # (1, ..., d)
+        dist = self._tensor_distance(task, inside + shifts.view(2 * d, *[1] * (x.ndim - 1), d))
+        return torch.movedim(dist[:d] - dist[d:], 0, -1) / width
 
     def _tensor_approach(self, task: str, x: Any) -> Any:
         """:meth:`_approach` as tensor operations; the speeds' corner table is copied to the
