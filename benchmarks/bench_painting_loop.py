@@ -3,6 +3,7 @@ time (plan + execute + learn, from each record's ``seconds``).
 
     .venv/bin/python benchmarks/bench_painting_loop.py --seeds 0-7 --runs runs.jsonl [--docs]
     .venv/bin/python benchmarks/bench_painting_loop.py --policy distilled --runs d.jsonl
+    .venv/bin/python benchmarks/bench_painting_loop.py --compare runs.jsonl d.jsonl
 
 Per seed: the case study's four settings with ``left-slow`` (full adaptation, 7 cycles, the
 world's lambda), unconstrained gamma 12 with ``left-fast`` (Brush to the faster agent) and with
@@ -14,7 +15,8 @@ file holds one network's runs (each line names its network's fingerprint, and a 
 another network is refused). ``--no-reuse``: every motion steered anew each cycle
 (``RunConfig(reuse_motions=False)``), so that one unlucky draw of a motion whose value never
 changes (a task with no concurrent human task) is not carried for the whole run: the fairer
-setting for comparing networks (docs/benchmarks.md, "Painting loop").
+setting for comparing networks (docs/benchmarks.md, "Painting loop"). ``--compare BASE OTHER``
+runs nothing and pairs two runs files' settled costs by setting.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
 import torch
 from _common import cpu_model, load_average, parse_seeds, update_docs_section
 
@@ -46,6 +49,52 @@ def _seconds(record: CycleRecord) -> float:
     return record.seconds["total"]
 
 
+def _read(path: Path) -> list[dict]:
+    """A runs file's lines, each run's records typed."""
+    out = []
+    for line in path.read_text().splitlines():
+        d = json.loads(line)
+        out.append({**d, "records": [CycleRecord.from_json(r) for r in d["records"]]})
+    return out
+
+
+# a robot Brush slower than this is the avoidant path (about 6.2 s against 4.5 s direct)
+SLOW_BRUSH = 5.5
+
+
+def compare(base: Path, other: Path) -> str:
+    """Two runs files (e.g. two networks) paired by (setting, teammate, seed): the mean
+    realised cost of the settled cycles (lambda 0), other - base, per setting and in all, with
+    95 % paired bootstrap intervals; and how often the robot's Brush took the slow path."""
+    from bench_painting_sampler import SETTLED
+    from bench_quality import paired_bootstrap
+
+    runs = {}
+    lines = []
+    for name, path in (("base", base), ("other", other)):
+        rows = _read(path)
+        runs[name] = {(d["setting"], d["human"], d["seed"]): d["records"] for d in rows}
+        brush = [r.realised.timeline["brush"] for d in rows for r in d["records"]
+                 if "brush" in r.plan.robot]
+        slow = sum(end - start > SLOW_BRUSH for start, end in brush)
+        lines.append(f"{name} ({path.name}): the robot's Brush slower than {SLOW_BRUSH} s in "
+                     f"{slow} of {len(brush)} cycles")
+    keys = sorted(set(runs["base"]) & set(runs["other"]))
+
+    def cost(recs: list[CycleRecord]) -> float:
+        return statistics.mean(r.realised.cost for r in recs[SETTLED:])
+
+    groups = {"all": keys} | {f"{s} {h}": [k for k in keys if k[:2] == (s, h)]
+                              for s, h in dict.fromkeys(k[:2] for k in keys)}
+    for label, ks in groups.items():
+        diffs = np.array([cost(runs["other"][k]) - cost(runs["base"][k]) for k in ks])
+        lo, hi = paired_bootstrap(diffs)
+        base_mean = statistics.mean(cost(runs["base"][k]) for k in ks)
+        lines.append(f"{label}: {len(ks)} pairs, other - base {diffs.mean():+.3f} "
+                     f"[{lo:+.3f}, {hi:+.3f}], base mean {base_mean:.2f}")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", default="0-4")
@@ -56,23 +105,26 @@ def main() -> None:
     ap.add_argument("--no-reuse", action="store_true",
                     help="steer every motion anew each cycle (reuse_motions=False)")
     ap.add_argument("--docs", action="store_true", help="rewrite the docs section")
+    ap.add_argument("--compare", type=Path, nargs=2, metavar=("BASE", "OTHER"),
+                    help="run nothing: pair two runs files' costs by setting")
     args = ap.parse_args()
+    if args.compare:
+        print(compare(*args.compare))
+        return
     torch.set_num_threads(1)
     load0 = load_average()
     world = PaintingWorld()
     policy = load_policy(world, args.policy, device="cpu")
     done = {}
     if args.runs.exists():
-        for line in args.runs.read_text().splitlines():
-            d = json.loads(line)
+        for d in _read(args.runs):
             if d.get("policy", policy.fingerprint()) != policy.fingerprint():
                 raise SystemExit(f"{args.runs} holds runs of another network "
                                  f"({d['policy'][:12]}); pass its --policy or another --runs")
             if d.get("reuse", True) == args.no_reuse:
                 raise SystemExit(f"{args.runs} holds runs {'with' if args.no_reuse else 'without'}"
                                  " reused motions; match its --no-reuse or use another --runs")
-            done[d["setting"], d["human"], d["seed"]] = [CycleRecord.from_json(r)
-                                                         for r in d["records"]]
+            done[d["setting"], d["human"], d["seed"]] = d["records"]
     t0 = time.perf_counter()
     for seed in parse_seeds(args.seeds):
         for setting, human in RUNS:
