@@ -2,8 +2,9 @@
 10 steps) with the value on the host (numpy, the CPU's path) and on the policy's device
 (tensor terms), each without and with the safety monitor's predicted hold (a plan that expects
 the monitor), on each device given: seconds per batch, and on CUDA the host synchronisations
-inside it (``torch.cuda.set_sync_debug_mode``) and the tensor operations it issues (each a
-kernel launched by the host on a GPU; counted on any device).
+inside it (``torch.cuda.set_sync_debug_mode``) and the tensor operations it issues as a GPU
+runs it (each one dispatched by the host, each but a view a kernel it launches; counted on any
+device).
 
     .venv/bin/python benchmarks/bench_steer_device.py [--devices cpu,cuda] [--repeat 5]
 """
@@ -23,7 +24,7 @@ from _common import cpu_model, load_average
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from rapidds.execution.slowdowns import HoldModel, approach_speeds
-from rapidds.human.spatial import SpatialConfig, SpatialModel
+from rapidds.human.spatial import SpatialConfig, SpatialModel, grid
 from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
@@ -36,14 +37,39 @@ REQUESTS = [("mix_l", frozenset({"secure_piece"})), ("mix_r", frozenset({"secure
             ("brush", frozenset({"secure_piece"}))]
 
 
+# operations that only make a new view of a tensor: no kernel on a GPU, only the host's
+# dispatch
+_VIEWS = {"view", "select", "slice", "unsqueeze", "squeeze", "expand", "reshape",
+          "_unsafe_view", "transpose", "permute", "split", "split_with_sizes", "unbind",
+          "detach", "alias", "t", "as_strided", "_reshape_alias"}
+
+
 class _OpCount(TorchDispatchMode):
-    """Counts the ATen operations run inside it."""
+    """Counts the ATen operations run inside it, and those that are not views."""
 
     count = 0
+    kernels = 0
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # type: ignore[override]
         self.count += 1
+        self.kernels += func.__name__.split(".")[0] not in _VIEWS
         return func(*args, **(kwargs or {}))
+
+
+def _count_as_on_a_gpu(policy, plan, on_device: bool) -> _OpCount:
+    """The operations ``plan()`` issues as a GPU would run it, on any device: the network
+    with PyTorch's Mish, and a value on the device (``on_device``) without the spatial
+    grid's host-only pruning and checks."""
+    keep = grid.reads_back
+    policy.native_mish = True
+    if on_device:
+        grid.reads_back = lambda t: False
+    try:
+        with _OpCount() as ops:
+            plan()
+    finally:
+        policy.native_mish, grid.reads_back = None, keep
+    return ops
 
 
 def _sync(device: str) -> None:
@@ -90,10 +116,12 @@ def measure(device: str, repeat: int) -> dict[str, object]:
             wall.append(time.perf_counter() - w0)
             cpu.append(time.process_time() - c0)
             syncs += sum("synchroniz" in str(w.message) for w in caught)
-        with _OpCount() as ops:  # untimed: the tensor operations a batch issues (on a GPU,
-            motion(repeat).plan(REQUESTS)  # each a kernel the host launches)
+        # untimed: the tensor operations a batch issues, each one the host dispatches and
+        # each but a view a kernel it launches on a GPU
+        ops = _count_as_on_a_gpu(policy, lambda: motion(repeat).plan(REQUESTS), on_device)
         out[label] = {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu),
                       "syncs_per_batch": syncs / repeat, "tensor_ops_per_batch": ops.count,
+                      "kernels_per_batch": ops.kernels,
                       "mean_duration": float(np.mean([p.duration for p in plans]))}
         print(f"{device} {label}: {json.dumps(out[label])}", flush=True)
     return out

@@ -4,6 +4,8 @@ CPU's path and the stored records' reference."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -51,13 +53,44 @@ def test_tensor_terms_equal_the_worlds_numpy_terms(world: PaintingWorld, paths) 
                                   world.collides(world.robot_points(paths)))
     for task in ("mix_l", "mix_r", "brush"):
         host = world.completion_time(task, paths)
-        dev = terms.completion_time(task, q, pts).numpy()
+        dev = terms.completion_times([task], q, pts).numpy()
         done = host < world.penalty
         assert done.any() and not done.all()
         np.testing.assert_array_equal(dev[done], host[done])  # rows x dt, rounded alike
         np.testing.assert_allclose(dev, host, rtol=1e-12)     # the graded penalty
     with pytest.raises(ValueError, match="not a robot task"):
-        terms.completion_time("secure", q, pts)
+        terms.completion_times(["secure"], q, pts)
+    # a steering batch: rows in blocks, one task each, in one pass
+    blocks = ["brush", "mix_l", "mix_r", "mix_l"]
+    per = len(paths) // len(blocks)
+    rows = slice(0, per * len(blocks))
+    want = np.concatenate([world.completion_time(task, paths[k * per:(k + 1) * per])
+                           for k, task in enumerate(blocks)])
+    got = terms.completion_times(blocks, q[rows], pts[rows]).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    with pytest.raises(ValueError, match="blocks"):
+        terms.completion_times(blocks, q[:per * len(blocks) - 1], pts[:per * len(blocks) - 1])
+
+
+def test_a_task_with_fewer_goals_is_padded_without_effect(world: PaintingWorld, paths) -> None:
+    """A cell whose tasks have different numbers of goals pads the shorter lists with the
+    whole space: each block's times are those of a cell where its task is alone."""
+    from rapidds.worlds.painting.tensor_value import PaintingTensorValues
+
+    cell = world.tensor_terms("cpu").cell
+    goals = {"last": cell.goals["mix_l"][1:], "mix_l": cell.goals["mix_l"]}
+    assert len(goals["last"]) == 1 and len(goals["mix_l"]) == 2
+    mixed = PaintingTensorValues(dataclasses.replace(cell, goals=goals), torch.device("cpu"))
+    half = len(paths) // 2
+    q = torch.from_numpy(paths[:2 * half])
+    pts = mixed.points(q)
+    got = mixed.completion_times(["last", "mix_l"], q, pts)
+    for task, rows in (("last", slice(0, half)), ("mix_l", slice(half, 2 * half))):
+        alone = PaintingTensorValues(dataclasses.replace(cell, goals={task: goals[task]}),
+                                     torch.device("cpu"))
+        np.testing.assert_array_equal(got[rows].numpy(),
+                                      alone.completion_times([task], q[rows], pts[rows]).numpy())
+    assert len(set(got[:half].tolist())) > 1 and not torch.equal(got[:half], got[half:])
 
 
 def test_a_steering_batch_scores_on_the_device_as_on_the_host(world, paths, spatial) -> None:
@@ -141,7 +174,7 @@ def test_fetch_tensor_terms_equal_the_worlds_numpy_terms() -> None:
         if fetch.problem().task(task).can("robot"):
             host = fetch.completion_time(task, xi)
             assert (host < fetch.penalty).any()
-            np.testing.assert_array_equal(terms.completion_time(task, t).numpy(), host)
+            np.testing.assert_array_equal(terms.completion_times([task], t).numpy(), host)
 
 
 def test_a_hold_term_without_its_tensor_form_keeps_the_value_on_the_host(world,
@@ -181,7 +214,7 @@ def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, 
         assert (host > 0).all() and len(np.unique(host.round(6))) > 20  # held, by varying time
         q = torch.from_numpy(paths)
         pts = terms.points(q)
-        done = terms.completion_time(task, q, pts)
+        done = terms.completion_times([task], q, pts)
         # the painting terms are float64; a world's float32 points give a float32 hold
         key = [(task, frozenset(near))]
         for dtype, rtol, atol in ((torch.float64, 1e-9, 1e-9), (torch.float32, 2e-3, 2e-3)):

@@ -4,6 +4,7 @@ CheckpointError), and the ``train-policy`` / ``sample`` commands."""
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 
@@ -166,11 +167,15 @@ def test_fast_unet_computes_the_training_network(horizon, d, dims, start, kernel
         for p in net.parameters():
             p.add_(0.1 * torch.randn_like(p))
     fast = FastUnet(net)
+    native = FastUnet(net, native_mish=True)  # a GPU's choice, computed here on the CPU
+    assert fast.act is mish and native.act is torch.nn.functional.mish
+    assert FastUnet(copy.deepcopy(net).to("meta")).act is torch.nn.functional.mish  # off the CPU
     x, cond = torch.randn(6, horizon, d), torch.randn(6, cfg.cond_dim)
     with torch.no_grad():
         for t in (torch.randint(0, 100, (6,)), torch.full((6,), 37), torch.tensor(5)):
             ref = net(x, t, cond)
             assert torch.allclose(fast(x, t, cond), ref, rtol=1e-5, atol=1e-5)
+            assert torch.allclose(native(x, t, cond), ref, rtol=1e-5, atol=1e-5)
         one = fast(x[:1], torch.tensor([9]), cond[:1])
         assert torch.allclose(one, net(x[:1], torch.tensor([9]), cond[:1]), atol=1e-5)
     with pytest.raises(ValueError, match="cond"):
@@ -196,6 +201,10 @@ def test_policy_denoiser_follows_the_weights(trained):
         assert torch.allclose(after(x, t, cond), copy.model(x, t, cond), atol=1e-5)
     copy.model.load_state_dict(policy.model.state_dict())  # copies in place: rebuilt again
     assert torch.allclose(copy.denoiser()(x, t, cond), before)
+    assert copy.denoiser().act is mish
+    copy.native_mish = True  # rebuilt with PyTorch's Mish, the same function
+    assert copy.denoiser().act is torch.nn.functional.mish
+    assert torch.allclose(copy.denoiser()(x, t, cond), before, atol=1e-5)
     copy.fast_inference = False
     assert copy.denoiser() is copy.model
 

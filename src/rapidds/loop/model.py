@@ -183,13 +183,24 @@ def host_terms(world: World, spatial: SpatialModel) -> HostTerms | None:
 
 
 class _WorkspaceTerms:
-    """:class:`~rapidds.motion.diffusion_motion.DeviceTerms` (tensors) or
-    :class:`~rapidds.motion.diffusion_motion.HostTerms` (arrays): a world's workspace points
-    and completion time from them, and the spatial model's cost of the points."""
+    """:class:`~rapidds.motion.diffusion_motion.HostTerms` (arrays): a world's workspace
+    points and completion time from them, and the spatial model's cost of the points."""
 
     def __init__(self, points: Callable[[Any], Any],
                  completion_time: Callable[[str, Any, Any], Any], spatial: SpatialModel):
         self.points, self.completion_time, self.spatial = points, completion_time, spatial
+
+    def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
+        return _points_cost(self.spatial, tasks, points)
+
+
+class _TensorWorkspaceTerms:
+    """:class:`~rapidds.motion.diffusion_motion.DeviceTerms`: the same on tensors, the
+    completion time of a whole batch at once."""
+
+    def __init__(self, terms: Any, spatial: SpatialModel):
+        self.points, self.completion_times = terms.points, terms.completion_times
+        self.spatial = spatial
 
     def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
         return _points_cost(self.spatial, tasks, points)
@@ -203,9 +214,8 @@ def device_terms(world: World, spatial: SpatialModel) -> DeviceTermsFactory | No
     if tensors is None:
         return None
 
-    def on(device: torch.device) -> _WorkspaceTerms:
-        terms = tensors.tensor_terms(device)
-        return _WorkspaceTerms(terms.points, terms.completion_time, spatial)
+    def on(device: torch.device) -> _TensorWorkspaceTerms:
+        return _TensorWorkspaceTerms(tensors.tensor_terms(device), spatial)
 
     return on
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, Protocol
+from typing import Annotated, Any, ClassVar, Protocol, cast
 
 import numpy as np
 import torch
@@ -49,9 +49,11 @@ class DeviceTerms(Protocol):
         """(N, H, d) trajectories -> (N, H, P, w) workspace points."""
         ...
 
-    def completion_time(self, task: str, xi: torch.Tensor, points: torch.Tensor
-                        ) -> torch.Tensor:
-        """(N,) seconds of (N, H, d) trajectories, given their points."""
+    def completion_times(self, tasks: Sequence[str], xi: torch.Tensor, points: torch.Tensor
+                         ) -> torch.Tensor:
+        """(N,) seconds of (N, H, d) trajectories, given their points, the rows in
+        ``len(tasks)`` equal blocks, block k doing ``tasks[k]``: a whole steering batch in one
+        pass, as each operation is a kernel the host launches."""
         ...
 
     def spatial_cost(self, tasks: Iterable[str], points: torch.Tensor) -> torch.Tensor:
@@ -65,7 +67,8 @@ DeviceTermsFactory = Callable[[torch.device], DeviceTerms]
 
 class HostTerms(Protocol):
     """:class:`DeviceTerms` on numpy arrays, the host's value (the stored records' bits): the
-    workspace points computed once per denoising step for every request's candidates."""
+    workspace points computed once per denoising step for every request's candidates, the
+    completion time once per task."""
 
     def points(self, xi: np.ndarray) -> np.ndarray: ...
 
@@ -201,15 +204,21 @@ class DiffusionMotion:
     def _term_values(self, terms: DeviceTerms | HostTerms, keys: Sequence[MotionKey],
                      xi: Any, hold: DeviceHold | None = None) -> Any:
         """The value from ``terms``: the workspace points of every request's rows in one pass,
-        then the completion time once per task and the spatial cost once per concurrent set,
-        over the rows of all requests that share it; ``hold`` (tensors) for the whole batch,
-        from the same points and completion times. Each term is row by row, so grouping
-        changes no value; it saves a call's fixed cost per request, tens of kernel launches on
-        a GPU and the forward kinematics' per-call overhead on the host."""
+        then the completion time (tensors: of the whole batch at once; arrays: once per task)
+        and the spatial cost once per concurrent set, over the rows of all requests that
+        share it; ``hold`` (tensors) for the whole batch, from the same points and completion
+        times. Each term is row by row, so grouping changes no value; it saves a call's fixed
+        cost per request, tens of kernel launches on a GPU and the forward kinematics'
+        per-call overhead on the host."""
         pts = terms.points(xi)
         per_key = xi.shape[0] // len(keys)
-        done = v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
-            terms.completion_time(task, _take(xi, rows), _take(pts, rows))))
+        if isinstance(xi, torch.Tensor):
+            done = v = cast(DeviceTerms, terms).completion_times([task for task, _ in keys],
+                                                                 xi, pts)
+        else:
+            host = cast(HostTerms, terms)
+            done = v = _grouped(keys, per_key, lambda key: key[0], lambda task, rows: (
+                host.completion_time(task, _take(xi, rows), _take(pts, rows))))
         if self.gamma > 0 and any(concurrent for _, concurrent in keys):
             v = v + _grouped(keys, per_key, lambda key: frozenset(key[1]), lambda conc, rows: (
                 self.gamma * terms.spatial_cost(conc, _take(pts, rows)) if conc else None))

@@ -130,6 +130,7 @@ class DiffusionPolicy:
     inference copy (:class:`~rapidds.motion.inference.FastUnet`, the same function to float32
     rounding, 1.3x to 1.7x faster on CPU, more for larger batches). Set
     ``fast_inference = False`` to sample with ``model`` itself; training always uses ``model``.
+    ``native_mish``: the copy's Mish (None: PyTorch's kernel off the CPU, the rewrite on it).
     """
 
     def __init__(self, config: DiffusionConfig, model: nn.Module,
@@ -152,6 +153,7 @@ class DiffusionPolicy:
         self.noise_scheduler = noise_scheduler
         self.normalizer = normalizer
         self.fast_inference = True
+        self.native_mish: bool | None = None
         self._fast: tuple[tuple[object, ...], FastUnet] | None = None
         self._slots: tuple[nn.Module, list[tuple[dict[str, Any], str]]] | None = None
 
@@ -305,9 +307,10 @@ class DiffusionPolicy:
                               for name in mod._buffers])
         tensors = [table[name] for table, name in self._slots[1]]
         # A tensor changed in place has a new _version; a moved or replaced one a new address.
-        key = (id(model), *((t.data_ptr(), t._version) for t in tensors if t is not None))
+        key = (id(model), self.native_mish,
+               *((t.data_ptr(), t._version) for t in tensors if t is not None))
         if self._fast is None or self._fast[0] != key:
-            self._fast = (key, FastUnet(model))
+            self._fast = (key, FastUnet(model, self.native_mish))
         return self._fast[1]
 
     def predict_noise(self, x_t: Tensor, t: int, cond: Tensor) -> Tensor:

@@ -110,8 +110,9 @@ class TrackingMapping(World, Protocol):
 
 
 class TensorValues(World, Protocol):
-    """The steering value's terms (robot points, completion time) as tensor operations on a
-    device, so a cycle's candidates are scored there without the host (issue 36)."""
+    """The steering value's terms as tensor operations on a device (robot ``points(xi)`` and
+    ``completion_times(tasks, xi, points)`` of a batch in one block of rows per task), so a
+    cycle's candidates are scored there without the host (issue 36)."""
 
     def tensor_terms(self, device: Any) -> Any: ...
 

@@ -277,16 +277,17 @@ class SpatialCostModel:
         return self._sum_corners(table, base, self._weights(frac)).reshape(x.shape[:-1])
 
     def _grid_constants(self, device: torch.device, dtype: torch.dtype
-                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Bounds, top grid index per axis and strides on ``device``, copied there once (a
-        copy per evaluation would make a GPU wait for the host)."""
+                        ) -> tuple[torch.Tensor, ...]:
+        """Lower bound, extent, top grid index, top cell index and strides per axis, and a
+        zero per axis, on ``device``, copied there once (a copy per evaluation would make a
+        GPU wait for the host, and each derived constant would be one more kernel there)."""
         key = ("constants", device, dtype)
         if key not in self._grid_cache:
-            top = [n - 1 for n in self.config.shape]
-            self._grid_cache[key] = tuple(
-                torch.as_tensor(a, dtype=t, device=device) for a, t in
-                ((self._lo, dtype), (self._hi, dtype), (top, dtype),
-                 (self._strides, torch.long)))
+            lo, hi, top = (torch.as_tensor(a, dtype=dtype, device=device) for a in
+                           (self._lo, self._hi, [n - 1 for n in self.config.shape]))
+            strides = torch.as_tensor(self._strides, dtype=torch.long, device=device)
+            # derived on the device in its dtype, as each evaluation derived them before
+            self._grid_cache[key] = (lo, hi - lo, top, top - 1, strides, torch.zeros_like(top))
         return self._grid_cache[key]  # type: ignore[return-value]
 
     def _stencil(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -294,9 +295,9 @@ class SpatialCostModel:
         of each point's lowest cell corner and the point's position within its cell (n, d),
         from which :meth:`_weights` gives the corners' weights. Depends on the grid alone, so
         every task of a model shares it."""
-        lo, hi, top, strides = self._grid_constants(x.device, x.dtype)
-        u = ((x - lo) / (hi - lo) * top).clamp(min=torch.zeros_like(top), max=top)
-        i0 = torch.minimum(u.floor(), top - 1)
+        lo, extent, top, top_cell, strides, zero = self._grid_constants(x.device, x.dtype)
+        u = ((x - lo) / extent * top).clamp(min=zero, max=top)
+        i0 = torch.minimum(u.floor(), top_cell)
         frac = u - i0
         base = (i0.long() * strides).sum(dim=1)
         return base, frac
@@ -306,13 +307,15 @@ class SpatialCostModel:
         """Multilinear interpolation weights (2^d, n) of the cell corners (corner c =
         (c_1..c_d) in itertools.product order) for positions within cells (n, d). Per axis the
         weight of the lower (c = 0) and upper (c = 1) corner; a corner's weight is their
-        product taken axis by axis, the same products as one corner at a time. Row by row,
-        so the weights of some points are those of all points, taken at those."""
-        axis_w = [(1.0 - frac[:, k], frac[:, k]) for k in range(frac.shape[1])]
-        weights = [axis_w[0][0], axis_w[0][1]]
-        for k in range(1, frac.shape[1]):
-            weights = [w * a for w in weights for a in axis_w[k]]
-        return torch.stack(weights)
+        product taken axis by axis, the same products as one corner at a time, one operation
+        per axis for all corners. Row by row, so the weights of some points are those of all
+        points, taken at those."""
+        n, d = frac.shape
+        pair = torch.stack([1.0 - frac, frac])                              # (2, n, d)
+        weights = pair[:, :, 0]
+        for k in range(1, d):
+            weights = (weights[:, None] * pair[None, :, :, k]).reshape(-1, n)
+        return weights
 
     def _interpolate(self, base: torch.Tensor, frac: torch.Tensor,
                      weights: torch.Tensor | None = None) -> torch.Tensor:
@@ -349,7 +352,7 @@ class SpatialCostModel:
         rounding, which ``slack`` covers), so a point whose cell's greatest corner is below
         the greatest least corner of its row cannot be that row's maximum. ``weights``: all
         points', off the CPU, where all are interpolated."""
-        if base.device.type != "cpu":  # nonzero would wait for the device: interpolate all
+        if not reads_back(base):  # nonzero would wait for the device: interpolate all
             return self._interpolate(base, frac, weights).view(rows, -1).amax(dim=1)
         _, least, greatest = self._corner_table(frac.device, frac.dtype)
         floor = torch.index_select(least, 0, base).view(rows, -1).amax(dim=1)
@@ -379,7 +382,7 @@ class SpatialCostModel:
         return net(u).clamp(0.0, 1.0).to(x.dtype)
 
     def _eval_flat(self, x: torch.Tensor) -> torch.Tensor:
-        if x.device.type == "cpu" and not bool(torch.isfinite(x).all()):  # no device wait
+        if reads_back(x) and not bool(torch.isfinite(x).all()):
             raise ValueError("points contain NaN or infinite coordinates")
         if self.config.use_surrogate and self._stale:
             self.fit_surrogate()
@@ -471,6 +474,13 @@ class SpatialCostModel:
         return model
 
 
+def reads_back(t: torch.Tensor) -> bool:
+    """Whether an evaluation may read ``t``'s values back to choose what to do (a finiteness
+    check, the points worth interpolating): free on the CPU; on a device each such read waits
+    for it, so there every point is interpolated and nothing is checked."""
+    return t.device.type == "cpu"
+
+
 def _as_points(model: SpatialCostModel, x: Any, ndim: int | None) -> torch.Tensor:
     """The input checks of point_cost / trajectory_cost: x as a floating tensor (a NumPy
     array as float64, shared memory), of shape (..., d), or (N, H, d) when ``ndim`` is 3."""
@@ -511,7 +521,7 @@ def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> lis
     t = _as_points(first, xi, ndim=3)
     # a device's points are not checked: that would wait for the device (a non-finite point
     # gives a NaN cost, which steering counts as +inf)
-    if t.device.type == "cpu" and not bool(torch.isfinite(t).all()):
+    if reads_back(t) and not bool(torch.isfinite(t).all()):
         raise ValueError("points contain NaN or infinite coordinates")
     n, h, d = t.shape
     step = max(1, first.config.chunk // h)
@@ -521,7 +531,7 @@ def grid_trajectory_costs(models: Sequence[SpatialCostModel], xi: Points) -> lis
             rows = t[s:s + step]
             base, frac = first._stencil(rows.reshape(-1, d))
             # off the CPU every point is interpolated: its weights once for all the models
-            weights = None if t.device.type == "cpu" else first._weights(frac)
+            weights = None if reads_back(t) else first._weights(frac)
             for part, m in zip(parts, models, strict=True):
                 part.append(m._row_max(base, frac, rows=rows.shape[0], weights=weights))
     outs = [torch.cat(p) if p else t.new_zeros(0) for p in parts]

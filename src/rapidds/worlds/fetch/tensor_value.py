@@ -8,7 +8,7 @@ its positions. Tests compare it with the numpy terms, which stay the CPU's path.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -55,12 +55,21 @@ class FetchTensorValues:
         leave = t_exit.amin(dim=-1).clamp(max=1.0)
         return outside | (enter <= leave).flatten(1).any(dim=1)
 
-    def completion_time(self, task: str, xi: Tensor, points: Tensor | None = None) -> Tensor:
+    def completion_times(self, tasks: Sequence[str], xi: Tensor,
+                         points: Tensor | None = None) -> Tensor:
         """(N,) seconds: the first row back home after the object, k * dt; the penalty for a
-        path that never does both or that collides."""
-        if task not in self.goals:
-            raise ValueError(f"unknown fetch task {task!r}")
-        near_goal = torch.linalg.vector_norm(xi - self.goals[task], dim=-1) <= self.radius
+        path that never does both or that collides. The rows are ``len(tasks)`` equal
+        blocks, block k fetching ``tasks[k]``'s object (a steering batch in one pass)."""
+        for task in tasks:
+            if task not in self.goals:
+                raise ValueError(f"unknown fetch task {task!r}")
+        n = xi.shape[0]
+        if not tasks or n % len(tasks):
+            raise ValueError(f"{n} rows do not split into blocks for {len(tasks)} tasks")
+        goal = (self.goals[tasks[0]] if len(set(tasks)) == 1 else
+                torch.cat([self.goals[task].expand(n // len(tasks), 2)
+                           for task in tasks])[:, None, :])
+        near_goal = torch.linalg.vector_norm(xi - goal, dim=-1) <= self.radius
         near_home = torch.linalg.vector_norm(xi - self.home, dim=-1) <= self.radius
         done = (near_goal.to(torch.int32).cumsum(dim=-1) > 0) & near_home
         k = torch.argmax(done.to(torch.int8), dim=-1).to(xi.dtype)

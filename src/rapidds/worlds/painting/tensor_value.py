@@ -61,12 +61,19 @@ class _Arm:
         self.offset, self.anchor = t(kin.offset), t(kin.anchor)          # (7, 3)
         self.hinged = [bool(np.any(a)) for a in kin.anchor]
         self.base_pos, self.base_rot = t(kin.base_pos), t(kin.base_rot)
-        self.point_link = [int(k) for k in kin.point_link]
-        self.point_offset = t(kin.point_offset)                           # (P, 3)
+        # the points grouped by link: (link, (3, m) offsets), and where each point lands
+        links = sorted(set(int(k) for k in kin.point_link))
+        members = [[i for i, k in enumerate(kin.point_link) if k == link] for link in links]
+        self.links = [(link, t(np.asarray(kin.point_offset)[idx].T))
+                      for link, idx in zip(links, members, strict=True)]
+        grouped = [i for idx in members for i in idx]
+        self.point_order = torch.as_tensor(np.argsort(grouped), device=device)
         self.lower, self.upper, self.velocity = t(kin.lower), t(kin.upper), t(kin.velocity)
 
     def points(self, q: Tensor) -> Tensor:
-        """Arm points (n, P, 3) of joint vectors (n, 7), as mj_kinematics places them."""
+        """Arm points (n, P, 3) of joint vectors (n, 7), as mj_kinematics places them; the
+        points of one link from one product (its rotation times its points' offsets), as
+        each operation is a kernel the host launches on a GPU."""
         n = q.shape[0]
         pos = [self.base_pos.expand(n, 3)]
         rot = [self.base_rot.expand(n, 3, 3)]
@@ -81,26 +88,35 @@ class _Arm:
                 p = p + (r @ self.fixed[k] - r_new) @ self.anchor[k]
             pos.append(p)
             rot.append(r_new)
-        return torch.stack([pos[link] + rot[link] @ self.point_offset[i]
-                            for i, link in enumerate(self.point_link)], dim=1)
+        # (n, 3, m) points of each link, then in the points' order
+        parts = [pos[link][:, :, None] + rot[link] @ offsets for link, offsets in self.links]
+        return torch.cat(parts, dim=2).transpose(1, 2)[:, self.point_order]
 
 
 class PaintingTensorValues:
     """The painting world's value terms on tensors of one device (built per device by
-    :func:`tensor_terms`): :meth:`points` for the spatial cost and :meth:`completion_time`,
-    the tensor twin of the world's, which takes the points already computed."""
+    :func:`tensor_terms`): :meth:`points` for the spatial cost and :meth:`completion_times`,
+    the tensor twin of the world's ``completion_time``, which takes the points already
+    computed."""
 
     def __init__(self, cell: CellValues, device: torch.device):
         def t(a: Any) -> Tensor:
             return torch.as_tensor(np.array(a, dtype=np.float64), device=device)
 
-        self.device = device
+        self.device, self.cell = device, cell
         self.arm = _Arm(cell.kinematics, device)
         self.dt, self.horizon, self.penalty = cell.dt, cell.horizon, cell.penalty
         self.speed_margin, self.shortfall = cell.speed_margin, cell.shortfall
         self.rest_radius, self.rest_tool = cell.rest_radius, t(cell.rest_tool)
-        self.goals = {task: [(t(lo), t(hi)) for lo, hi in boxes]
-                      for task, boxes in cell.goals.items()}
+        self.goals = set(cell.goals)
+        # (G, 3) goal boxes per task, every task's list padded to the longest with the whole
+        # space, so the batch's rows gather theirs in one operation
+        most = max(len(boxes) for boxes in cell.goals.values())
+        pad = [(np.full(3, -np.inf), np.full(3, np.inf))]
+        padded = {task: list(boxes) + pad * (most - len(boxes))
+                  for task, boxes in cell.goals.items()}
+        self._goal_boxes = tuple({task: t([box[i] for box in boxes])
+                                  for task, boxes in padded.items()} for i in (0, 1))
         lows, highs, open_to_tool = cell.obstacles
         self.lows, self.highs = t(lows), t(highs)
         self.top = float(np.max(highs[:, 2]))
@@ -135,19 +151,32 @@ class PaintingTensorValues:
         slow = (speed <= self.speed_margin * arm.velocity).flatten(1).all(dim=1)
         return in_range & slow & ~self.collides(pts)
 
-    def completion_time(self, task: str, traj: Tensor, pts: Tensor) -> Tensor:
-        """(N,) seconds for (N, H, 7) trajectories with their points (N, H, P, 3): the
-        world's ``completion_time`` as tensor operations."""
-        if task not in self.goals:
-            raise ValueError(f"{task!r} is not a robot task of the painting cell")
-        tool = pts[:, :, TOOL]
-        n, h = tool.shape[:2]
+    def completion_times(self, tasks: Sequence[str], traj: Tensor, pts: Tensor) -> Tensor:
+        """(N,) seconds for (N, H, 7) trajectories with their points (N, H, P, 3), the rows in
+        ``len(tasks)`` equal blocks, block k doing ``tasks[k]``: the world's
+        ``completion_time`` as tensor operations, one pass for the whole steering batch (a
+        task with fewer goals than another has its list padded with the whole space, whose
+        gap is 0 and changes nothing)."""
+        for task in tasks:
+            if task not in self.goals:
+                raise ValueError(f"{task!r} is not a robot task of the painting cell")
+        n, h = traj.shape[:2]
+        if not tasks or n % len(tasks):
+            raise ValueError(f"{n} rows do not split into blocks for {len(tasks)} tasks")
+        per = n // len(tasks)
+        lo, hi = self._goal_boxes[0], self._goal_boxes[1]
+        if len(set(tasks)) == 1:
+            lo, hi = lo[tasks[0]].expand(n, -1, 3), hi[tasks[0]].expand(n, -1, 3)
+        else:
+            lo = torch.cat([lo[task].expand(per, -1, 3) for task in tasks])
+            hi = torch.cat([hi[task].expand(per, -1, 3) for task in tasks])
+        tool = pts[:, :, TOOL]                                            # (N, H, 3)
         reached = torch.ones((n, h), dtype=torch.bool, device=tool.device)
         short = torch.zeros(n, dtype=torch.float64, device=tool.device)
         rest = (torch.linalg.vector_norm(tool - self.rest_tool, dim=-1)
                 - self.rest_radius).clamp(min=0.0)
-        gaps = [_box_gap(tool, lo, hi) for lo, hi in self.goals[task]] + [rest]
-        for gap in gaps:
+        goal_gaps = _box_gap(tool[:, None], lo[:, :, None], hi[:, :, None])  # (N, G, H)
+        for gap in [*goal_gaps.unbind(dim=1), rest]:
             after = reached | ~reached.any(dim=1, keepdim=True)
             short = short + torch.where(after, gap, torch.inf).amin(dim=1)
             reached = (((gap <= 0.0) & reached).to(torch.int32).cumsum(dim=1) > 0)
