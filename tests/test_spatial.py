@@ -274,6 +274,28 @@ def test_trajectory_costs_are_the_max_of_every_points_interpolation(pop):
         grid_trajectory_costs([sm["t2"], sm["t3"]], np.full((1, 2, 2), np.nan))
 
 
+def test_the_grid_as_a_device_evaluates_it_equals_the_hosts(pop, monkeypatch):
+    """What a GPU runs (no value read back: every point interpolated, no finiteness check,
+    the corners summed in one reduction), taken here on the CPU: the host's costs to
+    rounding, and a non-finite point's cost is NaN instead of an error."""
+    from rapidds.human.spatial import grid
+
+    sm = _two_task_model(pop)
+    rng = np.random.default_rng(10)
+    xi = torch.as_tensor(rng.uniform(-1.0, 11.0, size=(13, 7, 2)))
+    host = grid_trajectory_costs([sm["t2"], sm["t3"]], xi)
+    host_points = sm["t2"].point_cost(xi)
+    monkeypatch.setattr(grid, "reads_back", lambda t: False)
+    device = grid_trajectory_costs([sm["t2"], sm["t3"]], xi)
+    for got, ref in zip(device, host, strict=True):
+        torch.testing.assert_close(got, ref, rtol=0, atol=1e-12)
+    torch.testing.assert_close(sm["t2"].point_cost(xi), host_points, rtol=0, atol=1e-12)
+    bad = xi.clone()
+    bad[0, 3, 1] = torch.nan
+    got = grid_trajectory_costs([sm["t2"]], bad)[0]
+    assert torch.isnan(got[0]) and torch.equal(got[1:], device[0][1:])
+
+
 def test_trajectory_cost_of_a_flat_belief_keeps_every_tie():
     """Where every cell has the same corners, no point can be ruled out; the max is still
     every point's value (ties and rounding included)."""

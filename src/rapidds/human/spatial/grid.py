@@ -297,7 +297,9 @@ class SpatialCostModel:
         every task of a model shares it."""
         lo, extent, top, top_cell, strides, zero = self._grid_constants(x.device, x.dtype)
         u = ((x - lo) / extent * top).clamp(min=zero, max=top)
-        i0 = torch.minimum(u.floor(), top_cell)
+        # a NaN coordinate (unchecked on a device) gets cell 0 and a NaN position, so a NaN
+        # value: as an integer it would index out of the table, a device-side assertion
+        i0 = torch.minimum(u.nan_to_num(0.0).floor(), top_cell)
         frac = u - i0
         base = (i0.long() * strides).sum(dim=1)
         return base, frac
@@ -331,9 +333,12 @@ class SpatialCostModel:
     def _sum_corners(table: torch.Tensor, base: torch.Tensor, weights: torch.Tensor
                      ) -> torch.Tensor:
         """The corners of ``table`` at the cells ``base`` weighted by ``weights``, summed one
-        corner after another in a fixed order, (n,)."""
+        corner after another in a fixed order, (n,); on a device in one reduction instead of
+        2^d kernel launches (equal to rounding)."""
         corners = torch.index_select(table, 1, base)                        # (2^d, n)
         terms = corners.mul_(weights)
+        if not reads_back(base):
+            return terms.sum(dim=0)
         out = terms[0].clone()
         for term in terms[1:]:
             out += term
