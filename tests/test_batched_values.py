@@ -249,3 +249,25 @@ def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spat
     base, weights = model._stencil(pts.reshape(-1, 3))
     dense = model._interpolate(base, weights).view(20, -1).amax(dim=1)
     assert torch.equal(dense, model._row_max(base, weights, rows=20))
+
+
+def test_a_diverged_policy_stops_the_device_path_cleanly(world, spatial, monkeypatch) -> None:
+    """Steering on a GPU with a network gone NaN: the candidates' points are NaN, the grid
+    (which on a device reads nothing back) must not turn them into cell indices out of its
+    table, a device-side assertion on CUDA; the steering ends with the diverged-policy error.
+    Run here as a device runs it (``grid.reads_back`` off)."""
+    import copy
+
+    from rapidds.errors import CheckpointError
+    from rapidds.human.spatial import grid
+
+    broken = copy.deepcopy(load_policy(world, device="cpu"))
+    with torch.no_grad():
+        next(iter(broken.model.parameters())).fill_(float("nan"))
+    monkeypatch.setattr(grid, "reads_back", lambda t: False)
+    motion = DiffusionMotion(broken, world.completion_time, workspace_cost(world, spatial), 12.0,
+                             SteeringConfig(particles=2, candidates=2, steps=2),
+                             terms=ValueTerms(device_terms=device_terms(world, spatial),
+                                              on_device=True))
+    with pytest.raises(CheckpointError, match="non-finite"):
+        motion.plan([("mix_l", frozenset({"secure_piece", "prep_vise"}))])
