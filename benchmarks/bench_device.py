@@ -82,8 +82,11 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
             "cuda_graph": history.cuda_graph, "graph_note": history.graph_note}
 
 
+SRC = ROOT / "src"  # the rapidds the runs import (--src: an older checkout's, for a before)
+
+
 def _child(what: str, *args: object) -> dict:
-    env = child_env(ROOT / "src", HERE)
+    env = child_env(SRC, HERE)
     code = (f"import json, bench_device as b; print(json.dumps(b.{what}"
             f"({', '.join(map(repr, args))})))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
@@ -178,7 +181,13 @@ def main() -> None:
     ap.add_argument("--policy", default=None,
                     help="plan with this checkpoint or shipped policy name (distilled)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--src", type=Path, default=None,
+                    help="measure the rapidds of this src directory (an older checkout's: "
+                         "the before of a change, on the same machine in the same run)")
     args = ap.parse_args()
+    global SRC
+    if args.src is not None:
+        SRC = args.src.resolve()
     import torch
 
     devices = (args.devices.split(",") if args.devices

@@ -60,15 +60,17 @@ def _count_as_on_a_gpu(policy, plan, on_device: bool) -> _OpCount:
     """The operations ``plan()`` issues as a GPU would run it, on any device: the network
     with PyTorch's Mish, and a value on the device (``on_device``) without the spatial
     grid's host-only pruning and checks."""
-    keep = grid.reads_back
+    keep = getattr(grid, "reads_back", None)  # None: an older tree, counted as it is
     policy.native_mish = True
-    if on_device:
+    if on_device and keep is not None:
         grid.reads_back = lambda t: False
     try:
         with _OpCount() as ops:
             plan()
     finally:
-        policy.native_mish, grid.reads_back = None, keep
+        policy.native_mish = None
+        if keep is not None:
+            grid.reads_back = keep
     return ops
 
 
