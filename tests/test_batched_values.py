@@ -251,23 +251,32 @@ def test_interpolating_every_point_gives_the_skipping_row_max(world, paths, spat
     assert torch.equal(dense, model._row_max(base, weights, rows=20))
 
 
-def test_a_diverged_policy_stops_the_device_path_cleanly(world, spatial, monkeypatch) -> None:
+@pytest.mark.parametrize("held", [False, True], ids=["value", "value + hold"])
+def test_a_diverged_policy_stops_the_device_path_cleanly(world, spatial, monkeypatch,
+                                                         held) -> None:
     """Steering on a GPU with a network gone NaN: the candidates' points are NaN, the grid
     (which on a device reads nothing back) must not turn them into cell indices out of its
-    table, a device-side assertion on CUDA; the steering ends with the diverged-policy error.
-    Run here as a device runs it (``grid.reads_back`` off)."""
+    table, a device-side assertion on CUDA; the steering ends with the diverged-policy error,
+    with the monitor's predicted hold in the value too. Run here as a device runs it
+    (``grid.reads_back`` off)."""
     import copy
 
     from rapidds.errors import CheckpointError
+    from rapidds.execution.slowdowns import HoldModel, approach_speeds
     from rapidds.human.spatial import grid
+    from rapidds.worlds.reactions import cell_reactions
 
     broken = copy.deepcopy(load_policy(world, device="cpu"))
     with torch.no_grad():
         next(iter(broken.model.parameters())).fill_(float("nan"))
     monkeypatch.setattr(grid, "reads_back", lambda t: False)
+    limits = cell_reactions(world)[1]
+    holds = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits))
+    terms = ValueTerms(device_terms=device_terms(world, spatial), on_device=True,
+                       hold=holds.hold if held else None,
+                       device_hold=holds.tensor_hold if held else None)
     motion = DiffusionMotion(broken, world.completion_time, workspace_cost(world, spatial), 12.0,
-                             SteeringConfig(particles=2, candidates=2, steps=2),
-                             terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                              on_device=True))
+                             SteeringConfig(particles=2, candidates=2, steps=2), terms=terms)
+    assert isinstance(motion.value([("mix_l", frozenset({"secure_piece"}))]), TensorValue)
     with pytest.raises(CheckpointError, match="non-finite"):
         motion.plan([("mix_l", frozenset({"secure_piece", "prep_vise"}))])
