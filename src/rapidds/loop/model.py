@@ -182,28 +182,33 @@ def host_terms(world: World, spatial: SpatialModel) -> HostTerms | None:
             _WorkspaceTerms(values.robot_points, values.completion_time_from_points, spatial))
 
 
-class _WorkspaceTerms:
+class _SpatialTerm:
+    """The spatial model's cost of workspace points (N, H, P, w), arrays or tensors."""
+
+    def __init__(self, spatial: SpatialModel):
+        self.spatial = spatial
+
+    def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
+        return _points_cost(self.spatial, tasks, points)
+
+
+class _WorkspaceTerms(_SpatialTerm):
     """:class:`~rapidds.motion.diffusion_motion.HostTerms` (arrays): a world's workspace
     points and completion time from them, and the spatial model's cost of the points."""
 
     def __init__(self, points: Callable[[Any], Any],
                  completion_time: Callable[[str, Any, Any], Any], spatial: SpatialModel):
-        self.points, self.completion_time, self.spatial = points, completion_time, spatial
-
-    def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
-        return _points_cost(self.spatial, tasks, points)
+        super().__init__(spatial)
+        self.points, self.completion_time = points, completion_time
 
 
-class _TensorWorkspaceTerms:
+class _TensorWorkspaceTerms(_SpatialTerm):
     """:class:`~rapidds.motion.diffusion_motion.DeviceTerms`: the same on tensors, the
     completion time of a whole batch at once."""
 
     def __init__(self, terms: Any, spatial: SpatialModel):
+        super().__init__(spatial)
         self.points, self.completion_times = terms.points, terms.completion_times
-        self.spatial = spatial
-
-    def spatial_cost(self, tasks: Iterable[str], points: Any) -> Any:
-        return _points_cost(self.spatial, tasks, points)
 
 
 def device_terms(world: World, spatial: SpatialModel) -> DeviceTermsFactory | None:
