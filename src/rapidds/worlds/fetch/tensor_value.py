@@ -14,6 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from rapidds.worlds.tensor_rows import task_rows
+
 
 class FetchTensorValues:
     """Completion time and workspace points of fetch trajectories (N, H, 2) on one device.
@@ -63,12 +65,7 @@ class FetchTensorValues:
         for task in tasks:
             if task not in self.goals:
                 raise ValueError(f"unknown fetch task {task!r}")
-        n = xi.shape[0]
-        if not tasks or n % len(tasks):
-            raise ValueError(f"{n} rows do not split into blocks for {len(tasks)} tasks")
-        goal = (self.goals[tasks[0]] if len(set(tasks)) == 1 else
-                torch.cat([self.goals[task].expand(n // len(tasks), 2)
-                           for task in tasks])[:, None, :])
+        goal = task_rows(self.goals, tasks, xi.shape[0])[:, None, :]
         near_goal = torch.linalg.vector_norm(xi - goal, dim=-1) <= self.radius
         near_home = torch.linalg.vector_norm(xi - self.home, dim=-1) <= self.radius
         done = (near_goal.to(torch.int32).cumsum(dim=-1) > 0) & near_home

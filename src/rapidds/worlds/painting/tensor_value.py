@@ -23,6 +23,7 @@ import torch
 from torch import Tensor
 
 from rapidds.worlds.painting.kinematics import POINT_RADII, TOOL, ArmKinematics
+from rapidds.worlds.tensor_rows import task_rows
 
 
 @dataclass(frozen=True)
@@ -108,15 +109,14 @@ class PaintingTensorValues:
         self.dt, self.horizon, self.penalty = cell.dt, cell.horizon, cell.penalty
         self.speed_margin, self.shortfall = cell.speed_margin, cell.shortfall
         self.rest_radius, self.rest_tool = cell.rest_radius, t(cell.rest_tool)
-        self.goals = set(cell.goals)
-        # (G, 3) goal boxes per task, every task's list padded to the longest with the whole
-        # space, so the batch's rows gather theirs in one operation
+        # (G, 3) goal boxes' corners per task, every task's list padded to the longest with
+        # the whole space, so the batch's rows gather theirs in one operation
         most = max(len(boxes) for boxes in cell.goals.values())
         pad = [(np.full(3, -np.inf), np.full(3, np.inf))]
         padded = {task: list(boxes) + pad * (most - len(boxes))
                   for task, boxes in cell.goals.items()}
-        self._goal_boxes = tuple({task: t([box[i] for box in boxes])
-                                  for task, boxes in padded.items()} for i in (0, 1))
+        self.goal_lo, self.goal_hi = ({task: t([box[i] for box in boxes])
+                                       for task, boxes in padded.items()} for i in (0, 1))
         lows, highs, open_to_tool = cell.obstacles
         self.lows, self.highs = t(lows), t(highs)
         self.top = float(np.max(highs[:, 2]))
@@ -158,18 +158,10 @@ class PaintingTensorValues:
         task with fewer goals than another has its list padded with the whole space, whose
         gap is 0 and changes nothing)."""
         for task in tasks:
-            if task not in self.goals:
+            if task not in self.goal_lo:
                 raise ValueError(f"{task!r} is not a robot task of the painting cell")
         n, h = traj.shape[:2]
-        if not tasks or n % len(tasks):
-            raise ValueError(f"{n} rows do not split into blocks for {len(tasks)} tasks")
-        per = n // len(tasks)
-        lo, hi = self._goal_boxes[0], self._goal_boxes[1]
-        if len(set(tasks)) == 1:
-            lo, hi = lo[tasks[0]].expand(n, -1, 3), hi[tasks[0]].expand(n, -1, 3)
-        else:
-            lo = torch.cat([lo[task].expand(per, -1, 3) for task in tasks])
-            hi = torch.cat([hi[task].expand(per, -1, 3) for task in tasks])
+        lo, hi = task_rows(self.goal_lo, tasks, n), task_rows(self.goal_hi, tasks, n)
         tool = pts[:, :, TOOL]                                            # (N, H, 3)
         reached = torch.ones((n, h), dtype=torch.bool, device=tool.device)
         short = torch.zeros(n, dtype=torch.float64, device=tool.device)
