@@ -84,26 +84,35 @@ def point_cost(
         start = paths.reshape(-1, pts.shape[1])
         seg, inv = np.zeros_like(start), np.zeros(len(start))
     start_t, seg_t = start.T.copy(), seg.T.copy()                       # (d, S)
-    step = max(1, _POINT_COST_PAIRS // len(start))
+    d, n_seg = start_t.shape
+    step = max(1, _POINT_COST_PAIRS // n_seg)
     nearest = np.empty(len(pts))
+    # every (chunk, S) array is written in place into these: a fresh temporary per operation
+    # made this three times slower (the same operations in the same order: the same bits)
+    rel_buf = np.empty((d, min(step, len(pts)), n_seg))
+    acc_buf, tmp_buf = np.empty_like(rel_buf[0]), np.empty_like(rel_buf[0])
     for k in range(0, len(pts), step):
-        rel = [pts[k:k + step, i, None] - start_t[i] for i in range(len(start_t))]  # d x (c, S)
-        t = np.clip(_coordinate_sum([r * g for r, g in zip(rel, seg_t, strict=True)]) * inv,
-                    0.0, 1.0)
+        c = min(step, len(pts) - k)
+        rel, acc, tmp = rel_buf[:, :c], acc_buf[:c], tmp_buf[:c]
+        for i, r in enumerate(rel):
+            np.subtract(pts[k:k + c, i, None], start_t[i], out=r)
+        t = _coordinate_sum(rel, seg_t, acc, tmp)
+        t *= inv
+        np.clip(t, 0.0, 1.0, out=t)
         for r, g in zip(rel, seg_t, strict=True):
-            r -= t * g
-        nearest[k:k + step] = _coordinate_sum([r * r for r in rel]).min(axis=1)
+            r -= np.multiply(t, g, out=tmp)
+        _coordinate_sum(rel, rel, acc, tmp).min(axis=1, out=nearest[k:k + c])
     return np.exp(-float(beta) * np.sqrt(nearest))
 
 
-def _coordinate_sum(terms: list[np.ndarray]) -> np.ndarray:
-    """Sum of per-coordinate arrays in the order NumPy's einsum adds three coordinates
-    ((x + z) + y), so that costs are the bits the einsum form gave; other d in order."""
-    if len(terms) == 3:
-        out = terms[0] + terms[2]
-        out += terms[1]
-        return out
-    out = terms[0].copy()
-    for term in terms[1:]:
-        out += term
+def _coordinate_sum(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray
+                    ) -> np.ndarray:
+    """sum_i a[i] * b[i] over the coordinates i, into ``out`` (``tmp`` a scratch array of its
+    shape), added in the order NumPy's einsum adds three coordinates ((x + z) + y), so that
+    costs are the bits the einsum form gave; other d in order."""
+    order = [0, 2, 1] if len(a) == 3 else range(len(a))
+    first, *rest = order
+    np.multiply(a[first], b[first], out=out)
+    for i in rest:
+        out += np.multiply(a[i], b[i], out=tmp)
     return out
