@@ -9,6 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+from torch.utils._pytree import tree_flatten
 
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.loop.model import device_terms, host_terms, workspace_cost
@@ -280,3 +282,58 @@ def test_a_diverged_policy_stops_the_device_path_cleanly(world, spatial, monkeyp
     assert isinstance(motion.value([("mix_l", frozenset({"secure_piece"}))]), TensorValue)
     with pytest.raises(CheckpointError, match="non-finite"):
         motion.plan([("mix_l", frozenset({"secure_piece", "prep_vise"}))])
+
+
+class _HostData(TorchDispatchMode):
+    """The operations that take a tensor on the CPU: inside a value on another device, data
+    from the host (a copy a CUDA graph's capture cannot hold)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops: list[str] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # type: ignore[override]
+        flat, _ = tree_flatten((args, kwargs or {}))
+        if any(isinstance(a, torch.Tensor) and a.device.type == "cpu" for a in flat):
+            self.ops.append(func.__name__)
+        return func(*args, **(kwargs or {}))
+
+
+@pytest.mark.parametrize("which", ["painting", "painting + hold", "fetch"])
+def test_the_device_value_is_one_a_cuda_graph_can_capture(world, spatial, which) -> None:
+    """What replaying the steering's value from a CUDA graph needs (``cuda_graphs``), checked
+    where there is no GPU: on the meta device (shapes, no data), after a first call has made
+    its tables, a call of the value reads nothing back to the host (that fails on meta) and
+    takes no data from it."""
+    from rapidds.worlds.fetch import FetchWorld
+
+    w, sp, hold = world, spatial, None
+    if which == "fetch":
+        w = FetchWorld()
+        lo, hi = w.workspace_bounds
+        sp = SpatialModel.from_population(SpatialConfig.from_box(
+            lo, hi, beta=w.spatial_beta, grid_points=w.spatial_grid), w.prior().paths)
+    elif which == "painting + hold":
+        from rapidds.execution.slowdowns import HoldModel, approach_speeds
+        from rapidds.worlds.reactions import cell_reactions
+
+        limits = cell_reactions(w)[1]
+        hold = HoldModel(w, sp, limits, approach_speeds(w, sp, limits))
+    tasks = [t.id for t in w.problem().tasks if t.can("robot")]
+    people = [t.id for t in w.problem().tasks if t.can("human")]
+    requests = [(tasks[0], frozenset(people[:1])), (tasks[-1], frozenset()),
+                (tasks[1 % len(tasks)], frozenset(people[:2]))]
+    m = DiffusionMotion(load_policy(w, device="cpu"), w.completion_time, workspace_cost(w, sp),
+                        12.0, terms=ValueTerms(device_terms=device_terms(w, sp),
+                                               hold=None if hold is None else hold.hold,
+                                               device_hold=None if hold is None
+                                               else hold.tensor_hold, on_device=True))
+    terms = m.device_terms(torch.device("meta"))
+    cfg = m.policy.config
+    shape = (len(requests) * 6, cfg.horizon, cfg.state_dim)
+    xi = torch.empty(shape, dtype=torch.float64, device="meta")
+    first = m._term_values(terms, requests, xi, m.device_hold if hold else None)
+    assert first.shape == (len(requests) * 6,) and first.device.type == "meta"
+    with _HostData() as seen:
+        again = m._term_values(terms, requests, xi, m.device_hold if hold else None)
+    assert again.shape == first.shape and seen.ops == []

@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from rapidds.cli import _register, app
 from rapidds.errors import CheckpointError, RapiddsError
 from rapidds.motion.config import ConfigError, DiffusionConfig
+from rapidds.motion.cuda_graphs import Replayed
 from rapidds.motion.demos import DemonstrationError, Demonstrations, two_route_demos
 from rapidds.motion.inference import FastUnet, mish
 from rapidds.motion.normalizer import MinMaxNormalizer
@@ -182,6 +183,42 @@ def test_fast_unet_computes_the_training_network(horizon, d, dims, start, kernel
         fast(x, torch.zeros(6, dtype=torch.long), torch.randn(6, cfg.cond_dim + 1))
     with pytest.raises(TypeError, match="TemporalUnet1d"):
         FastUnet(torch.nn.Linear(2, 2))
+
+
+def test_a_sampling_pass_is_one_a_cuda_graph_can_capture():
+    """What capture needs, checked where there is no GPU: on the meta device (shapes, no
+    data) a pass whose batch shares one step, as sampling's do, reads nothing back to the host
+    and makes no tensor of host data, either of which would fail here as it fails capture. A
+    per-row step is read on the host, so sampling passes one step for the batch."""
+    cfg = DiffusionConfig(horizon=16, state_dim=2, down_dims=(16, 32), task_names=("a", "b"),
+                          step_embed_dim=16)
+    net = TemporalUnet1d(cfg).eval().to("meta")
+    x, cond = torch.empty(6, 16, 2, device="meta"), torch.empty(6, cfg.cond_dim, device="meta")
+    step = torch.full((), 5, dtype=torch.long, device="meta")
+    for native in (False, True):
+        out = FastUnet(net, native_mish=native)(x, step, cond)
+        assert out.shape == x.shape and out.device.type == "meta"
+    with pytest.raises(RuntimeError, match="meta"):
+        FastUnet(net)(x, torch.full((6,), 5, dtype=torch.long, device="meta"), cond)
+
+
+def test_replayed_passes_off_a_gpu_are_the_networks(trained):
+    policy, _ = trained
+    ref = policy.sample(["right", "up"] * 4, 8, generator=3)
+    policy.cuda_graphs = True  # only a GPU captures: on the CPU the same passes, eagerly
+    try:
+        assert np.array_equal(policy.sample(["right", "up"] * 4, 8, generator=3), ref)
+        assert policy.with_sampler("ddpm").cuda_graphs  # a sampler is a run setting, this isn't
+        replayed = Replayed(policy.denoiser(), capture_at=1)
+        x, t, cond = torch.randn(4, 16, 2), torch.tensor(20), policy.condition("right", 4)
+        for _ in range(3):
+            assert torch.equal(replayed(x, t, cond), policy.denoiser()(x, t, cond))
+        assert replayed.graphs == {} and replayed.seen and replayed.note == ""
+        with pytest.raises(ValueError, match="cond"):
+            replayed(x, t, cond[:, :-1])
+        assert policy.graph_notes == {}
+    finally:
+        policy.cuda_graphs = False
 
 
 def test_policy_denoiser_follows_the_weights(trained):

@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from rapidds.errors import CheckpointError
 from rapidds.fileio import atomic_write_bytes, atomic_write_text
 from rapidds.motion.config import ConfigError, DiffusionConfig, resolve_device
+from rapidds.motion.cuda_graphs import Replayed
 from rapidds.motion.inference import FastUnet
 from rapidds.motion.normalizer import MinMaxNormalizer
 from rapidds.motion.unet import TemporalUnet1d
@@ -131,6 +132,10 @@ class DiffusionPolicy:
     rounding, 1.3x to 1.7x faster on CPU, more for larger batches). Set
     ``fast_inference = False`` to sample with ``model`` itself; training always uses ``model``.
     ``native_mish``: the copy's Mish (None: PyTorch's kernel off the CPU, the rewrite on it).
+    ``cuda_graphs``: on a GPU, sampling's network passes (and the steering's on-device value)
+    replay CUDA graphs (:class:`~rapidds.motion.cuda_graphs.Replayed`); off by default until
+    measured on a card. ``graph_notes``: why a capture failed, by what ("network", "value"),
+    after which that part runs as it is.
     """
 
     def __init__(self, config: DiffusionConfig, model: nn.Module,
@@ -154,7 +159,10 @@ class DiffusionPolicy:
         self.normalizer = normalizer
         self.fast_inference = True
         self.native_mish: bool | None = None
+        self.cuda_graphs = False
+        self.graph_notes: dict[str, str] = {}
         self._fast: tuple[tuple[object, ...], FastUnet] | None = None
+        self._replayed: Replayed | None = None
         self._slots: tuple[nn.Module, list[tuple[dict[str, Any], str]]] | None = None
 
     @classmethod
@@ -186,7 +194,10 @@ class DiffusionPolicy:
             raise ConfigError(f"sampler: {exc}") from None
         if config == self.config:
             return self
-        return DiffusionPolicy(config, self.model, make_noise_scheduler(config), self.normalizer)
+        other = DiffusionPolicy(config, self.model, make_noise_scheduler(config), self.normalizer)
+        other.fast_inference, other.native_mish, other.cuda_graphs = (
+            self.fast_inference, self.native_mish, self.cuda_graphs)
+        return other
 
     # -- plumbing ----------------------------------------------------------------------------
     @property
@@ -315,10 +326,20 @@ class DiffusionPolicy:
 
     def predict_noise(self, x_t: Tensor, t: int, cond: Tensor) -> Tensor:
         """eps_theta(x_t, t, cond): (B, H, d) -> (B, H, d); one network pass per row."""
-        net = self.denoiser()
+        net: Denoiser = self.denoiser()
         # FastUnet takes one step for the whole batch (no per-row check, no device sync)
         shape = () if isinstance(net, FastUnet) else (x_t.shape[0],)
-        return net(x_t, torch.full(shape, t, dtype=torch.long, device=x_t.device), cond)
+        step = torch.full(shape, t, dtype=torch.long, device=x_t.device)
+        if (self.cuda_graphs and isinstance(net, FastUnet) and x_t.device.type == "cuda"
+                and "network" not in self.graph_notes):
+            if self._replayed is None or self._replayed.fn is not net:
+                self._replayed = Replayed(net)  # a new copy's graphs start afresh
+            try:
+                return self._replayed(x_t, step, cond)
+            finally:
+                if self._replayed.note:
+                    self.graph_notes["network"] = self._replayed.note
+        return net(x_t, step, cond)
 
     def reverse_step(self, eps: Tensor, t: int, x_t: Tensor,
                      generator: torch.Generator | None = None) -> Tensor:

@@ -27,6 +27,7 @@ import torch
 from diffusers import DDIMScheduler
 
 from rapidds.errors import CheckpointError
+from rapidds.motion.cuda_graphs import Replayed
 from rapidds.motion.policy import DiffusionPolicy, GeneratorLike, as_generator
 
 ValueFn = Callable[[np.ndarray], np.ndarray]
@@ -119,6 +120,11 @@ class _Scorer:
         self.policy, self.value_fn = policy, value_fn
         self.on_device = isinstance(value_fn, TensorValue)
         self.finite: torch.Tensor | None = None  # all candidates finite so far (device path)
+        # on a GPU, with the policy's cuda_graphs, the value's later calls of this steering
+        # (one per step, all of one shape, its tables unchanged) replay a captured first
+        self.replayed = (Replayed(value_fn) if self.on_device and policy.cuda_graphs
+                         and policy.device.type == "cuda"
+                         and "value" not in policy.graph_notes else None)
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         n = x.shape[0]
@@ -126,7 +132,7 @@ class _Scorer:
             world = self.policy.normalizer.unnormalize(x.detach().to(torch.float64))
             ok = torch.isfinite(world).all()
             self.finite = ok if self.finite is None else self.finite & ok
-            out = self.value_fn(world)
+            out = (self.value_fn if self.replayed is None else self.replayed)(world)
             if not isinstance(out, torch.Tensor):
                 raise TypeError("a tensor_value must return a tensor")
             out = out.to(torch.float64)
@@ -141,6 +147,8 @@ class _Scorer:
 
     def check(self) -> None:
         """Raise for non-finite candidates seen on the device path (one synchronisation)."""
+        if self.replayed is not None and self.replayed.note:
+            self.policy.graph_notes["value"] = self.replayed.note
         if self.finite is not None and not bool(self.finite):
             raise CheckpointError(_NON_FINITE)
 
