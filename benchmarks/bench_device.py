@@ -2,7 +2,7 @@
 GPU, in one run: the one script a session with a card runs (design notes, section 11).
 
     .venv/bin/python benchmarks/bench_device.py [--seeds 0,1] [--cycles 5] [--train-steps 300]
-        [--devices cpu,cuda] [--policy distilled] [--json OUT.json]
+        [--devices cpu,cuda] [--policy distilled] [--cuda-graphs] [--json OUT.json]
 
 Per device, each in a fresh process (a CUDA context or a warmed allocator must not carry over):
 
@@ -15,11 +15,15 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
   per optimiser step after a warm-up of 20 steps: float32 (on cuda a captured CUDA graph,
   train_policy's default there) and on cuda also float32 launched op by op, float32 captured
-  with cudnn.benchmark, and bf16 autocast captured; and
-  the mean loss of the last 50 steps (``--train-steps 0``: not measured).
+  with cudnn.benchmark, and float32 captured with the network compiled (bf16 autocast, slower
+  on the H200 twice, is no longer measured); and the mean loss of the last 50 steps
+  (``--train-steps 0``: not measured).
 
 ``--policy``: the runs plan with that checkpoint, or one the world ships by name
-(``rapidds run --policy``); training stays the shipped network's.
+(``rapidds run --policy``); training stays the shipped network's. ``--cuda-graphs``: the cuda
+runs replay the network's passes and the steering value's calls from CUDA graphs
+(``DiffusionPolicy.cuda_graphs``); the same kernels on the same inputs, so their records'
+digests must be the plain cuda runs'.
 
 A GPU's numbers count only beside the CPU's of the same machine in the same run.
 """
@@ -41,29 +45,46 @@ ROOT = HERE.parent
 
 
 def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
-              warm_up: bool = False, threads: int = 1) -> dict[str, object]:
+              warm_up: bool = False, threads: int = 1, cuda_graphs: bool = False
+              ) -> dict[str, object]:
     """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds;
     ``warm_up``: a small batch through the network first; ``threads``: torch's intra-op
-    threads (bench_painting_cycle.run_seed)."""
+    threads; ``cuda_graphs``: the network's passes and the value's calls replayed from CUDA
+    graphs (bench_painting_cycle.run_seed)."""
     from bench_painting_cycle import run_seed
 
     return run_seed(seed, cycles, device=device, policy=policy, warm_up=warm_up,
-                    threads=threads)
+                    threads=threads, cuda_graphs=cuda_graphs)
 
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
-                cudnn_benchmark: bool = False) -> dict[str, object]:
+                cudnn_benchmark: bool = False, compiled: bool = False) -> dict[str, object]:
     """ms per optimiser step of the painting policy at its shipped size on ``device``;
     ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU);
     ``cudnn_benchmark``: let cuDNN time its convolution algorithms first (not rapidds's
-    default: the choice can differ between runs, and so can the weights)."""
+    default: the choice can differ between runs, and so can the weights); ``compiled``: the
+    network compiled (``nn.Module.compile``, inductor's default mode) inside the step, a probe
+    of what fusing its elementwise work would buy (not a train_policy option: compiling takes
+    longer than a short training saves); its compiles are counted, so a timed run that
+    compiled again shows."""
     import torch
 
     torch.backends.cudnn.benchmark = cudnn_benchmark
 
     from rapidds.cli.motion import _world_demos
+    from rapidds.motion import train as train_module
     from rapidds.motion.config import DiffusionConfig
     from rapidds.motion.train import train_policy
+
+    if compiled:  # this process only: every network train_policy builds is compiled
+        build = train_module.DiffusionPolicy.from_config
+
+        def build_compiled(*args, **kwargs):  # type: ignore[no-untyped-def]
+            policy = build(*args, **kwargs)
+            policy.model.compile()
+            return policy
+
+        train_module.DiffusionPolicy.from_config = build_compiled  # type: ignore[method-assign]
 
     torch.set_num_threads(1)
     demos, fields = _world_demos("painting", 16, 0)
@@ -72,6 +93,13 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     warm = DiffusionConfig.from_dict(fields)
     train_policy(demos, warm, mixed_precision=amp, cuda_graph=graph)  # allocator, kernels
     cfg = warm.replace(steps=steps)
+
+    def compiles() -> int:
+        from torch._dynamo.utils import counters
+
+        return int(counters["stats"]["unique_graphs"])
+
+    before = compiles()
     w0, c0 = time.perf_counter(), time.process_time()
     _, history = train_policy(demos, cfg, mixed_precision=amp, cuda_graph=graph)
     if device == "cuda":
@@ -79,7 +107,8 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     return {"ms_per_step": 1000 * wall / steps, "cpu_ms_per_step": 1000 * cpu / steps,
             "steps": steps, "final_loss": history.mean_loss(last=50),
-            "cuda_graph": history.cuda_graph, "graph_note": history.graph_note}
+            "cuda_graph": history.cuda_graph, "graph_note": history.graph_note,
+            "compiles_while_timed": compiles() - before}
 
 
 SRC = ROOT / "src"  # the rapidds the runs import (--src: an older checkout's, for a before)
@@ -95,10 +124,12 @@ def _child(what: str, *args: object) -> dict:
 
 
 def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
-            policy: str | None = None, train_on: list[str] | None = None) -> dict:
+            policy: str | None = None, train_on: list[str] | None = None,
+            cuda_graphs: bool = False) -> dict:
     out: dict[str, dict] = {}
     for dev in devices:
-        runs = [_child("cycles_on", dev, s, cycles, policy) for s in seeds]
+        graphs = cuda_graphs and dev == "cuda"
+        runs = [_child("cycles_on", dev, s, cycles, policy, False, 1, graphs) for s in seeds]
         first = [r["cpu"][0] for r in runs]
         later = [c for r in runs for c in r["cpu"][1:]]
         later_wall = [c for r in runs for c in r["wall"][1:]]
@@ -113,13 +144,15 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             # the run's construction: its prior and, on a GPU, its warm-up (older trees: none)
             "construct_wall": [c for r in runs for c in r.get("construct", [])],
         }
+        if graphs:  # per run: the shapes captured, and why capture failed if it did
+            out[dev]["graphs"] = [r.get("graphs") for r in runs]
         if dev == "cpu":  # a workstation's CPU with more than one core for torch
             four = _child("cycles_on", dev, seeds[0], cycles, policy, False, 4)
             out[dev]["later_wall_median_4_threads"] = statistics.median(four["wall"][1:])
         # the first cycle after a batch through the network before the run as well (the run
         # warms up its own kernels on a GPU: equal to the plain first cycle unless it misses some)
         if dev == "cuda":
-            warmed = _child("cycles_on", dev, seeds[0], 2, policy, True)
+            warmed = _child("cycles_on", dev, seeds[0], 2, policy, True, 1, graphs)
             out[dev]["first_cycle_wall_after_warm_up"] = warmed["wall"][0]
             out[dev]["digests_after_warm_up"] = warmed["digest"]
         if steps > 0 and (train_on is None or dev in train_on):
@@ -129,7 +162,9 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             out[dev]["train_fp32_eager"] = _child("training_on", dev, steps, False, False)
             out[dev]["train_fp32_cudnn_benchmark"] = _child("training_on", dev, steps, False,
                                                             None, True)
-            out[dev]["train_bf16"] = _child("training_on", dev, steps, True)
+            # bf16 autocast, slower than float32 on the H200 twice, gave way to this
+            out[dev]["train_fp32_compiled"] = _child("training_on", dev, steps, False, None,
+                                                     False, True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
 
@@ -142,7 +177,7 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
                  f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})")
         for key, label in (("train_fp32_eager", "fp32 eager"),
                            ("train_fp32_cudnn_benchmark", "fp32 cudnn.benchmark"),
-                           ("train_bf16", "bf16")):
+                           ("train_fp32_compiled", "fp32 compiled"), ("train_bf16", "bf16")):
             if key in r:
                 train += (f"; {label} {r[key]['ms_per_step']:.1f} "
                           f"(loss {r[key]['final_loss']:.4f})")
@@ -180,6 +215,10 @@ def main() -> None:
                     help="train on these of the devices only (default: all of them)")
     ap.add_argument("--policy", default=None,
                     help="plan with this checkpoint or shipped policy name (distilled)")
+    ap.add_argument("--cuda-graphs", action="store_true",
+                    help="on cuda, replay the network's passes and the value's calls from CUDA "
+                         "graphs (DiffusionPolicy.cuda_graphs); the records must equal the plain "
+                         "run's")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--src", type=Path, default=None,
                     help="measure the rapidds of this src directory (an older checkout's: "
@@ -195,7 +234,7 @@ def main() -> None:
     load0 = load_average()
     seeds = parse_seeds(args.seeds)
     res = measure(devices, seeds, args.cycles, args.train_steps, args.policy,
-                  args.train_on.split(",") if args.train_on else None)
+                  args.train_on.split(",") if args.train_on else None, args.cuda_graphs)
     print(markdown(res, seeds, args.cycles, load0, args.policy))
     if args.json is not None:
         args.json.write_text(json.dumps(res, indent=2) + "\n")

@@ -4,7 +4,9 @@
 the monitor), on each device given: seconds per batch, and on CUDA the host synchronisations
 inside it (``torch.cuda.set_sync_debug_mode``) and the tensor operations it issues as a GPU
 runs it (each one dispatched by the host, each but a view a kernel it launches; counted on any
-device).
+device). On CUDA also the device value with the network's passes and the value's calls
+replayed from CUDA graphs (``DiffusionPolicy.cuda_graphs``), whose plans must equal the plain
+device value's, seed by seed (``digest``: the plans' durations and trajectories).
 
     .venv/bin/python benchmarks/bench_steer_device.py [--devices cpu,cuda] [--repeat 5]
 """
@@ -12,6 +14,7 @@ device).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import statistics
 import time
@@ -61,14 +64,19 @@ def _count_as_on_a_gpu(policy, plan, on_device: bool) -> _OpCount:
     with PyTorch's Mish, and a value on the device (``on_device``) without the spatial
     grid's host-only pruning and checks."""
     keep = getattr(grid, "reads_back", None)  # None: an older tree, counted as it is
-    policy.native_mish = True
+    # (on a GPU the network has PyTorch's Mish already: set again it would rebuild the network
+    # copy, and its captured graphs with it)
+    cpu = policy.device.type == "cpu"
+    if cpu:
+        policy.native_mish = True
     if on_device and keep is not None:
         grid.reads_back = lambda t: False
     try:
         with _OpCount() as ops:
             plan()
     finally:
-        policy.native_mish = None
+        if cpu:
+            policy.native_mish = None
         if keep is not None:
             grid.reads_back = keep
     return ops
@@ -90,9 +98,13 @@ def measure(device: str, repeat: int) -> dict[str, object]:
     limits = cell_reactions(world)[1]
     holds = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits))
     out: dict[str, object] = {}
-    for label, on_device, held in (("host value", False, False), ("device value", True, False),
-                                   ("host value + hold", False, True),
-                                   ("device value + hold", True, True)):
+    rows = [("host value", False, False, False), ("device value", True, False, False),
+            ("host value + hold", False, True, False), ("device value + hold", True, True, False)]
+    if device == "cuda" and hasattr(policy, "graph_notes"):  # not an older tree
+        rows += [("device value, graphs", True, False, True),
+                 ("device value + hold, graphs", True, True, True)]
+    for label, on_device, held, graphs in rows:
+        policy.cuda_graphs, policy.graph_notes = graphs, {}
         def motion(seed: int, on: bool = on_device, held: bool = held) -> DiffusionMotion:
             return DiffusionMotion(policy, world.completion_time,
                                    workspace_cost(world, spatial), 12.0,
@@ -104,6 +116,7 @@ def measure(device: str, repeat: int) -> dict[str, object]:
 
         motion(99).plan(REQUESTS)  # warm-up: kernels, caches, tensor terms
         wall, cpu, syncs = [], [], 0
+        digest = hashlib.sha256()
         for k in range(repeat):
             _sync(device)
             w0, c0 = time.perf_counter(), time.process_time()
@@ -118,13 +131,23 @@ def measure(device: str, repeat: int) -> dict[str, object]:
             wall.append(time.perf_counter() - w0)
             cpu.append(time.process_time() - c0)
             syncs += sum("synchroniz" in str(w.message) for w in caught)
+            for p in plans:
+                digest.update(np.float64(p.duration).tobytes())
+                digest.update(np.ascontiguousarray(p.trajectory, dtype=np.float64).tobytes())
+        replayed = getattr(policy, "_replayed", None)  # None: an older tree
+        # the network's captured shapes, and why a capture failed if one did (timed runs')
+        captured = [0 if replayed is None else len(replayed.graphs), dict(policy.graph_notes)]
         # untimed: the tensor operations a batch issues, each one the host dispatches and
-        # each but a view a kernel it launches on a GPU
+        # each but a view a kernel it launches on a GPU (with graphs: the launches the host
+        # still makes)
         ops = _count_as_on_a_gpu(policy, lambda: motion(repeat).plan(REQUESTS), on_device)
         out[label] = {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu),
                       "syncs_per_batch": syncs / repeat, "tensor_ops_per_batch": ops.count,
                       "kernels_per_batch": ops.kernels,
-                      "mean_duration": float(np.mean([p.duration for p in plans]))}
+                      "mean_duration": float(np.mean([p.duration for p in plans])),
+                      "digest": digest.hexdigest()[:16]}
+        if graphs:
+            out[label]["graphs"] = captured
         print(f"{device} {label}: {json.dumps(out[label])}", flush=True)
     return out
 
