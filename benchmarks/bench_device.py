@@ -187,7 +187,9 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
             warmed += f" (run made in {statistics.median(r['construct_wall']):.2f} s)"
         four = ("" if "later_wall_median_4_threads" not in r else
                 f" ({r['later_wall_median_4_threads']:.2f} wall with 4 threads)")
-        rows.append(f"| {dev} | {r['first_cycle_wall']:.2f} / {r['first_cycle_cpu']:.2f}{warmed} | "
+        name = dev if "graphs" not in r else f"{dev}, CUDA graphs"
+        rows.append(f"| {name} | {r['first_cycle_wall']:.2f} / "
+                    f"{r['first_cycle_cpu']:.2f}{warmed} | "
                     f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f}{four} | "
                     f"{r['later_plan_median']:.2f} | {sum(r['later_requests'])} | {train} |")
     gpu = ""

@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Issue 36 on a machine with a CUDA GPU, in one run of about 8-10 minutes, most important first:
 #   device      the painting cycle and painting-policy training on cpu and cuda (bench_device.py:
-#               2 seeds x 5 cycles; 300 training steps, float32, and on cuda also float32 op by
-#               op and bf16), about 220 s with TRAIN_ON=cuda;
-#   base        with BASE (an older checkout's src as a tarball: git archive --format=tar
-#               <commit> src | xz > .dev/base-src.tar.xz), the same cuda cycles of that tree,
-#               the before of this tree's change on the same card in the same run, about 80 s;
+#               2 seeds x 5 cycles; 300 training steps, float32 captured, and on cuda also
+#               float32 op by op, with cudnn.benchmark and with the network compiled), about
+#               260 s with TRAIN_ON=cuda (compiling about 40 s of it);
 #   graphs      the cuda cycles again with the network's passes and the steering value's
 #               calls replayed from CUDA graphs (bench_device.py --cuda-graphs): their digests
 #               must be the device part's, about 60 s;
+#   base        with BASE (an older checkout's src as a tarball: git archive --format=tar
+#               <commit> src | xz > .dev/base-src.tar.xz), the same cuda cycles of that tree,
+#               the before of this tree's change on the same card in the same run, about 80 s;
 #   steer       one cycle's steering batch with the value on the host and on the device, each
 #               without and with the monitor's predicted hold, the device's also with CUDA
 #               graphs: seconds, host synchronisations, the kernels it launches and the plans'
@@ -41,7 +42,7 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device base graphs steer steer-base distilled cpu_facts}
+PARTS=${PARTS:-device graphs base steer steer-base distilled cpu_facts}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
     case " versions $PARTS " in *" $name "*) ;; *) return 0 ;; esac
@@ -60,12 +61,12 @@ part 30 versions "$PY" -c "import torch, diffusers, mujoco, rapidds; \
 print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'diffusers', \
 diffusers.__version__, 'mujoco', mujoco.__version__)"
 # TRAIN_ON=cuda: skip the CPU's training steps (about 40 s), measured once per machine kind
-part 280 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
+part 330 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
-[ -n "$BASE_SRC" ] && part 120 base "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 \
-    --train-steps 0 --devices cuda --src "$BASE_SRC" --json "$OUT/base.json"
 part 120 graphs "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --devices cuda --cuda-graphs --json "$OUT/graphs.json"
+[ -n "$BASE_SRC" ] && part 120 base "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 \
+    --train-steps 0 --devices cuda --src "$BASE_SRC" --json "$OUT/base.json"
 part 150 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
 [ -n "$BASE_SRC" ] && part 90 steer-base env PYTHONPATH="$BASE_SRC:$PYTHONPATH" "$PY" \
     benchmarks/bench_steer_device.py --devices cuda --repeat 3 --json "$OUT/steer-base.json"
