@@ -14,7 +14,10 @@
 #               without and with the monitor's predicted hold, the device's also with CUDA
 #               graphs: seconds, host synchronisations, the kernels it launches and the plans'
 #               digests (bench_steer_device.py), about 110 s;
-#   steer-base  the same of the BASE tree, on cuda, about 60 s;
+#   profile     where the device's time goes: the kernels of a training step (op by op) and of
+#               a steering batch with and without CUDA graphs, by device time, beside the wall
+#               time (gpu_profile.py), about 60 s;
+#   steer-base  the same steering batch of the BASE tree, on cuda, about 60 s;
 #   distilled   the painting cycle with the shipped distilled policy on cpu and cuda, over 100 s;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
 #               kernels, one pass of each network, also in bf16), about 25 s.
@@ -26,11 +29,11 @@
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured") unpacking and imports
 # took 28 s. COMMIT: a device's copy of .git can be stale (it was there), so name the commit
-# measured. Results: $OUT/device.json, base.json, graphs.json, steer.json, steer-base.json,
-# distilled.json, cpu_facts.json and gpu_check.log. The GPU's numbers count only beside the
-# CPU's of the same machine in the same run (docs/benchmarks.md); before 2026-11-27's last
-# session, the paper's network's "cpu" runs ran on the GPU (bench_painting_cycle loaded it on
-# "auto").
+# measured. Results: $OUT/device.json, graphs.json, base.json, steer.json, profile.json,
+# steer-base.json, distilled.json, cpu_facts.json and gpu_check.log. The GPU's numbers count
+# only beside the CPU's of the same machine in the same run (docs/benchmarks.md); before
+# 2026-11-27's last session, the paper's network's "cpu" runs ran on the GPU
+# (bench_painting_cycle loaded it on "auto").
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python}
@@ -42,7 +45,7 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device graphs base steer steer-base distilled cpu_facts}
+PARTS=${PARTS:-device graphs base steer profile steer-base distilled cpu_facts}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
     case " versions $PARTS " in *" $name "*) ;; *) return 0 ;; esac
@@ -68,6 +71,7 @@ part 120 graphs "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-
 [ -n "$BASE_SRC" ] && part 120 base "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 \
     --train-steps 0 --devices cuda --src "$BASE_SRC" --json "$OUT/base.json"
 part 150 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
+part 120 profile "$PY" benchmarks/gpu_profile.py --json "$OUT/profile.json"
 [ -n "$BASE_SRC" ] && part 90 steer-base env PYTHONPATH="$BASE_SRC:$PYTHONPATH" "$PY" \
     benchmarks/bench_steer_device.py --devices cuda --repeat 3 --json "$OUT/steer-base.json"
 part 150 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
