@@ -139,6 +139,8 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             "later_wall_median": statistics.median(later_wall),
             "later_cpu_median": statistics.median(later),
             "later_plan_median": statistics.median(p for r in runs for p in r["plan"][1:]),
+            # the belief's update (on a GPU its distances are found there since this was added)
+            "later_update_median": statistics.median(u for r in runs for u in r["update"][1:]),
             "later_requests": [q for r in runs for q in r.get("requests", [])[1:]],
             "digests": [r["digest"] for r in runs],
             # the run's construction: its prior and, on a GPU, its warm-up (older trees: none)
@@ -191,7 +193,8 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
         rows.append(f"| {name} | {r['first_cycle_wall']:.2f} / "
                     f"{r['first_cycle_cpu']:.2f}{warmed} | "
                     f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f}{four} | "
-                    f"{r['later_plan_median']:.2f} | {sum(r['later_requests'])} | {train} |")
+                    f"{r['later_plan_median']:.2f} / {r['later_update_median']:.3f} | "
+                    f"{sum(r['later_requests'])} | {train} |")
     gpu = ""
     if "cuda" in res:
         import torch
@@ -202,7 +205,7 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
             f"{cycles}{chosen}`: {cpu_model()}{gpu}, one torch thread; 1-min load average "
             f"{load0} at start, {load_average()} at end.\n\n"
             "| device | first cycle wall / CPU s | later cycles wall / CPU s (median) | "
-            "plan wall s (median) | later cycles' steering requests | "
+            "plan / learn wall s (median) | later cycles' steering requests | "
             "training ms per step (final loss) |\n|---|---:|---:|---:|---:|---|\n"
             + "\n".join(rows) + "\n")
 

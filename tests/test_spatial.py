@@ -103,6 +103,30 @@ def test_point_cost_chunks_agree_with_brute_force():
     assert whole[11] == pytest.approx(math.exp(-2.0 * seg_d), rel=1e-12)
 
 
+def test_point_cost_on_a_device_is_the_hosts_bit_for_bit(monkeypatch, pop):
+    """A run on a GPU updates its belief there (``device``); its distances are the same
+    operations in the same order, each exactly rounded, so the costs are the host's bits.
+    Checked here with tensors on the CPU, in chunks of every size, and through an update."""
+    from rapidds.human.spatial import path_cost
+
+    rng = np.random.default_rng(4)
+    cases = [(rng.random((3000, 3)), rng.random((50, 4, 3)), 2.0, True),   # body points, 3-D
+             (rng.random((900, 2)) * 10, pop[0], 0.7, True),
+             (rng.random((900, 2)) * 10, pop[0], 0.7, False),               # samples only
+             (rng.random((400, 3)), rng.random((1, 3)), 5.0, True),          # one sample
+             (rng.random((400, 4)), rng.random((20, 2, 4)), 1.0, True)]      # d = 4
+    for pairs in (path_cost._DEVICE_PAIRS, 997):
+        monkeypatch.setattr(path_cost, "_DEVICE_PAIRS", pairs)
+        for pts, traj, beta, line in cases:
+            assert np.array_equal(point_cost(pts, traj, beta, polyline=line, device="cpu"),
+                                  point_cost(pts, traj, beta, polyline=line))
+    cfg = SpatialConfig(bounds=BOUNDS, beta=0.7, grid_points=15)
+    host, dev = (SpatialCostModel.from_population(cfg, pop[:4]) for _ in range(2))
+    host.observe(pop[5])
+    dev.observe(pop[5], device="cpu")
+    assert np.array_equal(host.mean, dev.mean) and np.array_equal(host.var, dev.var)
+
+
 def test_point_cost_rejects_bad_input():
     with pytest.raises(ValueError, match="NaN"):
         point_cost([[0.0, 0.0]], [[np.nan, 1.0]], 1.0)

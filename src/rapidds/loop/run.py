@@ -437,6 +437,9 @@ class AdaptiveRun:
         self._check_current(plan)
         t0 = time.perf_counter()
         learn_time, learn_space = LEARNS[self.config.adapt]
+        # on a GPU the belief's update finds its distances there too (the same bits), since
+        # the host is what a cycle there waits for
+        device = None if self.policy.device.type == "cpu" else self.policy.device
         plan.slowed = self.context.slowdowns.observe(  # before the path belief moves
             self._spatial(), plan.best.motions, deployment, self.model.slowdowns)
         for task, ex in deployment.human.items():
@@ -444,7 +447,7 @@ class AdaptiveRun:
                 self.model.temporal.observe(task, ex.duration)
                 self.model.changes.cycles.setdefault(task, []).append(plan.cycle)
             if learn_space:
-                self.model.spatial.observe(task, ex.trajectory)
+                self.model.spatial.observe(task, ex.trajectory, device)
         if self.config.detect and learn_time:
             plan.changes = detect_changes(
                 self.config, self.model, self.teammate, plan.cycle, deployment, learn_space)

@@ -138,15 +138,16 @@ class SpatialCostModel:
         """True when the MLP is missing or was fitted to an older posterior."""
         return self._stale
 
-    def observe(self, traj: ArrayLike) -> None:
+    def observe(self, traj: ArrayLike, device: str | torch.device | None = None) -> None:
         """Conjugate update with one observed path (T, d) or (T, K, d) of this person
         (Eqs. 10-11).
 
         At every grid point s_obs = point_cost(x, traj);
         1/var' = 1/var + 1/rho and mean' = var' (mean/var + s_obs/rho). Marks the MLP stale.
+        ``device``: where point_cost finds its distances (the same bits; None: the host).
         """
         obs = point_cost(self._grid, check_path(traj, "trajectory", self.config.dim),
-                         self.config.beta, polyline=self.config.polyline)
+                         self.config.beta, polyline=self.config.polyline, device=device)
         rho, f = self.config.rho, self.config.forgetting
         var = self._var / f if f < 1 else self._var  # forgetting: precision times f
         new_var = 1.0 / (1.0 / var + 1.0 / rho)

@@ -76,9 +76,11 @@ class SpatialModel:
     def __len__(self) -> int:
         return len(self._models)
 
-    def observe(self, task_id: str, traj: ArrayLike) -> None:
-        """Update task ``task_id`` with one observed path (T, d) or (T, K, d) of this person."""
-        self[task_id].observe(traj)
+    def observe(self, task_id: str, traj: ArrayLike,
+                device: str | torch.device | None = None) -> None:
+        """Update task ``task_id`` with one observed path (T, d) or (T, K, d) of this person;
+        ``device``: where the update's distances are found (the same bits; None: the host)."""
+        self[task_id].observe(traj, device)
 
     def refit(self, tasks: Iterable[str] | None = None) -> dict[str, FitReport]:
         """Refit the stale MLPs of ``tasks`` (default: all). Does nothing when

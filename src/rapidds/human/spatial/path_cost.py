@@ -1,21 +1,25 @@
 """Eq. 7 of the paper: the point cost of robot points against one observed human path,
-s(x, xi_h) = max over the path of exp(-beta ||x_h - x||), exactly, in numpy (the population
-prior and every observation of :class:`~rapidds.human.spatial.grid.SpatialCostModel` evaluate
-it at all grid points)."""
+s(x, xi_h) = max over the path of exp(-beta ||x_h - x||), exactly, in numpy, or with its
+distances found on a device to the same bits (the population prior and every observation of
+:class:`~rapidds.human.spatial.grid.SpatialCostModel` evaluate it at all grid points)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+import torch
 from numpy.typing import ArrayLike
 
 from rapidds.human.spatial.config import _is_real
 
 __all__ = ["check_path", "point_cost"]
 
-# Elements of point_cost's (chunk x S) temporaries: 1 MiB of float64 each, to stay in cache.
+# Elements of point_cost's (chunk x S) temporaries: 1 MiB of float64 each, to stay in cache;
+# on a device, 32 MiB each (a GPU's few large kernels beat many small ones).
 _POINT_COST_PAIRS = 1 << 17
+_DEVICE_PAIRS = 1 << 22
 
 
 def _check_points(a: ArrayLike, what: str, d: int | None = None) -> np.ndarray:
@@ -48,7 +52,8 @@ def check_path(a: ArrayLike, what: str, d: int) -> np.ndarray:
 
 
 def point_cost(
-    points: ArrayLike, human_traj: ArrayLike, beta: float, *, polyline: bool = True
+    points: ArrayLike, human_traj: ArrayLike, beta: float, *, polyline: bool = True,
+    device: str | torch.device | None = None,
 ) -> np.ndarray:
     """Eq. 7: s(x, xi_h) = max over the human path of exp(-beta ||x_h - x||), for every x.
 
@@ -61,6 +66,10 @@ def point_cost(
         polyline: True takes each path as the piecewise-linear route through its samples (the
             person is between two samples between time steps); False takes the samples alone,
             as Eq. 7 is printed, which leaves dips between samples spaced wider than ~1/beta.
+        device: find the nearest distances with tensor operations there (a GPU, where a
+            run's policy is: there the host is what a cycle waits for) and copy them back once;
+            the same operations in the same order, each exactly rounded in float64, so the same
+            bits as numpy's. None: numpy on the host.
 
     Returns:
         (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
@@ -84,6 +93,9 @@ def point_cost(
         start = paths.reshape(-1, pts.shape[1])
         seg, inv = np.zeros_like(start), np.zeros(len(start))
     start_t, seg_t = start.T.copy(), seg.T.copy()                       # (d, S)
+    if device is not None:
+        nearest = _nearest_on(torch.device(device), pts, start_t, seg_t, inv)
+        return np.exp(-float(beta) * np.sqrt(nearest))
     d, n_seg = start_t.shape
     step = max(1, _POINT_COST_PAIRS // n_seg)
     nearest = np.empty(len(pts))
@@ -105,14 +117,35 @@ def point_cost(
     return np.exp(-float(beta) * np.sqrt(nearest))
 
 
-def _coordinate_sum(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray
-                    ) -> np.ndarray:
+def _nearest_on(device: torch.device, pts: np.ndarray, start_t: np.ndarray,
+                seg_t: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Squared distance (V,) of each point to its nearest segment, computed on ``device`` as
+    :func:`point_cost` computes it on the host: one kernel per operation, none fused, so the
+    bits are numpy's (the square root and the exponential stay on the host)."""
+    p = torch.as_tensor(pts, device=device)
+    st, sg, iv = (torch.as_tensor(a, device=device) for a in (start_t, seg_t, inv))
+    step = max(1, _DEVICE_PAIRS // st.shape[1])
+    parts = []
+    for k in range(0, len(p), step):
+        rel = torch.stack([p[k:k + step, i, None] - st[i] for i in range(len(st))])
+        t = _coordinate_sum(rel, sg, torch.empty_like(rel[0]), torch.empty_like(rel[0]))
+        t *= iv
+        t.clamp_(0.0, 1.0)
+        for r, g in zip(rel, sg, strict=True):
+            r -= t * g
+        acc = torch.empty_like(rel[0])
+        parts.append(_coordinate_sum(rel, rel, acc, t).amin(dim=1))
+    return torch.cat(parts).cpu().numpy()
+
+
+def _coordinate_sum(a: Any, b: Any, out: Any, tmp: Any) -> Any:
     """sum_i a[i] * b[i] over the coordinates i, into ``out`` (``tmp`` a scratch array of its
     shape), added in the order NumPy's einsum adds three coordinates ((x + z) + y), so that
-    costs are the bits the einsum form gave; other d in order."""
+    costs are the bits the einsum form gave; other d in order. Arrays or tensors."""
+    mul = torch.mul if isinstance(out, torch.Tensor) else np.multiply
     order = [0, 2, 1] if len(a) == 3 else range(len(a))
     first, *rest = order
-    np.multiply(a[first], b[first], out=out)
+    mul(a[first], b[first], out=out)
     for i in rest:
-        out += np.multiply(a[i], b[i], out=tmp)
+        out += mul(a[i], b[i], out=tmp)
     return out
