@@ -31,6 +31,7 @@ from rapidds.human.spatial import SpatialConfig, SpatialModel, grid
 from rapidds.loop.model import device_terms, workspace_cost
 from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
+from rapidds.motion.policy import DiffusionPolicy
 from rapidds.worlds.painting import PaintingWorld
 from rapidds.worlds.reactions import cell_reactions
 
@@ -87,14 +88,20 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def measure(device: str, repeat: int) -> dict[str, object]:
-    torch.set_num_threads(1)
+def painting_cell(device: str) -> tuple[PaintingWorld, SpatialModel, DiffusionPolicy]:
+    """The painting world, its population prior and its shipped policy on ``device``: what a
+    measured steering batch plans with."""
     world = PaintingWorld()
     lo, hi = world.workspace_bounds
     spatial = SpatialModel.from_population(
         SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid),
         world.prior().paths)
-    policy = load_policy(world, device=device)
+    return world, spatial, load_policy(world, device=device)
+
+
+def measure(device: str, repeat: int) -> dict[str, object]:
+    torch.set_num_threads(1)
+    world, spatial, policy = painting_cell(device)
     limits = cell_reactions(world)[1]
     holds = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits))
     out: dict[str, object] = {}

@@ -66,20 +66,12 @@ def training(device: str, steps: int, top: int) -> dict[str, object]:
 
 
 def steering(device: str, graphs: bool, top: int) -> dict[str, object]:
-    from bench_steer_device import REQUESTS
+    from bench_steer_device import REQUESTS, painting_cell
 
-    from rapidds.human.spatial import SpatialConfig, SpatialModel
     from rapidds.loop.model import device_terms, workspace_cost
-    from rapidds.loop.run import load_policy
     from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
-    from rapidds.worlds.painting import PaintingWorld
 
-    world = PaintingWorld()
-    lo, hi = world.workspace_bounds
-    spatial = SpatialModel.from_population(
-        SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid),
-        world.prior().paths)
-    policy = load_policy(world, device=device)
+    world, spatial, policy = painting_cell(device)
     policy.cuda_graphs = graphs
 
     def batch(seed: int) -> None:
