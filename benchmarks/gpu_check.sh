@@ -1,22 +1,26 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, in one run of about 8-10 minutes, most important first:
+# Issue 36 on a machine with a CUDA GPU, most important first: about 10 minutes to the end of
+# the profile part, the rest in a second call (PARTS):
 #   device      the painting cycle and painting-policy training on cpu and cuda (bench_device.py:
 #               2 seeds x 5 cycles; 300 training steps, float32 captured, and on cuda also
 #               float32 op by op, with cudnn.benchmark and with the network compiled), about
 #               260 s with TRAIN_ON=cuda (compiling about 40 s of it);
-#   graphs      the cuda cycles again with the network's passes and the steering value's
-#               calls replayed from CUDA graphs (bench_device.py --cuda-graphs): their digests
-#               must be the device part's, about 60 s;
+#   graph_check whether replayed CUDA graphs give the eager results bit for bit (the network,
+#               sample, a steering batch's value) and what a replayed pass saves
+#               (gpu_graph_check.py), about 30 s;
+#   graphs      the cuda cycles with the network's passes and the steering value's calls
+#               replayed (bench_device.py --cuda-graphs): their digests must be the device
+#               part's, about 60 s;
 #   base        with BASE (an older checkout's src as a tarball: git archive --format=tar
 #               <commit> src | xz > .dev/base-src.tar.xz), the same cuda cycles of that tree,
 #               the before of this tree's change on the same card in the same run, about 80 s;
+#   profile     where the device's time goes: the kernels of a training step (op by op) and of
+#               a steering batch with and without CUDA graphs, by device time, beside the wall
+#               time (gpu_profile.py), about 60 s;
 #   steer       one cycle's steering batch with the value on the host and on the device, each
 #               without and with the monitor's predicted hold, the device's also with CUDA
 #               graphs: seconds, host synchronisations, the kernels it launches and the plans'
 #               digests (bench_steer_device.py), about 110 s;
-#   profile     where the device's time goes: the kernels of a training step (op by op) and of
-#               a steering batch with and without CUDA graphs, by device time, beside the wall
-#               time (gpu_profile.py), about 60 s;
 #   steer-base  the same steering batch of the BASE tree, on cuda, about 60 s;
 #   distilled   the painting cycle with the shipped distilled policy on cpu and cuda, over 100 s;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
@@ -29,11 +33,11 @@
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured") unpacking and imports
 # took 28 s. COMMIT: a device's copy of .git can be stale (it was there), so name the commit
-# measured. Results: $OUT/device.json, graphs.json, base.json, steer.json, profile.json,
-# steer-base.json, distilled.json, cpu_facts.json and gpu_check.log. The GPU's numbers count
-# only beside the CPU's of the same machine in the same run (docs/benchmarks.md); before
-# 2026-11-27's last session, the paper's network's "cpu" runs ran on the GPU
-# (bench_painting_cycle loaded it on "auto").
+# measured. Results: $OUT/device.json, graph_check.json, graphs.json, base.json, steer.json,
+# profile.json, steer-base.json, distilled.json, cpu_facts.json and gpu_check.log. The GPU's
+# numbers count only beside the CPU's of the same machine in the same run
+# (docs/benchmarks.md); before 2026-11-27's last session, the paper's network's "cpu" runs ran
+# on the GPU (bench_painting_cycle loaded it on "auto").
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python}
@@ -45,7 +49,7 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device graphs base steer profile steer-base distilled cpu_facts}
+PARTS=${PARTS:-device graph_check graphs base profile steer steer-base distilled cpu_facts}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
     case " versions $PARTS " in *" $name "*) ;; *) return 0 ;; esac
@@ -66,12 +70,13 @@ diffusers.__version__, 'mujoco', mujoco.__version__)"
 # TRAIN_ON=cuda: skip the CPU's training steps (about 40 s), measured once per machine kind
 part 330 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
+part 60 graph_check "$PY" benchmarks/gpu_graph_check.py --json "$OUT/graph_check.json"
 part 120 graphs "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --devices cuda --cuda-graphs --json "$OUT/graphs.json"
 [ -n "$BASE_SRC" ] && part 120 base "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 \
     --train-steps 0 --devices cuda --src "$BASE_SRC" --json "$OUT/base.json"
-part 150 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
 part 120 profile "$PY" benchmarks/gpu_profile.py --json "$OUT/profile.json"
+part 150 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/steer.json"
 [ -n "$BASE_SRC" ] && part 90 steer-base env PYTHONPATH="$BASE_SRC:$PYTHONPATH" "$PY" \
     benchmarks/bench_steer_device.py --devices cuda --repeat 3 --json "$OUT/steer-base.json"
 part 150 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
