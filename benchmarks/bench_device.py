@@ -15,9 +15,10 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
 - ``train-policy --world painting`` at the shipped network size and batch (64): milliseconds
   per optimiser step after a warm-up of 20 steps: float32 (on cuda a captured CUDA graph,
   train_policy's default there) and on cuda also float32 launched op by op, float32 captured
-  with cudnn.benchmark, and float32 captured with the network compiled (bf16 autocast, slower
-  on the H200 twice, is no longer measured); and the mean loss of the last 50 steps
-  (``--train-steps 0``: not measured).
+  with cudnn.benchmark, float32 captured with the network compiled, and float32 captured at
+  batch 256 of the shipped policy's 384 demonstrations (a batch chosen for the device; bf16
+  autocast, slower on the H200 twice, is no longer measured); and the mean loss of the last 50
+  steps (``--train-steps 0``: not measured).
 
 ``--policy``: the runs plan with that checkpoint, or one the world ships by name
 (``rapidds run --policy``); training stays the shipped network's. ``--cuda-graphs``: the cuda
@@ -58,7 +59,8 @@ def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
 
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
-                cudnn_benchmark: bool = False, compiled: bool = False) -> dict[str, object]:
+                cudnn_benchmark: bool = False, compiled: bool = False,
+                batch_size: int | None = None) -> dict[str, object]:
     """ms per optimiser step of the painting policy at its shipped size on ``device``;
     ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU);
     ``cudnn_benchmark``: let cuDNN time its convolution algorithms first (not rapidds's
@@ -66,7 +68,8 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     network compiled (``nn.Module.compile``, inductor's default mode) inside the step, a probe
     of what fusing its elementwise work would buy (not a train_policy option: compiling takes
     longer than a short training saves); its compiles are counted, so a timed run that
-    compiled again shows."""
+    compiled again shows; ``batch_size``: another than the shipped 64 (what a batch chosen
+    for the device would cost per step, and its loss after as many steps)."""
     import torch
 
     torch.backends.cudnn.benchmark = cudnn_benchmark
@@ -87,9 +90,11 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
         train_module.DiffusionPolicy.from_config = build_compiled  # type: ignore[method-assign]
 
     torch.set_num_threads(1)
-    demos, fields = _world_demos("painting", 16, 0)
+    # 96 demonstrations, or the shipped policy's 384 for a batch larger than 96
+    demos, fields = _world_demos("painting", 16 if (batch_size or 0) <= 96 else 64, 0)
     fields.update(horizon=demos.horizon, state_dim=demos.state_dim,
-                  task_names=list(demos.task_names), steps=20, device=device)
+                  task_names=list(demos.task_names), steps=20, device=device,
+                  **({} if batch_size is None else {"batch_size": batch_size}))
     warm = DiffusionConfig.from_dict(fields)
     train_policy(demos, warm, mixed_precision=amp, cuda_graph=graph)  # allocator, kernels
     cfg = warm.replace(steps=steps)
@@ -167,6 +172,8 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             # bf16 autocast, slower than float32 on the H200 twice, gave way to this
             out[dev]["train_fp32_compiled"] = _child("training_on", dev, steps, False, None,
                                                      False, True)
+            out[dev]["train_fp32_batch256"] = _child("training_on", dev, steps, False, None,
+                                                     False, False, 256)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
 
@@ -179,7 +186,8 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
                  f"{r['train_fp32']['ms_per_step']:.1f} (loss {r['train_fp32']['final_loss']:.4f})")
         for key, label in (("train_fp32_eager", "fp32 eager"),
                            ("train_fp32_cudnn_benchmark", "fp32 cudnn.benchmark"),
-                           ("train_fp32_compiled", "fp32 compiled"), ("train_bf16", "bf16")):
+                           ("train_fp32_compiled", "fp32 compiled"),
+                           ("train_fp32_batch256", "fp32 batch 256"), ("train_bf16", "bf16")):
             if key in r:
                 train += (f"; {label} {r[key]['ms_per_step']:.1f} "
                           f"(loss {r[key]['final_loss']:.4f})")

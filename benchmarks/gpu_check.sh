@@ -3,8 +3,8 @@
 # the profile part, the rest in a second call (PARTS):
 #   device      the painting cycle and painting-policy training on cpu and cuda (bench_device.py:
 #               2 seeds x 5 cycles; 300 training steps, float32 captured, and on cuda also
-#               float32 op by op, with cudnn.benchmark and with the network compiled), about
-#               260 s with TRAIN_ON=cuda (compiling about 40 s of it);
+#               float32 op by op, with cudnn.benchmark, with the network compiled and at
+#               batch 256), about 290 s with TRAIN_ON=cuda (compiling about 40 s of it);
 #   graph_check whether replayed CUDA graphs give the eager results bit for bit (the network,
 #               sample, a steering batch's value) and what a replayed pass saves
 #               (gpu_graph_check.py), about 30 s;
