@@ -119,12 +119,16 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
 SRC = ROOT / "src"  # the rapidds the runs import (--src: an older checkout's, for a before)
 
 
-def _child(what: str, *args: object) -> dict:
+def _child(what: str, *args: object, probe: bool = False) -> dict:
+    """``what(*args)`` in a fresh process. ``probe``: a row never run on a card before, whose
+    failure is reported as its result ({"error": ...}) rather than ending the measurement."""
     env = child_env(SRC, HERE)
     code = (f"import json, bench_device as b; print(json.dumps(b.{what}"
             f"({', '.join(map(repr, args))})))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                          text=True, check=True)
+                          text=True, check=not probe)
+    if proc.returncode != 0:
+        return {"error": (proc.stderr.strip().splitlines() or ["no message"])[-1][:300]}
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
@@ -171,9 +175,9 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
                                                             None, True)
             # bf16 autocast, slower than float32 on the H200 twice, gave way to this
             out[dev]["train_fp32_compiled"] = _child("training_on", dev, steps, False, None,
-                                                     False, True)
+                                                     False, True, probe=True)
             out[dev]["train_fp32_batch256"] = _child("training_on", dev, steps, False, None,
-                                                     False, False, 256)
+                                                     False, False, 256, probe=True)
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
 
@@ -188,7 +192,9 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
                            ("train_fp32_cudnn_benchmark", "fp32 cudnn.benchmark"),
                            ("train_fp32_compiled", "fp32 compiled"),
                            ("train_fp32_batch256", "fp32 batch 256"), ("train_bf16", "bf16")):
-            if key in r:
+            if key in r and "error" in r[key]:
+                train += f"; {label} failed: {r[key]['error']}"
+            elif key in r:
                 train += (f"; {label} {r[key]['ms_per_step']:.1f} "
                           f"(loss {r[key]['final_loss']:.4f})")
         warmed = ("" if "first_cycle_wall_after_warm_up" not in r else
