@@ -37,6 +37,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from _common import child_env, cpu_model, load_average, parse_seeds
@@ -134,8 +135,16 @@ def _child(what: str, *args: object, probe: bool = False) -> dict:
 
 def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             policy: str | None = None, train_on: list[str] | None = None,
-            cuda_graphs: bool = False) -> dict:
+            cuda_graphs: bool = False, save: Callable[[dict], None] | None = None) -> dict:
+    """Every device's rows; ``save`` is given what is measured so far after each row, so a
+    part cut short by its time limit keeps what it had."""
     out: dict[str, dict] = {}
+
+    def done(dev: str, key: str, value: object) -> None:
+        out[dev][key] = value
+        if save is not None:
+            save(out)
+
     for dev in devices:
         graphs = cuda_graphs and dev == "cuda"
         runs = [_child("cycles_on", dev, s, cycles, policy, False, 1, graphs) for s in seeds]
@@ -157,27 +166,29 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
         }
         if graphs:  # per run: the shapes captured, and why capture failed if it did
             out[dev]["graphs"] = [r.get("graphs") for r in runs]
+        if save is not None:
+            save(out)
         if dev == "cpu":  # a workstation's CPU with more than one core for torch
             four = _child("cycles_on", dev, seeds[0], cycles, policy, False, 4)
-            out[dev]["later_wall_median_4_threads"] = statistics.median(four["wall"][1:])
+            done(dev, "later_wall_median_4_threads", statistics.median(four["wall"][1:]))
         # the first cycle after a batch through the network before the run as well (the run
         # warms up its own kernels on a GPU: equal to the plain first cycle unless it misses some)
         if dev == "cuda":
             warmed = _child("cycles_on", dev, seeds[0], 2, policy, True, 1, graphs)
             out[dev]["first_cycle_wall_after_warm_up"] = warmed["wall"][0]
-            out[dev]["digests_after_warm_up"] = warmed["digest"]
+            done(dev, "digests_after_warm_up", warmed["digest"])
         if steps > 0 and (train_on is None or dev in train_on):
-            out[dev]["train_fp32"] = _child("training_on", dev, steps, False)
+            done(dev, "train_fp32", _child("training_on", dev, steps, False))
         # on cuda: launched op by op beside the captured step, train_policy's default there
         if "train_fp32" in out[dev] and dev == "cuda":
-            out[dev]["train_fp32_eager"] = _child("training_on", dev, steps, False, False)
-            out[dev]["train_fp32_cudnn_benchmark"] = _child("training_on", dev, steps, False,
-                                                            None, True)
-            # bf16 autocast, slower than float32 on the H200 twice, gave way to this
-            out[dev]["train_fp32_compiled"] = _child("training_on", dev, steps, False, None,
-                                                     False, True, probe=True)
-            out[dev]["train_fp32_batch256"] = _child("training_on", dev, steps, False, None,
-                                                     False, False, 256, probe=True)
+            done(dev, "train_fp32_eager", _child("training_on", dev, steps, False, False))
+            done(dev, "train_fp32_cudnn_benchmark",
+                 _child("training_on", dev, steps, False, None, True))
+            # bf16 autocast, slower than float32 on the H200 twice, gave way to these
+            done(dev, "train_fp32_compiled",
+                 _child("training_on", dev, steps, False, None, False, True, probe=True))
+            done(dev, "train_fp32_batch256",
+                 _child("training_on", dev, steps, False, None, False, False, 256, probe=True))
         print(f"{dev}: {json.dumps(out[dev])}", flush=True)
     return out
 
@@ -252,11 +263,16 @@ def main() -> None:
                else ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
     load0 = load_average()
     seeds = parse_seeds(args.seeds)
+    def save(res: dict) -> None:  # after every row: a part cut short keeps what it had
+        if args.json is not None:
+            tmp = args.json.with_suffix(".partial")
+            tmp.write_text(json.dumps(res, indent=2) + "\n")
+            tmp.replace(args.json)
+
     res = measure(devices, seeds, args.cycles, args.train_steps, args.policy,
-                  args.train_on.split(",") if args.train_on else None, args.cuda_graphs)
+                  args.train_on.split(",") if args.train_on else None, args.cuda_graphs, save)
     print(markdown(res, seeds, args.cycles, load0, args.policy))
-    if args.json is not None:
-        args.json.write_text(json.dumps(res, indent=2) + "\n")
+    save(res)
 
 
 if __name__ == "__main__":
