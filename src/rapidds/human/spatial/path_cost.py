@@ -93,49 +93,45 @@ def point_cost(
         start = paths.reshape(-1, pts.shape[1])
         seg, inv = np.zeros_like(start), np.zeros(len(start))
     start_t, seg_t = start.T.copy(), seg.T.copy()                       # (d, S)
-    if device is not None:
-        nearest = _nearest_on(torch.device(device), pts, start_t, seg_t, inv)
-        return np.exp(-float(beta) * np.sqrt(nearest))
-    d, n_seg = start_t.shape
-    step = max(1, _POINT_COST_PAIRS // n_seg)
-    nearest = np.empty(len(pts))
-    # every (chunk, S) array is written in place into these: a fresh temporary per operation
-    # took about a fifth longer (the same operations in the same order: the same bits)
-    rel_buf = np.empty((d, min(step, len(pts)), n_seg))
-    acc_buf, tmp_buf = np.empty_like(rel_buf[0]), np.empty_like(rel_buf[0])
-    for k in range(0, len(pts), step):
-        c = min(step, len(pts) - k)
-        rel, acc, tmp = rel_buf[:, :c], acc_buf[:c], tmp_buf[:c]
-        for i, r in enumerate(rel):
-            np.subtract(pts[k:k + c, i, None], start_t[i], out=r)
-        t = _coordinate_sum(rel, seg_t, acc, tmp)
-        t *= inv
-        np.clip(t, 0.0, 1.0, out=t)
-        for r, g in zip(rel, seg_t, strict=True):
-            r -= np.multiply(t, g, out=tmp)
-        _coordinate_sum(rel, rel, acc, tmp).min(axis=1, out=nearest[k:k + c])
+    if device is None:
+        nearest = _nearest(pts, start_t, seg_t, inv, _POINT_COST_PAIRS)
+    else:  # the same steps on tensors, copied back once
+        at = torch.device(device)
+        nearest = _nearest(*(torch.as_tensor(a, device=at) for a in (pts, start_t, seg_t, inv)),
+                           _DEVICE_PAIRS).cpu().numpy()
     return np.exp(-float(beta) * np.sqrt(nearest))
 
 
-def _nearest_on(device: torch.device, pts: np.ndarray, start_t: np.ndarray,
-                seg_t: np.ndarray, inv: np.ndarray) -> np.ndarray:
-    """Squared distance (V,) of each point to its nearest segment, computed on ``device`` as
-    :func:`point_cost` computes it on the host: one kernel per operation, none fused, so the
-    bits are numpy's (the square root and the exponential stay on the host)."""
-    p = torch.as_tensor(pts, device=device)
-    st, sg, iv = (torch.as_tensor(a, device=device) for a in (start_t, seg_t, inv))
-    step = max(1, _DEVICE_PAIRS // st.shape[1])
-    parts = []
-    for k in range(0, len(p), step):
-        rel = torch.stack([p[k:k + step, i, None] - st[i] for i in range(len(st))])
-        t = _coordinate_sum(rel, sg, torch.empty_like(rel[0]), torch.empty_like(rel[0]))
-        t *= iv
-        t.clamp_(0.0, 1.0)
-        for r, g in zip(rel, sg, strict=True):
-            r -= t * g
-        acc = torch.empty_like(rel[0])
-        parts.append(_coordinate_sum(rel, rel, acc, t).amin(dim=1))
-    return torch.cat(parts).cpu().numpy()
+def _nearest(pts: Any, start_t: Any, seg_t: Any, inv: Any, pairs: int) -> Any:
+    """Squared distance (V,) of each point to its nearest segment, arrays or tensors (one
+    kernel per operation, none fused, so the bits are numpy's on any device), in chunks of
+    about ``pairs`` (point, segment) pairs. Every (chunk, S) array is written in place into
+    three buffers: a fresh temporary per operation took about a fifth longer on the host."""
+    d, n_seg = start_t.shape
+    n = len(pts)
+    step = max(1, pairs // n_seg)
+    if isinstance(pts, torch.Tensor):
+        def new(shape: tuple[int, ...]) -> Any:
+            return torch.empty(shape, dtype=pts.dtype, device=pts.device)
+        sub, mul, clip = torch.sub, torch.mul, torch.clamp
+    else:
+        new, sub, mul, clip = np.empty, np.subtract, np.multiply, np.clip
+    nearest = new((n,))
+    rel_buf = new((d, min(step, n), n_seg))
+    acc_buf, tmp_buf = new(rel_buf.shape[1:]), new(rel_buf.shape[1:])
+    for k in range(0, n, step):
+        c = min(step, n - k)
+        rel, acc, tmp = rel_buf[:, :c], acc_buf[:c], tmp_buf[:c]
+        for i, r in enumerate(rel):
+            sub(pts[k:k + c, i, None], start_t[i], out=r)
+        t = _coordinate_sum(rel, seg_t, acc, tmp)
+        t *= inv
+        clip(t, 0.0, 1.0, out=t)
+        for r, g in zip(rel, seg_t, strict=True):
+            r -= mul(t, g, out=tmp)
+        sq = _coordinate_sum(rel, rel, acc, tmp)
+        nearest[k:k + c] = sq.amin(dim=1) if isinstance(sq, torch.Tensor) else sq.min(axis=1)
+    return nearest
 
 
 def _coordinate_sum(a: Any, b: Any, out: Any, tmp: Any) -> Any:
