@@ -23,6 +23,15 @@ def middle_start(policy, rows: int | None = None):
     return policy.normalizer.unnormalize(torch.zeros(shape)).numpy()
 
 
+def sync(device) -> None:
+    """Wait for ``device`` (a name or a torch.device) to finish its queued work: a GPU's
+    kernels run after the host has moved on, so a timing must end here; nothing on a CPU."""
+    import torch
+
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def child_env(*paths: str | Path, **extra: str) -> dict[str, str]:
     """This process's environment for a child on ``paths`` first, then the inherited
     ``PYTHONPATH`` (a GPU machine carries the packages it lacks there: design notes, 11)."""

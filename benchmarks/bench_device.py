@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from _common import child_env, cpu_model, load_average, parse_seeds
+from _common import child_env, cpu_model, load_average, parse_seeds, sync
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -108,8 +108,7 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     before = compiles()
     w0, c0 = time.perf_counter(), time.process_time()
     _, history = train_policy(demos, cfg, mixed_precision=amp, cuda_graph=graph)
-    if device == "cuda":
-        torch.cuda.synchronize()
+    sync(device)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     return {"ms_per_step": 1000 * wall / steps, "cpu_ms_per_step": 1000 * cpu / steps,
             "steps": steps, "final_loss": history.mean_loss(last=50),

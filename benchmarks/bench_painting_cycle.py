@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import cpu_model, load_average, middle_start, parse_seeds, update_docs_section
+from _common import cpu_model, load_average, middle_start, parse_seeds, sync, update_docs_section
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,8 +73,7 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
     net.cuda_graphs = cuda_graphs
     if warm_up:
         net.sample(net.config.task_names[0], 8, start=middle_start(net), generator=0)
-        if net.device.type == "cuda":
-            torch.cuda.synchronize()
+        sync(net.device)
     human, gamma = WORLDS[world]
     cfg = RunConfig(world=world, human=human, gamma=gamma, cycles=cycles, seed=seed)
     w0 = time.perf_counter()

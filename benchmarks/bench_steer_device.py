@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _common import cpu_model, load_average
+from _common import cpu_model, load_average, sync
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from rapidds.execution.slowdowns import HoldModel, approach_speeds
@@ -83,11 +83,6 @@ def _count_as_on_a_gpu(policy, plan, on_device: bool) -> _OpCount:
     return ops
 
 
-def _sync(device: str) -> None:
-    if device == "cuda":
-        torch.cuda.synchronize()
-
-
 def painting_cell(device: str) -> tuple[PaintingWorld, SpatialModel, DiffusionPolicy]:
     """The painting world, its population prior and its shipped policy on ``device``: what a
     measured steering batch plans with."""
@@ -125,7 +120,7 @@ def measure(device: str, repeat: int) -> dict[str, object]:
         wall, cpu, syncs = [], [], 0
         digest = hashlib.sha256()
         for k in range(repeat):
-            _sync(device)
+            sync(device)
             w0, c0 = time.perf_counter(), time.process_time()
             if device == "cuda" and on_device:
                 torch.cuda.set_sync_debug_mode("warn")
@@ -134,7 +129,7 @@ def measure(device: str, repeat: int) -> dict[str, object]:
                 plans = motion(k).plan(REQUESTS)
             if device == "cuda":
                 torch.cuda.set_sync_debug_mode(0)
-            _sync(device)
+            sync(device)
             wall.append(time.perf_counter() - w0)
             cpu.append(time.process_time() - c0)
             syncs += sum("synchroniz" in str(w.message) for w in caught)

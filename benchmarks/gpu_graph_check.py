@@ -28,10 +28,7 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
+from _common import sync  # noqa: E402
 
 
 def main() -> None:
@@ -97,10 +94,10 @@ def main() -> None:
         times = []
         with torch.inference_mode():
             for _ in range(20):
-                _sync(dev)
+                sync(dev)
                 t0 = time.perf_counter()
                 fn(x, t, cond)
-                _sync(dev)
+                sync(dev)
                 times.append(time.perf_counter() - t0)
         out[f"pass_ms_{name}"] = 1000 * statistics.median(times[5:])
     ok = all(out[k] for k in ("network_equal", "sample_equal", "steer_equal"))

@@ -27,6 +27,8 @@ from torch.profiler import ProfilerActivity, profile
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from _common import sync  # noqa: E402
+
 
 def _table(prof: profile, device: str, top: int) -> tuple[float, list[dict[str, object]]]:
     """(total device ms, the ``top`` kernels or operators by self device time)."""
@@ -56,8 +58,7 @@ def training(device: str, steps: int, top: int) -> dict[str, object]:
     with profile(activities=activities) as prof:
         w0 = time.perf_counter()
         _, history = train_policy(demos, cfg.replace(steps=steps), cuda_graph=False)
-        if device == "cuda":
-            torch.cuda.synchronize()
+        sync(device)
         wall = time.perf_counter() - w0
     busy, kernels = _table(prof, device, top)
     return {"steps": steps, "wall_ms_per_step": 1000 * wall / steps,
@@ -86,8 +87,7 @@ def steering(device: str, graphs: bool, top: int) -> dict[str, object]:
     with profile(activities=activities) as prof:
         w0 = time.perf_counter()
         batch(0)
-        if device == "cuda":
-            torch.cuda.synchronize()
+        sync(device)
         wall = time.perf_counter() - w0
     busy, kernels = _table(prof, device, top)
     return {"graphs": graphs, "wall_ms": 1000 * wall, "device_busy_ms": busy,
