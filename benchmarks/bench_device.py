@@ -61,7 +61,8 @@ def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
                 cudnn_benchmark: bool = False, compiled: bool = False,
-                batch_size: int | None = None) -> dict[str, object]:
+                batch_size: int | None = None, flags: dict[str, object] | None = None
+                ) -> dict[str, object]:
     """ms per optimiser step of the painting policy at its shipped size on ``device``;
     ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU);
     ``cudnn_benchmark``: let cuDNN time its convolution algorithms first (not rapidds's
@@ -70,10 +71,18 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     of what fusing its elementwise work would buy (not a train_policy option: compiling takes
     longer than a short training saves); its compiles are counted, so a timed run that
     compiled again shows; ``batch_size``: another than the shipped 64 (what a batch chosen
-    for the device would cost per step, and its loss after as many steps)."""
+    for the device would cost per step, and its loss after as many steps); ``flags``:
+    ``torch.backends`` settings by dotted name (``{"cudnn.enabled": False}``), a probe of
+    other convolution kernels (``--train-probes``)."""
     import torch
 
     torch.backends.cudnn.benchmark = cudnn_benchmark
+    for name, value in (flags or {}).items():
+        *path, attr = name.split(".")
+        owner = torch.backends
+        for part in path:
+            owner = getattr(owner, part)
+        setattr(owner, attr, value)
 
     from rapidds.cli.motion import _world_demos
     from rapidds.motion import train as train_module
@@ -192,6 +201,29 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
     return out
 
 
+# where a captured step's 10-13 ms go on the H200 (2026-11-28: about 6 ms of kernels, cuDNN
+# choosing FFT convolutions for these length-16 sequences): other kernels for the same step
+PROBES: dict[str, tuple[int | None, dict[str, object]]] = {
+    "train_fp32": (None, {}),
+    "train_fp32_cudnn_off": (None, {"cudnn.enabled": False}),  # ATen's im2col + cuBLAS GEMM
+    "train_fp32_cudnn_deterministic": (None, {"cudnn.deterministic": True}),
+    "train_fp32_tf32_matmul": (None, {"cuda.matmul.allow_tf32": True}),
+    "train_fp32_batch256_cudnn_off": (256, {"cudnn.enabled": False}),
+}
+
+
+def train_probes(steps: int, save: Callable[[dict], None]) -> dict:
+    """The captured training step on cuda with each of :data:`PROBES`' settings, each in a
+    fresh process; a failure is that row's result."""
+    out: dict[str, dict] = {"cuda": {}}
+    for key, (batch, flags) in PROBES.items():
+        out["cuda"][key] = _child("training_on", "cuda", steps, False, None, False, False,
+                                  batch, flags, probe=True)
+        print(key, json.dumps(out["cuda"][key]), flush=True)
+        save(out)
+    return out
+
+
 def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
              policy: str | None = None) -> str:
     rows = []
@@ -248,6 +280,8 @@ def main() -> None:
                     help="on cuda, replay the network's passes and the value's calls from CUDA "
                          "graphs (DiffusionPolicy.cuda_graphs); the records must equal the plain "
                          "run's")
+    ap.add_argument("--train-probes", action="store_true",
+                    help="only the captured training step on cuda with other kernels (PROBES)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--src", type=Path, default=None,
                     help="measure the rapidds of this src directory (an older checkout's: "
@@ -268,6 +302,9 @@ def main() -> None:
             tmp.write_text(json.dumps(res, indent=2) + "\n")
             tmp.replace(args.json)
 
+    if args.train_probes:
+        save(train_probes(args.train_steps, save))
+        return
     res = measure(devices, seeds, args.cycles, args.train_steps, args.policy,
                   args.train_on.split(",") if args.train_on else None, args.cuda_graphs, save)
     print(markdown(res, seeds, args.cycles, load0, args.policy))

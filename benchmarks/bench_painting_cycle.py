@@ -79,7 +79,8 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
     w0 = time.perf_counter()
     run = AdaptiveRun(cfg, net)  # on a GPU the run warms its kernels up here
     out: dict[str, list] = {"wall": [], "cpu": [], "plan": [], "deploy": [], "update": [],
-                            "requests": [], "construct": [time.perf_counter() - w0]}
+                            "requests": [], "realised": [],
+                            "construct": [time.perf_counter() - w0]}
     digest = hashlib.sha256()
     while not run.finished:
         w0, c0 = time.perf_counter(), time.process_time()
@@ -93,6 +94,7 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
         # the steering requests the search made (a cycle's cost is mostly theirs, and runs
         # that differ in float rounding make different ones)
         out["requests"].append(rec.get("search", {}).get("motion_requests"))
+        out["realised"].append(res.record.realised.cost)  # the plan quality a tree's change moves
         digest.update(json.dumps(_strip_timing(rec), sort_keys=True,
                                  default=str).encode())
     replayed = getattr(net, "_replayed", None)

@@ -23,6 +23,12 @@
 #               digests (bench_steer_device.py), about 110 s;
 #   steer-base  the same steering batch of the BASE tree, on cuda, about 60 s;
 #   distilled   the painting cycle with the shipped distilled policy on cpu and cuda, over 100 s;
+#   quality     plan quality on cuda: 8 seeds x 7 cycles of the painting run in one process
+#               (gpu_quality.py), each cycle's realised cost, about 35 s;
+#   quality-base the same for the BASE tree (its belief updated on the host), to pair with
+#               quality (gpu_quality.py report), about 35 s;
+#   probes      the captured training step with other convolution kernels (cuDNN off, cuDNN
+#               deterministic, TF32 matmuls; bench_device.py --train-probes), about 60 s;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
 #               kernels, one pass of each network, also in bf16), about 25 s.
 # A part that fails or runs out of time is logged and the next one still runs; PARTS picks
@@ -34,7 +40,8 @@
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured") unpacking and imports
 # took 28 s. COMMIT: a device's copy of .git can be stale (it was there), so name the commit
 # measured. Results: $OUT/device.json, graph_check.json, graphs.json, base.json, steer.json,
-# profile.json, steer-base.json, distilled.json, cpu_facts.json and gpu_check.log. The GPU's
+# profile.json, steer-base.json, distilled.json, cpu_facts.json, quality.json,
+# quality-base.json, probes.json and gpu_check.log. The GPU's
 # numbers count only beside the CPU's of the same machine in the same run
 # (docs/benchmarks.md); before 2026-11-27's last session, the paper's network's "cpu" runs ran
 # on the GPU (bench_painting_cycle loaded it on "auto").
@@ -49,7 +56,8 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device graph_check graphs base profile steer steer-base distilled cpu_facts}
+PARTS=${PARTS:-device graph_check graphs base profile steer steer-base distilled cpu_facts \
+    quality quality-base probes}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
     case " versions $PARTS " in *" $name "*) ;; *) return 0 ;; esac
@@ -81,5 +89,12 @@ part 150 steer "$PY" benchmarks/bench_steer_device.py --repeat 3 --json "$OUT/st
     benchmarks/bench_steer_device.py --devices cuda --repeat 3 --json "$OUT/steer-base.json"
 part 150 distilled "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
     --policy distilled --json "$OUT/distilled.json"
+part 90 quality "$PY" benchmarks/gpu_quality.py run --device cuda --seeds 0-7 --cycles 7 \
+    --json "$OUT/quality.json"
+[ -n "$BASE_SRC" ] && part 90 quality-base env PYTHONPATH="$BASE_SRC:$PYTHONPATH" "$PY" \
+    benchmarks/gpu_quality.py run --device cuda --seeds 0-7 --cycles 7 \
+    --json "$OUT/quality-base.json"
+part 120 probes "$PY" benchmarks/bench_device.py --train-probes --train-steps 300 \
+    --json "$OUT/probes.json"
 part 90 cpu_facts "$PY" benchmarks/cpu_facts.py --repeats 7 --out "$OUT/cpu_facts.json"
 exit 0
