@@ -2,7 +2,7 @@
 GPU, in one run: the one script a session with a card runs (design notes, section 11).
 
     .venv/bin/python benchmarks/bench_device.py [--seeds 0,1] [--cycles 5] [--train-steps 300]
-        [--devices cpu,cuda] [--policy distilled] [--cuda-graphs] [--json OUT.json]
+        [--devices cpu,cuda] [--policy distilled] [--eager] [--json OUT.json]
 
 Per device, each in a fresh process (a CUDA context or a warmed allocator must not carry over):
 
@@ -21,10 +21,10 @@ Per device, each in a fresh process (a CUDA context or a warmed allocator must n
   steps (``--train-steps 0``: not measured).
 
 ``--policy``: the runs plan with that checkpoint, or one the world ships by name
-(``rapidds run --policy``); training stays the shipped network's. ``--cuda-graphs``: the cuda
-runs replay the network's passes and the steering value's calls from CUDA graphs
-(``DiffusionPolicy.cuda_graphs``); the same kernels on the same inputs, so their records'
-digests must be the plain cuda runs'.
+(``rapidds run --policy``); training stays the shipped network's. On cuda the runs replay the
+network's passes and the steering value's calls from CUDA graphs (``DiffusionPolicy.cuda_graphs``,
+the default since 2026-11-28); ``--eager``: they launch them one by one instead, the same
+kernels on the same inputs, so their records' digests must be the default's.
 
 A GPU's numbers count only beside the CPU's of the same machine in the same run.
 """
@@ -47,12 +47,12 @@ ROOT = HERE.parent
 
 
 def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
-              warm_up: bool = False, threads: int = 1, cuda_graphs: bool = False
+              warm_up: bool = False, threads: int = 1, cuda_graphs: bool | None = None
               ) -> dict[str, object]:
     """One painting run on ``device`` (in this process): per-cycle wall, CPU and plan seconds;
     ``warm_up``: a small batch through the network first; ``threads``: torch's intra-op
-    threads; ``cuda_graphs``: the network's passes and the value's calls replayed from CUDA
-    graphs (bench_painting_cycle.run_seed)."""
+    threads; ``cuda_graphs``: whether the network's passes and the value's calls replay CUDA
+    graphs (None: the policy's default; bench_painting_cycle.run_seed)."""
     from bench_painting_cycle import run_seed
 
     return run_seed(seed, cycles, device=device, policy=policy, warm_up=warm_up,
@@ -143,7 +143,7 @@ def _child(what: str, *args: object, probe: bool = False) -> dict:
 
 def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             policy: str | None = None, train_on: list[str] | None = None,
-            cuda_graphs: bool = False, save: Callable[[dict], None] | None = None) -> dict:
+            eager: bool = False, save: Callable[[dict], None] | None = None) -> dict:
     """Every device's rows; ``save`` is given what is measured so far after each row, so a
     part cut short by its time limit keeps what it had."""
     out: dict[str, dict] = {}
@@ -154,7 +154,7 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             save(out)
 
     for dev in devices:
-        graphs = cuda_graphs and dev == "cuda"
+        graphs = None if not eager or dev != "cuda" else False
         runs = [_child("cycles_on", dev, s, cycles, policy, False, 1, graphs) for s in seeds]
         first = [r["cpu"][0] for r in runs]
         later = [c for r in runs for c in r["cpu"][1:]]
@@ -172,8 +172,10 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             # the run's construction: its prior and, on a GPU, its warm-up (older trees: none)
             "construct_wall": [c for r in runs for c in r.get("construct", [])],
         }
-        if graphs:  # per run: the shapes captured, and why capture failed if it did
+        if any("graphs" in r for r in runs):  # per run: the shapes captured, why one failed
             out[dev]["graphs"] = [r.get("graphs") for r in runs]
+        if graphs is False:
+            out[dev]["eager"] = True
         if save is not None:
             save(out)
         if dev == "cpu":  # a workstation's CPU with more than one core for torch
@@ -245,7 +247,7 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
             warmed += f" (run made in {statistics.median(r['construct_wall']):.2f} s)"
         four = ("" if "later_wall_median_4_threads" not in r else
                 f" ({r['later_wall_median_4_threads']:.2f} wall with 4 threads)")
-        name = dev if "graphs" not in r else f"{dev}, CUDA graphs"
+        name = f"{dev}, eager" if r.get("eager") else dev
         rows.append(f"| {name} | {r['first_cycle_wall']:.2f} / "
                     f"{r['first_cycle_cpu']:.2f}{warmed} | "
                     f"{r['later_wall_median']:.2f} / {r['later_cpu_median']:.2f}{four} | "
@@ -276,10 +278,10 @@ def main() -> None:
                     help="train on these of the devices only (default: all of them)")
     ap.add_argument("--policy", default=None,
                     help="plan with this checkpoint or shipped policy name (distilled)")
-    ap.add_argument("--cuda-graphs", action="store_true",
-                    help="on cuda, replay the network's passes and the value's calls from CUDA "
-                         "graphs (DiffusionPolicy.cuda_graphs); the records must equal the plain "
-                         "run's")
+    ap.add_argument("--eager", action="store_true",
+                    help="on cuda, launch the network's passes and the value's calls one by one "
+                         "instead of replaying CUDA graphs (DiffusionPolicy.cuda_graphs = False); "
+                         "the records must equal the default's")
     ap.add_argument("--train-probes", action="store_true",
                     help="only the captured training step on cuda with other kernels (PROBES)")
     ap.add_argument("--json", type=Path, default=None)
@@ -306,7 +308,7 @@ def main() -> None:
         save(train_probes(args.train_steps, save))
         return
     res = measure(devices, seeds, args.cycles, args.train_steps, args.policy,
-                  args.train_on.split(",") if args.train_on else None, args.cuda_graphs, save)
+                  args.train_on.split(",") if args.train_on else None, args.eager, save)
     print(markdown(res, seeds, args.cycles, load0, args.policy))
     save(res)
 

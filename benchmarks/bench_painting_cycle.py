@@ -45,7 +45,7 @@ WORLDS = {"painting": ("left-slow", 12.0), "fetch": ("slow-middle", None)}
 
 def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting",
              policy: str | None = None, threads: int = 1, warm_up: bool = False,
-             cuda_graphs: bool = False) -> dict[str, object]:
+             cuda_graphs: bool | None = None) -> dict[str, object]:
     """One run in this process on ``device`` (the CPU unless told: this benchmark is the CPU's
     even on a machine with a GPU; bench_device.py measures both): per-cycle wall and CPU
     seconds, the wall parts, the records' digest. ``world``: painting (the issue's config)
@@ -53,9 +53,10 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
     of one the world ships (``rapidds run --policy``); ``threads``: torch's intra-op threads
     (``rapidds run --threads``); ``warm_up``: one small batch through the network on its
     device before the run (how much of a first cycle on a GPU is loading its kernels);
-    ``cuda_graphs``: the network's passes and the steering value's calls replayed from CUDA
-    graphs on a GPU (``DiffusionPolicy.cuda_graphs``; the network's shapes captured and any
-    failure come back as ``graphs``)."""
+    ``cuda_graphs``: whether the network's passes and the steering value's calls replay CUDA
+    graphs on a GPU (``DiffusionPolicy.cuda_graphs``, None: the policy's default, on since
+    2026-11-28; on a GPU the network's shapes captured and any failure come back as
+    ``graphs``)."""
     import torch
 
     from rapidds.loop.config import RunConfig
@@ -70,7 +71,8 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
         if device != "cpu" or policy is not None:
             raise
         net = load_policy(w)
-    net.cuda_graphs = cuda_graphs
+    if cuda_graphs is not None:
+        net.cuda_graphs = cuda_graphs
     if warm_up:
         net.sample(net.config.task_names[0], 8, start=middle_start(net), generator=0)
         sync(net.device)
@@ -98,7 +100,8 @@ def run_seed(seed: int, cycles: int, device: str = "cpu", world: str = "painting
         digest.update(json.dumps(_strip_timing(rec), sort_keys=True,
                                  default=str).encode())
     replayed = getattr(net, "_replayed", None)
-    if cuda_graphs:  # the network's captured shapes, and why a capture failed if one did
+    if getattr(net, "cuda_graphs", False) and net.device.type == "cuda":
+        # the network's captured shapes, and why a capture failed if one did
         out["graphs"] = [0 if replayed is None else len(replayed.graphs),
                          getattr(net, "graph_notes", {})]
     return {**out, "digest": digest.hexdigest()[:16]}

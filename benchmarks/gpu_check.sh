@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Issue 36 on a machine with a CUDA GPU, most important first: about 10 minutes to the end of
-# the profile part, the rest in a second call (PARTS):
+# Issue 36 on a machine with a CUDA GPU, most important first (on the H200 of 2026-11-28 one
+# call's 590 s reached the distilled part; the rest in a second call, PARTS):
 #   device      the painting cycle and painting-policy training on cpu and cuda (bench_device.py:
 #               2 seeds x 5 cycles; 300 training steps, float32 captured, and on cuda also
 #               float32 op by op, with cudnn.benchmark, with the network compiled and at
@@ -8,9 +8,9 @@
 #   graph_check whether replayed CUDA graphs give the eager results bit for bit (the network,
 #               sample, a steering batch's value) and what a replayed pass saves
 #               (gpu_graph_check.py), about 30 s;
-#   graphs      the cuda cycles with the network's passes and the steering value's calls
-#               replayed (bench_device.py --cuda-graphs): their digests must be the device
-#               part's, about 60 s;
+#   eager       the cuda cycles with the network's passes and the steering value's calls
+#               launched one by one, not replayed from CUDA graphs as by default
+#               (bench_device.py --eager): their digests must be the device part's, about 60 s;
 #   base        with BASE (an older checkout's src as a tarball: git archive --format=tar
 #               <commit> src | xz > .dev/base-src.tar.xz), the same cuda cycles of that tree,
 #               the before of this tree's change on the same card in the same run, about 80 s;
@@ -39,7 +39,7 @@
 #         [COMMIT=$(git rev-parse --short HEAD)] benchmarks/gpu_check.sh
 # On the H200 of 2026-11-27 (docs/benchmarks.md, "The GPU measured") unpacking and imports
 # took 28 s. COMMIT: a device's copy of .git can be stale (it was there), so name the commit
-# measured. Results: $OUT/device.json, graph_check.json, graphs.json, base.json, steer.json,
+# measured. Results: $OUT/device.json, graph_check.json, eager.json, base.json, steer.json,
 # profile.json, steer-base.json, distilled.json, cpu_facts.json, quality.json,
 # quality-base.json, probes.json and gpu_check.log. The GPU's
 # numbers count only beside the CPU's of the same machine in the same run
@@ -56,7 +56,7 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device graph_check graphs base profile steer steer-base distilled cpu_facts \
+PARTS=${PARTS:-device graph_check eager base profile steer steer-base distilled cpu_facts \
     quality quality-base probes}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
@@ -79,8 +79,8 @@ diffusers.__version__, 'mujoco', mujoco.__version__)"
 part 330 device "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 300 \
     --train-on "${TRAIN_ON:-cpu,cuda}" --json "$OUT/device.json"
 part 60 graph_check "$PY" benchmarks/gpu_graph_check.py --json "$OUT/graph_check.json"
-part 120 graphs "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
-    --devices cuda --cuda-graphs --json "$OUT/graphs.json"
+part 120 eager "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 --train-steps 0 \
+    --devices cuda --eager --json "$OUT/eager.json"
 [ -n "$BASE_SRC" ] && part 120 base "$PY" benchmarks/bench_device.py --seeds 0,1 --cycles 5 \
     --train-steps 0 --devices cuda --src "$BASE_SRC" --json "$OUT/base.json"
 part 120 profile "$PY" benchmarks/gpu_profile.py --json "$OUT/profile.json"

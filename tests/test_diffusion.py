@@ -205,7 +205,7 @@ def test_a_sampling_pass_is_one_a_cuda_graph_can_capture():
 def test_replayed_passes_off_a_gpu_are_the_networks(trained):
     policy, _ = trained
     ref = policy.sample(["right", "up"] * 4, 8, generator=3)
-    policy.cuda_graphs = True  # only a GPU captures: on the CPU the same passes, eagerly
+    assert policy.cuda_graphs  # the default: only a GPU captures, the CPU runs the passes
     try:
         assert np.array_equal(policy.sample(["right", "up"] * 4, 8, generator=3), ref)
         assert policy.with_sampler("ddpm").cuda_graphs  # a sampler is a run setting, this isn't
@@ -217,8 +217,11 @@ def test_replayed_passes_off_a_gpu_are_the_networks(trained):
         with pytest.raises(ValueError, match="cond"):
             replayed(x, t, cond[:, :-1])
         assert policy.graph_notes == {}
-    finally:
         policy.cuda_graphs = False
+        assert np.array_equal(policy.sample(["right", "up"] * 4, 8, generator=3), ref)
+        assert not policy.with_sampler("ddpm").cuda_graphs
+    finally:
+        policy.cuda_graphs = True
 
 
 def test_policy_denoiser_follows_the_weights(trained):

@@ -80,7 +80,9 @@ class Replayed:
         graph = torch.cuda.CUDAGraph()
         try:
             with torch.cuda.stream(side):
-                graph.capture_begin()
+                # thread_local: another thread's CUDA calls (a server's) neither break this
+                # capture nor fail because of it
+                graph.capture_begin(capture_error_mode="thread_local")
                 try:
                     static_out = self.fn(*inputs)
                 finally:
