@@ -210,6 +210,10 @@ PROBES: dict[str, tuple[int | None, dict[str, object]]] = {
     "train_fp32_cudnn_off": (None, {"cudnn.enabled": False}),  # ATen's im2col + cuBLAS GEMM
     "train_fp32_cudnn_deterministic": (None, {"cudnn.deterministic": True}),
     "train_fp32_tf32_matmul": (None, {"cuda.matmul.allow_tf32": True}),
+    # the painting network is tiny (24-96 channels, length 16): a step is latency, so GEMM
+    # convolutions in TF32 (cuDNN's own default for its convolutions) are the other candidate
+    "train_fp32_cudnn_off_tf32": (None, {"cudnn.enabled": False,
+                                          "cuda.matmul.allow_tf32": True}),
     "train_fp32_batch256_cudnn_off": (256, {"cudnn.enabled": False}),
 }
 

@@ -27,8 +27,11 @@
 #               (gpu_quality.py), each cycle's realised cost, about 35 s;
 #   quality-base the same for the BASE tree (its belief updated on the host), to pair with
 #               quality (gpu_quality.py report), about 35 s;
-#   probes      the captured training step with other convolution kernels (cuDNN off, cuDNN
-#               deterministic, TF32 matmuls; bench_device.py --train-probes), about 60 s;
+#   probes      the captured training step with other convolution kernels (cuDNN off, with
+#               and without TF32, cuDNN deterministic, TF32 matmuls, batch 256 with cuDNN off;
+#               bench_device.py --train-probes), about 70 s: what the training goal needs
+#               next (docs/benchmarks.md, "The GPU measured again"), so PARTS="profile
+#               probes" first in a session with a card;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
 #               kernels, one pass of each network, also in bf16), about 25 s.
 # A part that fails or runs out of time is logged and the next one still runs; PARTS picks
