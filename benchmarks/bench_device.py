@@ -61,8 +61,8 @@ def cycles_on(device: str, seed: int, cycles: int, policy: str | None = None,
 
 def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
                 cudnn_benchmark: bool = False, compiled: bool = False,
-                batch_size: int | None = None, flags: dict[str, object] | None = None
-                ) -> dict[str, object]:
+                batch_size: int | None = None, flags: dict[str, object] | None = None,
+                gemm_convs: bool = False) -> dict[str, object]:
     """ms per optimiser step of the painting policy at its shipped size on ``device``;
     ``graph``: train_policy's cuda_graph (None: its default, a captured step on a GPU);
     ``cudnn_benchmark``: let cuDNN time its convolution algorithms first (not rapidds's
@@ -73,7 +73,10 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     compiled again shows; ``batch_size``: another than the shipped 64 (what a batch chosen
     for the device would cost per step, and its loss after as many steps); ``flags``:
     ``torch.backends`` settings by dotted name (``{"cudnn.enabled": False}``), a probe of
-    other convolution kernels (``--train-probes``)."""
+    other convolution kernels (``--train-probes``); ``gemm_convs``: the network's stride-1
+    convolutions computed as one matrix product over the unfolded input (a probe: a network
+    of 24-96 channels over 16 steps is all latency, and cuDNN picked FFT convolutions for its
+    backward pass, about 0.1 ms a call on the H200)."""
     import torch
 
     torch.backends.cudnn.benchmark = cudnn_benchmark
@@ -89,6 +92,20 @@ def training_on(device: str, steps: int, amp: bool, graph: bool | None = None,
     from rapidds.motion.config import DiffusionConfig
     from rapidds.motion.train import train_policy
 
+    if gemm_convs:  # this process only: every stride-1 Conv1d
+        import torch.nn.functional as F
+
+        plain = torch.nn.Conv1d._conv_forward
+
+        def gemm(self, x, weight, bias):  # type: ignore[no-untyped-def]
+            if self.stride != (1,) or self.dilation != (1,) or self.groups != 1:
+                return plain(self, x, weight, bias)
+            k, pad = weight.shape[-1], self.padding[0]
+            cols = F.pad(x, (pad, pad)).unfold(2, k, 1)  # (B, C, L, k), a view
+            y = torch.einsum("bclk,ock->bol", cols, weight)
+            return y if bias is None else y + bias[:, None]
+
+        torch.nn.Conv1d._conv_forward = gemm  # type: ignore[method-assign]
     if compiled:  # this process only: every network train_policy builds is compiled
         build = train_module.DiffusionPolicy.from_config
 
@@ -205,16 +222,17 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
 
 # where a captured step's 10-13 ms go on the H200 (2026-11-28: about 6 ms of kernels, cuDNN
 # choosing FFT convolutions for these length-16 sequences): other kernels for the same step
-PROBES: dict[str, tuple[int | None, dict[str, object]]] = {
-    "train_fp32": (None, {}),
-    "train_fp32_cudnn_off": (None, {"cudnn.enabled": False}),  # ATen's im2col + cuBLAS GEMM
-    "train_fp32_cudnn_deterministic": (None, {"cudnn.deterministic": True}),
-    "train_fp32_tf32_matmul": (None, {"cuda.matmul.allow_tf32": True}),
-    # the painting network is tiny (24-96 channels, length 16): a step is latency, so GEMM
-    # convolutions in TF32 (cuDNN's own default for its convolutions) are the other candidate
-    "train_fp32_cudnn_off_tf32": (None, {"cudnn.enabled": False,
-                                          "cuda.matmul.allow_tf32": True}),
-    "train_fp32_batch256_cudnn_off": (256, {"cudnn.enabled": False}),
+# (batch size, torch.backends flags, the stride-1 convolutions as matrix products)
+PROBES: dict[str, tuple[int | None, dict[str, object], bool]] = {
+    "train_fp32": (None, {}, False),
+    # the painting network is tiny (24-96 channels, length 16): a step is latency, so one
+    # matrix product per convolution is the candidate, in float32 and in TF32 (cuDNN's own
+    # default for its convolutions)
+    "train_fp32_gemm_convs": (None, {}, True),
+    "train_fp32_gemm_convs_tf32": (None, {"cuda.matmul.allow_tf32": True}, True),
+    "train_fp32_cudnn_off": (None, {"cudnn.enabled": False}, False),  # ATen's own kernels
+    "train_fp32_cudnn_deterministic": (None, {"cudnn.deterministic": True}, False),
+    "train_fp32_tf32_matmul": (None, {"cuda.matmul.allow_tf32": True}, False),
 }
 
 
@@ -222,9 +240,9 @@ def train_probes(steps: int, save: Callable[[dict], None]) -> dict:
     """The captured training step on cuda with each of :data:`PROBES`' settings, each in a
     fresh process; a failure is that row's result."""
     out: dict[str, dict] = {"cuda": {}}
-    for key, (batch, flags) in PROBES.items():
+    for key, (batch, flags, gemm) in PROBES.items():
         out["cuda"][key] = _child("training_on", "cuda", steps, False, None, False, False,
-                                  batch, flags, probe=True)
+                                  batch, flags, gemm, probe=True)
         print(key, json.dumps(out["cuda"][key]), flush=True)
         save(out)
     return out

@@ -27,9 +27,10 @@
 #               (gpu_quality.py), each cycle's realised cost, about 35 s;
 #   quality-base the same for the BASE tree (its belief updated on the host), to pair with
 #               quality (gpu_quality.py report), about 35 s;
-#   probes      the captured training step with other convolution kernels (cuDNN off, with
-#               and without TF32, cuDNN deterministic, TF32 matmuls, batch 256 with cuDNN off;
-#               bench_device.py --train-probes), about 70 s: what the training goal needs
+#   probes      the captured training step with other convolution kernels (each stride-1
+#               convolution one matrix product, in float32 and TF32; cuDNN off; cuDNN
+#               deterministic; TF32 matmuls; bench_device.py --train-probes), about 70 s:
+#               what the training goal needs
 #               next (docs/benchmarks.md, "The GPU measured again"), so PARTS="profile
 #               probes" first in a session with a card;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
