@@ -5,6 +5,7 @@ launches them all at once. The same kernels on the same inputs give the same out
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 
 import torch
@@ -36,7 +37,9 @@ class Replayed:
     capture requires, answers that call. Everything else ``fn`` reads (weights, tables) is
     read where it lay at capture, so it must stay there, unchanged in value unless changed in
     place: wrap a new ``fn`` when it changes. Off a GPU, calls run as they are. When a capture
-    fails, every later call runs as it is and ``note`` says why.
+    fails, every later call runs as it is and ``note`` says why. Calls from several threads
+    take turns: a replay's static inputs are shared, and one thread's copy into them must not
+    land before another's replay has read them (threads on one stream, as PyTorch's default).
     """
 
     def __init__(self, fn: Callable[..., Tensor], capture_at: int = 2, max_graphs: int = 64):
@@ -45,8 +48,13 @@ class Replayed:
         self.seen: dict[Layout, int] = {}
         self.note = ""
         self._side: torch.cuda.Stream | None = None  # where warm-up and capture run
+        self._turn = threading.Lock()
 
     def __call__(self, *args: Tensor) -> Tensor:
+        with self._turn:
+            return self._call(args)
+
+    def _call(self, args: tuple[Tensor, ...]) -> Tensor:
         layout = tuple((a.shape, a.dtype, a.device) for a in args)
         graph = self.graphs.get(layout)
         if graph is not None:
