@@ -12,11 +12,14 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
 
+from rapidds.execution.slowdowns import HoldModel
+from rapidds.human.slowdowns import SlowdownBelief
 from rapidds.human.spatial import SpatialConfig, SpatialModel
 from rapidds.loop.model import device_terms, host_terms, workspace_cost
 from rapidds.loop.run import load_policy
 from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 from rapidds.motion.steering import TensorValue
+from rapidds.worlds.base import World
 from rapidds.worlds.painting import PaintingWorld
 
 
@@ -35,11 +38,33 @@ def paths(world: PaintingWorld) -> np.ndarray:
     return np.concatenate([demos, noisy, wild])
 
 
-@pytest.fixture(scope="module")
-def spatial(world: PaintingWorld) -> SpatialModel:
+def _population_spatial(world: World) -> SpatialModel:
     lo, hi = world.workspace_bounds
     cfg = SpatialConfig.from_box(lo, hi, beta=world.spatial_beta, grid_points=world.spatial_grid)
     return SpatialModel.from_population(cfg, world.prior().paths)
+
+
+@pytest.fixture(scope="module")
+def spatial(world: PaintingWorld) -> SpatialModel:
+    return _population_spatial(world)
+
+
+def _holds(world: PaintingWorld, spatial: SpatialModel,
+           belief: SlowdownBelief | None = None) -> HoldModel:
+    """The painting cell monitor's predicted hold, at the cell's reaction limits."""
+    from rapidds.execution.slowdowns import approach_speeds
+    from rapidds.worlds.reactions import cell_reactions
+
+    limits = cell_reactions(world)[1]
+    return HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits), belief)
+
+
+def _device_value(world: World, spatial: SpatialModel, holds: HoldModel | None = None
+                  ) -> ValueTerms:
+    """The value on the device, with ``holds``' predicted hold when given."""
+    return ValueTerms(device_terms=device_terms(world, spatial), on_device=True,
+                      hold=None if holds is None else holds.hold,
+                      device_hold=None if holds is None else holds.tensor_hold)
 
 
 def test_tensor_terms_equal_the_worlds_numpy_terms(world: PaintingWorld, paths) -> None:
@@ -198,17 +223,12 @@ def test_the_monitors_predicted_hold_scores_on_the_device_as_on_the_host(world, 
     operations, from the value's own points and completion times, gives the numpy hold's
     seconds, so a GPU steers a monitored plan without leaving the device; in float32 too,
     to its rounding. A value with the hold is then a tensor value."""
-    from rapidds.execution.slowdowns import HoldModel, approach_speeds
-    from rapidds.human.slowdowns import SlowdownBelief
-    from rapidds.worlds.reactions import cell_reactions
-
-    limits = cell_reactions(world)[1]
     belief = SlowdownBelief(0.8, 0.2)
     # learned corrections that differ by pair: one person's task beside two robot tasks
     assert belief.observe("mix_l", "secure_piece", 2.0, 0.5)
     assert belief.observe("mix_r", "secure_piece", 2.0, 3.0)
     assert belief.factor("mix_l", "secure_piece") < belief.factor("mix_r", "secure_piece")
-    model = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits), belief)
+    model = _holds(world, spatial, belief)
     terms = world.tensor_terms("cpu")
     near = ["secure_piece", "prep_vise"]
     for task in ("mix_l", "mix_r", "brush"):
@@ -264,19 +284,13 @@ def test_a_diverged_policy_stops_the_device_path_cleanly(world, spatial, monkeyp
     import copy
 
     from rapidds.errors import CheckpointError
-    from rapidds.execution.slowdowns import HoldModel, approach_speeds
     from rapidds.human.spatial import grid
-    from rapidds.worlds.reactions import cell_reactions
 
     broken = copy.deepcopy(load_policy(world, device="cpu"))
     with torch.no_grad():
         next(iter(broken.model.parameters())).fill_(float("nan"))
     monkeypatch.setattr(grid, "reads_back", lambda t: False)
-    limits = cell_reactions(world)[1]
-    holds = HoldModel(world, spatial, limits, approach_speeds(world, spatial, limits))
-    terms = ValueTerms(device_terms=device_terms(world, spatial), on_device=True,
-                       hold=holds.hold if held else None,
-                       device_hold=holds.tensor_hold if held else None)
+    terms = _device_value(world, spatial, _holds(world, spatial) if held else None)
     motion = DiffusionMotion(broken, world.completion_time, workspace_cost(world, spatial), 12.0,
                              SteeringConfig(particles=2, candidates=2, steps=2), terms=terms)
     assert isinstance(motion.value([("mix_l", frozenset({"secure_piece"}))]), TensorValue)
@@ -310,24 +324,15 @@ def test_the_device_value_is_one_a_cuda_graph_can_capture(world, spatial, which)
     w, sp, hold = world, spatial, None
     if which == "fetch":
         w = FetchWorld()
-        lo, hi = w.workspace_bounds
-        sp = SpatialModel.from_population(SpatialConfig.from_box(
-            lo, hi, beta=w.spatial_beta, grid_points=w.spatial_grid), w.prior().paths)
+        sp = _population_spatial(w)
     elif which == "painting + hold":
-        from rapidds.execution.slowdowns import HoldModel, approach_speeds
-        from rapidds.worlds.reactions import cell_reactions
-
-        limits = cell_reactions(w)[1]
-        hold = HoldModel(w, sp, limits, approach_speeds(w, sp, limits))
+        hold = _holds(w, sp)
     tasks = [t.id for t in w.problem().tasks if t.can("robot")]
     people = [t.id for t in w.problem().tasks if t.can("human")]
     requests = [(tasks[0], frozenset(people[:1])), (tasks[-1], frozenset()),
                 (tasks[1 % len(tasks)], frozenset(people[:2]))]
     m = DiffusionMotion(load_policy(w, device="cpu"), w.completion_time, workspace_cost(w, sp),
-                        12.0, terms=ValueTerms(device_terms=device_terms(w, sp),
-                                               hold=None if hold is None else hold.hold,
-                                               device_hold=None if hold is None
-                                               else hold.tensor_hold, on_device=True))
+                        12.0, terms=_device_value(w, sp, hold))
     terms = m.device_terms(torch.device("meta"))
     cfg = m.policy.config
     shape = (len(requests) * 6, cfg.horizon, cfg.state_dim)
