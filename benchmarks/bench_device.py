@@ -171,7 +171,7 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
             save(out)
 
     for dev in devices:
-        graphs = None if not eager or dev != "cuda" else False
+        graphs = False if eager and dev == "cuda" else None  # None: the policy's default
         runs = [_child("cycles_on", dev, s, cycles, policy, False, 1, graphs) for s in seeds]
         first = [r["cpu"][0] for r in runs]
         later = [c for r in runs for c in r["cpu"][1:]]
@@ -220,7 +220,7 @@ def measure(devices: list[str], seeds: list[int], cycles: int, steps: int,
     return out
 
 
-# where a captured step's 10-13 ms go on the H200 (2026-11-28: about 6 ms of kernels, cuDNN
+# where a captured step's 10-16 ms go on the H200 (2026-11-28: 6-13 ms of kernels, cuDNN
 # choosing FFT convolutions for these length-16 sequences): other kernels for the same step
 # (batch size, torch.backends flags, the stride-1 convolutions as matrix products)
 PROBES: dict[str, tuple[int | None, dict[str, object], bool]] = {
@@ -257,7 +257,7 @@ def markdown(res: dict, seeds: list[int], cycles: int, load0: str,
         for key, label in (("train_fp32_eager", "fp32 eager"),
                            ("train_fp32_cudnn_benchmark", "fp32 cudnn.benchmark"),
                            ("train_fp32_compiled", "fp32 compiled"),
-                           ("train_fp32_batch256", "fp32 batch 256"), ("train_bf16", "bf16")):
+                           ("train_fp32_batch256", "fp32 batch 256")):
             if key in r and "error" in r[key]:
                 train += f"; {label} failed: {r[key]['error']}"
             elif key in r:

@@ -94,6 +94,19 @@ def painting_cell(device: str) -> tuple[PaintingWorld, SpatialModel, DiffusionPo
     return world, spatial, load_policy(world, device=device)
 
 
+def steering_motion(world: PaintingWorld, spatial: SpatialModel, policy: DiffusionPolicy,
+                    seed: int, on_device: bool = True, holds: HoldModel | None = None
+                    ) -> DiffusionMotion:
+    """The steering a cycle of the painting cell runs (gamma 12, the default search), its
+    value on the device or the host, with ``holds``' predicted hold when given."""
+    return DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 12.0,
+                           SteeringConfig(seed=seed),
+                           terms=ValueTerms(device_terms=device_terms(world, spatial),
+                                            hold=None if holds is None else holds.hold,
+                                            device_hold=None if holds is None
+                                            else holds.tensor_hold, on_device=on_device))
+
+
 def measure(device: str, repeat: int) -> dict[str, object]:
     torch.set_num_threads(1)
     world, spatial, policy = painting_cell(device)
@@ -108,13 +121,7 @@ def measure(device: str, repeat: int) -> dict[str, object]:
     for label, on_device, held, graphs in rows:
         policy.cuda_graphs, policy.graph_notes = graphs, {}
         def motion(seed: int, on: bool = on_device, held: bool = held) -> DiffusionMotion:
-            return DiffusionMotion(policy, world.completion_time,
-                                   workspace_cost(world, spatial), 12.0,
-                                   SteeringConfig(seed=seed),
-                                   terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                                    hold=holds.hold if held else None,
-                                                    device_hold=holds.tensor_hold if held
-                                                    else None, on_device=on))
+            return steering_motion(world, spatial, policy, seed, on, holds if held else None)
 
         motion(99).plan(REQUESTS)  # warm-up: kernels, caches, tensor terms
         wall, cpu, syncs = [], [], 0

@@ -30,9 +30,8 @@
 #   probes      the captured training step with other convolution kernels (each stride-1
 #               convolution one matrix product, in float32 and TF32; cuDNN off; cuDNN
 #               deterministic; TF32 matmuls; bench_device.py --train-probes), about 70 s:
-#               what the training goal needs
-#               next (docs/benchmarks.md, "The GPU measured again"), so PARTS="profile
-#               probes" first in a session with a card;
+#               what the training goal needs next (docs/benchmarks.md, "The GPU measured
+#               again"), so PARTS="profile probes" first in a session with a card;
 #   cpu_facts   the CPU's facts (cpu_facts.py: vector units, torch's and oneDNN's settings and
 #               kernels, one pass of each network, also in bf16), about 25 s.
 # A part that fails or runs out of time is logged and the next one still runs; PARTS picks
@@ -60,8 +59,8 @@ if [ -n "${PAYLOAD:-}" ]; then
     export PYTHONPATH="/tmp/rapidds-site${PYTHONPATH:+:$PYTHONPATH}"
 fi
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
-PARTS=${PARTS:-device graph_check eager base profile steer steer-base distilled cpu_facts \
-    quality quality-base probes}
+PARTS=${PARTS:-device graph_check eager base profile steer steer-base distilled quality \
+    quality-base probes cpu_facts}
 part() {  # part SECONDS NAME COMMAND...: run, log, and go on whatever its exit status
     local limit=$1 name=$2; shift 2
     case " versions $PARTS " in *" $name "*) ;; *) return 0 ;; esac

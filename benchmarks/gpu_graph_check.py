@@ -1,6 +1,6 @@
 """Whether replaying CUDA graphs (``DiffusionPolicy.cuda_graphs``) gives the eager results,
-bit for bit, and what a replay saves: the first part of ``gpu_check.sh``'s ``graphs`` part,
-so that a card's few minutes say at once where capture breaks, if it does.
+bit for bit, and what a replay saves: ``gpu_check.sh``'s ``graph_check`` part, so that a
+card's few minutes say at once where capture breaks, if it does.
 
     python benchmarks/gpu_graph_check.py [--device cuda] [--json OUT]
 
@@ -38,11 +38,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
 
-    from bench_steer_device import REQUESTS, painting_cell
+    from bench_steer_device import REQUESTS, painting_cell, steering_motion
 
-    from rapidds.loop.model import device_terms, workspace_cost
     from rapidds.motion.cuda_graphs import Replayed
-    from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
 
     world, spatial, policy = painting_cell(args.device)
     dev = policy.device
@@ -75,11 +73,7 @@ def main() -> None:
 
     def steer(graphs: bool) -> list[np.ndarray]:
         policy.cuda_graphs = graphs
-        motion = DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial),
-                                 12.0, SteeringConfig(seed=5),
-                                 terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                                  on_device=True))
-        plans = motion.plan(REQUESTS[:3])
+        plans = steering_motion(world, spatial, policy, 5).plan(REQUESTS[:3])
         return [np.append(p.trajectory.ravel(), p.duration) for p in plans]
 
     plain, graphed = steer(False), steer(True)

@@ -3,9 +3,9 @@ painting steering batch, by device time (``torch.profiler``), beside the wall ti
 
     .venv/bin/python benchmarks/gpu_profile.py [--device cuda] [--steps 20] [--top 15] [--json OUT]
 
-Part of ``gpu_check.sh``. On the H200 a captured training step took 9.6-13.4 ms for about 400
-kernels (docs/benchmarks.md, "The GPU measured"), far above what its arithmetic needs, and a
-steering batch was bound by the host launching its kernels. This says which: the device's
+Part of ``gpu_check.sh``. On the H200 a captured training step took 9.6-16.2 ms for a few
+hundred kernels (docs/benchmarks.md, "The GPU measured"), far above what its arithmetic needs,
+and a steering batch was bound by the host launching its kernels. This says which: the device's
 busy time per step against the wall time, and the kernels (or, on the CPU, the operators)
 that take it, so the next change aims at the right one. Training is profiled op by op (a
 captured graph hides its kernels from some profilers), after 20 warm-up steps; the steering
@@ -74,19 +74,13 @@ def training(device: str, steps: int, top: int) -> dict[str, object]:
 
 
 def steering(device: str, graphs: bool, top: int) -> dict[str, object]:
-    from bench_steer_device import REQUESTS, painting_cell
-
-    from rapidds.loop.model import device_terms, workspace_cost
-    from rapidds.motion.diffusion_motion import DiffusionMotion, SteeringConfig, ValueTerms
+    from bench_steer_device import REQUESTS, painting_cell, steering_motion
 
     world, spatial, policy = painting_cell(device)
     policy.cuda_graphs = graphs
 
     def batch(seed: int) -> None:
-        DiffusionMotion(policy, world.completion_time, workspace_cost(world, spatial), 12.0,
-                        SteeringConfig(seed=seed),
-                        terms=ValueTerms(device_terms=device_terms(world, spatial),
-                                         on_device=True)).plan(REQUESTS)
+        steering_motion(world, spatial, policy, seed).plan(REQUESTS)
 
     batch(98)  # kernels, caches, the network's graphs
     batch(99)
