@@ -437,8 +437,8 @@ class AdaptiveRun:
         self._check_current(plan)
         t0 = time.perf_counter()
         learn_time, learn_space = LEARNS[self.config.adapt]
-        # on a GPU the belief's update finds its distances there too (the same bits), since
-        # the host is what a cycle there waits for
+        # on a GPU the belief's update finds its distances there too (numpy's operations in
+        # numpy's order), since the host is what a cycle there waits for
         device = None if self.policy.device.type == "cpu" else self.policy.device
         plan.slowed = self.context.slowdowns.observe(  # before the path belief moves
             self._spatial(), plan.best.motions, deployment, self.model.slowdowns)

@@ -144,7 +144,8 @@ class SpatialCostModel:
 
         At every grid point s_obs = point_cost(x, traj);
         1/var' = 1/var + 1/rho and mean' = var' (mean/var + s_obs/rho). Marks the MLP stale.
-        ``device``: where point_cost finds its distances (the same bits; None: the host).
+        ``device``: where point_cost finds its distances (numpy's operations in numpy's order;
+        None: the host).
         """
         obs = point_cost(self._grid, check_path(traj, "trajectory", self.config.dim),
                          self.config.beta, polyline=self.config.polyline, device=device)

@@ -79,7 +79,8 @@ class SpatialModel:
     def observe(self, task_id: str, traj: ArrayLike,
                 device: str | torch.device | None = None) -> None:
         """Update task ``task_id`` with one observed path (T, d) or (T, K, d) of this person;
-        ``device``: where the update's distances are found (the same bits; None: the host)."""
+        ``device``: where the update's distances are found (numpy's operations in numpy's
+        order; None: the host)."""
         self[task_id].observe(traj, device)
 
     def refit(self, tasks: Iterable[str] | None = None) -> dict[str, FitReport]:

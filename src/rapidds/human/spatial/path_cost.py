@@ -1,7 +1,8 @@
 """Eq. 7 of the paper: the point cost of robot points against one observed human path,
 s(x, xi_h) = max over the path of exp(-beta ||x_h - x||), exactly, in numpy, or with its
-distances found on a device to the same bits (the population prior and every observation of
-:class:`~rapidds.human.spatial.grid.SpatialCostModel` evaluate it at all grid points)."""
+distances found on a device with numpy's operations in numpy's order (the population prior
+and every observation of :class:`~rapidds.human.spatial.grid.SpatialCostModel` evaluate it at
+all grid points)."""
 
 from __future__ import annotations
 
@@ -68,8 +69,9 @@ def point_cost(
             as Eq. 7 is printed, which leaves dips between samples spaced wider than ~1/beta.
         device: find the nearest distances with tensor operations there (a GPU, where a
             run's policy is: there the host is what a cycle waits for) and copy them back once;
-            the same operations in the same order, each exactly rounded in float64, so the same
-            bits as numpy's. None: numpy on the host.
+            the same operations in the same order, each exactly rounded in float64, so numpy's
+            bits (tested with tensors on the CPU; not yet compared on a GPU). None: numpy on the
+            host.
 
     Returns:
         (V,) float64 costs in (0, 1]. The exponential is monotone, so this is
